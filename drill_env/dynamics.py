@@ -1,0 +1,229 @@
+"""Compiled right-hand side of the rig in each friction mode, and the switching rules.
+
+Pure functions of (time, state, input voltage, parameter vector, modes); layouts in
+:mod:`drill_env._layout`. Each disk is in one of three modes: slipping forward (+1),
+slipping backward (-1) or stuck (0). In a slip mode the friction is the smooth slip
+branch of eq. (12)/(14) for that direction; a stuck disk has speed exactly 0 and its
+friction is whatever holds its torque balance. So within a mode the vector field is
+smooth and the integrator sees no discontinuity; switching is the event logic's job.
+
+Model (eq. 10 with the optional effects of :class:`drill_env.params.ModelEffects`)::
+
+    x1' = x2 - x3
+    Ju x2' = Tm - T_string - T_fu(x2)              T_string = k_theta x1 + b_theta (x2 - x3)
+    Jl x3' = T_string + T_dist(t) - T_fl(x3)
+    theta_l' = x3
+    tau_m Tm' = km u - Tm        (Tm = km u when tau_m = 0)
+    tau_f w' = |x3| - w          (w = |x3| when tau_f = 0: no friction memory)
+
+Each slip branch is written as an analytic function (|x3| as mode*x3) so that it
+extends smoothly past its own zero crossing; see :func:`hump`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+
+from drill_env import _layout as L
+
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+# Small helpers are inlined into the right-hand side: it is the innermost loop.
+_INLINE = dict(_JIT, inline="always")
+
+
+@nb.njit(**_INLINE)
+def n_active(p):
+    """Number of leading state components that evolve: 4, or 6 with motor lag/friction memory."""
+    if p[L.TAU_M] > 0.0 or p[L.TAU_F] > 0.0:
+        return L.NY
+    return 4
+
+
+@nb.njit(**_INLINE)
+def upper_scale(p, theta_u):
+    """Position modulation of the upper static friction (1 when the effect is off)."""
+    if p[L.POSU_A1] == 0.0 and p[L.POSU_A2] == 0.0:
+        return 1.0
+    return (
+        1.0
+        + p[L.POSU_A1] * math.cos(theta_u + p[L.POSU_P1])
+        + p[L.POSU_A2] * math.cos(2.0 * theta_u + p[L.POSU_P2])
+    )
+
+
+@nb.njit(**_INLINE)
+def lower_scale(p, t, theta_l):
+    """Position and drift modulation of the lower static + Stribeck friction."""
+    s = 1.0
+    if p[L.POSL_A1] != 0.0 or p[L.POSL_A2] != 0.0:
+        s = (
+            1.0
+            + p[L.POSL_A1] * math.cos(theta_l + p[L.POSL_P1])
+            + p[L.POSL_A2] * math.cos(2.0 * theta_l + p[L.POSL_P2])
+        )
+    if p[L.DRIFT] != 0.0:
+        s *= 1.0 + p[L.DRIFT] * t
+    return s
+
+
+@nb.njit(**_INLINE)
+def hump(p, w):
+    """Stribeck/hump part of eq. (14): T1 tanh(b1 w/2) + T2 tanh(b2 w/2), for w = |x3| >= 0.
+
+    Called with ``w = mode * x3``: on its own branch that is |x3|, and a step that
+    overshoots the zero crossing (before the event is located) sees the analytic
+    continuation of the branch instead of the kink of |x3|, so the error control of
+    the integrator is not upset by it.
+    """
+    return p[L.T1] * math.tanh(0.5 * p[L.BETA1] * w) + p[L.T2] * math.tanh(0.5 * p[L.BETA2] * w)
+
+
+@nb.njit(**_INLINE)
+def motor_torque(p, y, u):
+    if p[L.TAU_M] > 0.0:
+        return y[L.TM]
+    return p[L.KM] * u
+
+
+@nb.njit(**_INLINE)
+def string_torque(p, y):
+    return p[L.KTH] * y[L.X1] + p[L.BTH] * (y[L.X2] - y[L.X3])
+
+
+@nb.njit(**_INLINE)
+def disturbance(p, t):
+    if p[L.DIST_A] == 0.0:
+        return 0.0
+    return p[L.DIST_A] * math.sin(p[L.DIST_W] * t + p[L.DIST_P])
+
+
+@nb.njit(**_INLINE)
+def memory_speed(p, y, mode):
+    """Speed at which the Stribeck part is evaluated on branch ``mode``: mode*x3 = |x3|,
+    or its lagged value when friction has memory."""
+    if p[L.TAU_F] > 0.0:
+        return y[L.WL]
+    return mode * y[L.X3]
+
+
+@nb.njit(**_INLINE)
+def upper_friction(p, y, mode):
+    """Upper slip friction, eq. (12), on the branch ``mode`` (+1/-1)."""
+    su = upper_scale(p, y[L.X1] + y[L.THL])
+    if mode > 0:
+        return su * p[L.TSUP] + p[L.BUP] * y[L.X2]
+    return -su * p[L.TSUN] + p[L.BUN] * y[L.X2]
+
+
+@nb.njit(**_INLINE)
+def lower_friction(p, t, y, mode):
+    """Lower slip friction, eq. (14), on the branch ``mode`` (+1/-1)."""
+    sl = lower_scale(p, t, y[L.THL])
+    return mode * sl * (p[L.TSL] + hump(p, memory_speed(p, y, mode))) + p[L.BL] * y[L.X3]
+
+
+@nb.njit(**_JIT)
+def rhs(t, y, u, p, mode_u, mode_l, dy):
+    """Vector field of the rig in modes (mode_u, mode_l); writes into ``dy``."""
+    if p[L.ANY_EFFECT] == 0.0:
+        _rhs_paper(y, u, p, mode_u, mode_l, dy)
+        return
+    ts = string_torque(p, y)
+    dy[L.X1] = y[L.X2] - y[L.X3]
+    if mode_u == 0:
+        dy[L.X2] = 0.0
+    else:
+        dy[L.X2] = (motor_torque(p, y, u) - ts - upper_friction(p, y, mode_u)) / p[L.JU]
+    if mode_l == 0:
+        dy[L.X3] = 0.0
+    else:
+        dy[L.X3] = (ts + disturbance(p, t) - lower_friction(p, t, y, mode_l)) / p[L.JL]
+    dy[L.THL] = y[L.X3]
+    if p[L.TAU_M] > 0.0:
+        dy[L.TM] = (p[L.KM] * u - y[L.TM]) / p[L.TAU_M]
+    else:
+        dy[L.TM] = 0.0
+    if p[L.TAU_F] > 0.0:
+        dy[L.WL] = (mode_l * y[L.X3] - y[L.WL]) / p[L.TAU_F]  # mode_l * x3 = |x3| on the branch
+    else:
+        dy[L.WL] = 0.0
+
+
+@nb.njit(**_INLINE)
+def _rhs_paper(y, u, p, mode_u, mode_l, dy):
+    """Eq. (36) exactly, without the optional effects: the hot path."""
+    ts = p[L.KTH] * y[L.X1]
+    dy[L.X1] = y[L.X2] - y[L.X3]
+    if mode_u == 0:
+        dy[L.X2] = 0.0
+    elif mode_u > 0:
+        dy[L.X2] = (p[L.KM] * u - ts - p[L.TSUP] - p[L.BUP] * y[L.X2]) / p[L.JU]
+    else:
+        dy[L.X2] = (p[L.KM] * u - ts + p[L.TSUN] - p[L.BUN] * y[L.X2]) / p[L.JU]
+    if mode_l == 0:
+        dy[L.X3] = 0.0
+    else:
+        w = mode_l * y[L.X3]
+        dy[L.X3] = (ts - mode_l * (p[L.TSL] + hump(p, w)) - p[L.BL] * y[L.X3]) / p[L.JL]
+    dy[L.THL] = y[L.X3]
+    dy[L.TM] = 0.0
+    dy[L.WL] = 0.0
+
+
+# -- switching: required torques and static bands ------------------------------------------
+
+
+@nb.njit(**_JIT)
+def upper_required(p, y, u):
+    """Friction torque that holds the upper disk at zero speed."""
+    return motor_torque(p, y, u) - (p[L.KTH] * y[L.X1] - p[L.BTH] * y[L.X3])
+
+
+@nb.njit(**_JIT)
+def lower_required(p, t, y):
+    """Friction torque that holds the lower disk at zero speed."""
+    return p[L.KTH] * y[L.X1] + p[L.BTH] * y[L.X2] + disturbance(p, t)
+
+
+@nb.njit(**_JIT)
+def upper_band(p, y):
+    """(low, high) of the upper static band, [-T_sun, T_sup] scaled by position."""
+    su = upper_scale(p, y[L.X1] + y[L.THL])
+    return -su * p[L.TSUN], su * p[L.TSUP]
+
+
+@nb.njit(**_JIT)
+def lower_band_half(p, t, y):
+    """Half-width of the lower static band, T_sl (scaled; widened by friction memory)."""
+    sl = lower_scale(p, t, y[L.THL])
+    if p[L.TAU_F] > 0.0:
+        # With memory the slip friction at zero speed is T_sl + S(w); the disk can only
+        # break away once the load exceeds it, so the band covers it when S(w) > 0.
+        return sl * (p[L.TSL] + max(hump(p, y[L.WL]), 0.0))
+    return sl * p[L.TSL]
+
+
+@nb.njit(**_JIT)
+def decide_upper(p, y, u):
+    """Mode of the upper disk at zero speed: stick if the load fits in the band (closed)."""
+    need = upper_required(p, y, u)
+    lo, hi = upper_band(p, y)
+    if need > hi:
+        return 1
+    if need < lo:
+        return -1
+    return 0
+
+
+@nb.njit(**_JIT)
+def decide_lower(p, t, y):
+    """Mode of the lower disk at zero speed: stick if the load fits in the band (closed)."""
+    need = lower_required(p, t, y)
+    half = lower_band_half(p, t, y)
+    if need > half:
+        return 1
+    if need < -half:
+        return -1
+    return 0

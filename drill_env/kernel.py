@@ -1,0 +1,425 @@
+"""The event-driven integrator of the nonsmooth rig, compiled.
+
+One call integrates one rig over a list of input segments (constant voltage within a
+segment: a zero-order hold) or with a compiled function of time as input, sampling
+the solution on a given time grid from the dense output.
+
+Switching events, each located by root-finding on the dense output of the step in
+which its indicator changes sign:
+
+* a slipping disk reaches zero speed: it sticks if the torque that would hold it lies
+  in its (closed) static band, otherwise it keeps or reverses its direction;
+* the torque that holds a stuck disk leaves the band: it slips towards that side.
+
+The two disks decouple at zero speed (a stuck disk's acceleration is zero), so each
+disk's decision needs only the state, never the other disk's friction.
+
+Status codes are listed in :data:`STATUS_MESSAGES`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from drill_env import _layout as L
+from drill_env.dynamics import (
+    decide_lower,
+    decide_upper,
+    lower_band_half,
+    lower_required,
+    rhs,
+    upper_band,
+    upper_required,
+)
+from drill_env.integrator import (
+    ERR_MASK,
+    INTERP,
+    N_EXT,
+    ORDER_EXP,
+    dense_eval,
+    input_at,
+    prepare_dense,
+    step,
+)
+
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+
+STATUS_MESSAGES = {
+    0: "The end of the integration interval was reached.",
+    1: "The maximum number of steps was reached before the end.",
+    2: "The step size fell below its minimum (the vector field may be non-finite).",
+    3: "Switching events repeated at one instant (chattering); integration stopped.",
+    4: "The input voltage function returned a non-finite value.",
+}
+
+# Slots of the stats vector returned by the kernels.
+ST_STEPS, ST_REJECTED, ST_RHS, ST_EVENTS, ST_STATUS, ST_H, ST_T, ST_LOGGED = range(8)
+N_STATS = 8
+
+EVENT_TIME_TOL = 1e-12  # [s] width of the bracket that locates an event
+SIMULTANEOUS_TOL = 1e-10  # [s] events closer than this are handled at one instant
+MAX_EVENTS_AT_ONE_INSTANT = 12
+H_MIN = 1e-12  # [s]
+H_MAX = 1.0  # [s]
+
+
+@nb.njit(cache=True, nogil=True)
+def _no_input(t):
+    return 0.0
+
+
+@nb.njit(**_JIT)
+def _sign_mode(v):
+    if v > 0.0:
+        return 1
+    if v < 0.0:
+        return -1
+    return 0
+
+
+@nb.njit(**_JIT)
+def _violation_upper(p, y, u, mu):
+    """<= 0 while the upper disk's mode holds, > 0 once it must switch."""
+    if mu != 0:
+        return -mu * y[L.X2]
+    need = upper_required(p, y, u)
+    lo, hi = upper_band(p, y)
+    return max(need - hi, lo - need)
+
+
+@nb.njit(**_JIT)
+def _violation_lower(p, t, y, ml):
+    if ml != 0:
+        return -ml * y[L.X3]
+    need = lower_required(p, t, y)
+    half = lower_band_half(p, t, y)
+    return max(need - half, -half - need)
+
+
+@nb.njit(**_JIT)
+def _violation(disk, p, t, y, u, mu, ml):
+    if disk == 0:
+        return _violation_upper(p, y, u, mu)
+    return _violation_lower(p, t, y, ml)
+
+
+@nb.njit(**_JIT)
+def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp):
+    """Fraction of the step at which ``disk``'s violation first becomes >= 0 (Illinois)."""
+    a = 0.0
+    b = 1.0
+    ga = _violation(disk, p, t, y, input_at(t, u_seg, u_func, use_func, u_limit), mu, ml)
+    dense_eval(1.0, y, F, ytmp)
+    gb = _violation(disk, p, t + h, ytmp, input_at(t + h, u_seg, u_func, use_func, u_limit), mu, ml)
+    if ga >= 0.0:
+        return 0.0
+    side = 0
+    for _ in range(200):
+        if (b - a) * abs(h) <= EVENT_TIME_TOL:
+            break
+        c = (a * gb - b * ga) / (gb - ga)
+        if not (a < c < b) or (c - a) * abs(h) < 0.25 * EVENT_TIME_TOL or (b - c) * abs(h) < 0.25 * EVENT_TIME_TOL:
+            c = 0.5 * (a + b)
+        dense_eval(c, y, F, ytmp)
+        tc = t + c * h
+        gc = _violation(disk, p, tc, ytmp, input_at(tc, u_seg, u_func, use_func, u_limit), mu, ml)
+        if gc >= 0.0:
+            b = c
+            gb = gc
+            if side == -1:
+                ga *= 0.5
+            side = -1
+        else:
+            a = c
+            ga = gc
+            if side == 1:
+                gb *= 0.5
+            side = 1
+    return b
+
+
+@nb.njit(**_JIT)
+def _initial_step(t, y, f0, us, u_func, use_func, u_limit, p, mu, ml, rtol, atol, h_max, ytmp, f1):
+    """Starting step after a restart, from the sizes of y, f and f' (Hairer's rule)."""
+    d0 = 0.0
+    d1 = 0.0
+    m = 0.0
+    for j in range(L.NY):
+        if ERR_MASK[j] == 0.0:
+            continue
+        sc = atol + rtol * abs(y[j])
+        d0 += (y[j] / sc) ** 2
+        d1 += (f0[j] / sc) ** 2
+        m += 1.0
+    d0 = math.sqrt(d0 / m)
+    d1 = math.sqrt(d1 / m)
+    h0 = 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1
+    h0 = min(h0, h_max)
+    for j in range(L.NY):
+        ytmp[j] = y[j] + h0 * f0[j]
+    t1 = t + h0
+    rhs(t1, ytmp, input_at(t1, us, u_func, use_func, u_limit), p, mu, ml, f1)
+    d2 = 0.0
+    for j in range(L.NY):
+        if ERR_MASK[j] == 0.0:
+            continue
+        sc = atol + rtol * abs(y[j])
+        d2 += ((f1[j] - f0[j]) / sc) ** 2
+    d2 = math.sqrt(d2 / m) / h0
+    if d1 <= 1e-15 and d2 <= 1e-15:
+        h1 = max(1e-6, h0 * 1e-3)
+    else:
+        h1 = (0.01 / max(d1, d2)) ** ORDER_EXP
+    return min(100.0 * h0, h1, h_max)
+
+
+@nb.njit(**_JIT)
+def _log_event(t, disk, old, new, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats):
+    i = int(stats[ST_EVENTS])
+    if i < ev_t.shape[0]:
+        ev_t[i] = t
+        ev_disk[i] = disk
+        ev_from[i] = old
+        ev_to[i] = new
+        for j in range(L.NY):
+            ev_y[i, j] = y[j]
+        stats[ST_LOGGED] = i + 1
+    stats[ST_EVENTS] = i + 1
+
+
+@nb.njit(**_JIT)
+def run(
+    p,
+    y,
+    modes,
+    seg_t,
+    seg_u,
+    u_func,
+    use_func,
+    u_limit,
+    t_out,
+    rtol,
+    atol,
+    h_init,
+    max_steps,
+    Y_out,
+    M_out,
+    U_out,
+    ev_t,
+    ev_disk,
+    ev_from,
+    ev_to,
+    ev_y,
+    stats,
+):
+    """Integrate one rig from ``seg_t[0]`` to ``seg_t[-1]``; ``y`` is updated in place.
+
+    ``modes`` (int64[2]) receives the final modes. ``t_out`` must be sorted within
+    ``[seg_t[0], seg_t[-1]]``; row k of Y_out/M_out/U_out is the state, modes and
+    applied voltage at t_out[k].
+    """
+    K = np.empty((N_EXT, L.NY))
+    F = np.empty((INTERP, L.NY))
+    f0 = np.empty(L.NY)
+    y_new = np.empty(L.NY)
+    ytmp = np.empty(L.NY)
+    y_ev = np.empty(L.NY)
+    ytmp2 = np.empty(L.NY)
+    for j in range(N_STATS):
+        stats[j] = 0.0
+    n_out = t_out.shape[0]
+    k = 0
+    h_prop = h_init if h_init > 0.0 else 1e-3  # proposed size before truncation to a segment end
+    h = h_prop
+    mu = modes[0]
+    ml = modes[1]
+    first = True
+    status = 0
+    n_steps = 0
+    t = seg_t[0]
+    last_event_t = -math.inf
+    events_here = 0
+    rejected = False
+
+    for seg in range(seg_t.shape[0] - 1):
+        ta = seg_t[seg]
+        tb = seg_t[seg + 1]
+        us = seg_u[seg]
+        t = ta
+        u = input_at(t, us, u_func, use_func, u_limit)
+        if not math.isfinite(u):
+            status = 4
+            break
+        # Modes follow from the state: a moving disk slips, a disk at rest is decided
+        # by its torque balance (this is also where an input jump releases a stuck disk).
+        new_mu = _sign_mode(y[L.X2])
+        if new_mu == 0:
+            new_mu = decide_upper(p, y, u)
+        new_ml = _sign_mode(y[L.X3])
+        if new_ml == 0:
+            new_ml = decide_lower(p, t, y)
+        if not first and new_mu != mu:
+            _log_event(t, 0, mu, new_mu, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
+        if not first and new_ml != ml:
+            _log_event(t, 1, ml, new_ml, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
+        mu = new_mu
+        ml = new_ml
+        first = False
+        while k < n_out and t_out[k] <= t:
+            for j in range(L.NY):
+                Y_out[k, j] = y[j]
+            M_out[k, 0] = mu
+            M_out[k, 1] = ml
+            U_out[k] = u
+            k += 1
+        rhs(t, y, u, p, mu, ml, f0)
+        stats[ST_RHS] += 1
+
+        while t < tb:
+            if n_steps >= max_steps:
+                status = 1
+                break
+            h = h_prop
+            last = False
+            if t + h >= tb or (tb - t - h) < 1e-12 * max(1.0, abs(tb)):
+                h = tb - t
+                last = True
+            err = step(t, y, f0, h, us, u_func, use_func, u_limit, p, mu, ml, K, y_new, ytmp, rtol, atol)
+            stats[ST_RHS] += 12
+            if not (err <= 1.0):  # also catches NaN
+                stats[ST_REJECTED] += 1
+                rejected = True
+                if math.isfinite(err):
+                    h_prop = h * max(0.2, 0.9 * err ** (-ORDER_EXP))
+                else:
+                    h_prop = h * 0.2
+                if h_prop < H_MIN:
+                    status = 2
+                    break
+                continue
+            n_steps += 1
+            t_new = tb if last else t + h
+            u_end = input_at(t_new, us, u_func, use_func, u_limit)
+            vu = _violation_upper(p, y_new, u_end, mu)
+            vl = _violation_lower(p, t_new, y_new, ml)
+            ev_up = vu > 0.0 if mu == 0 else vu >= 0.0
+            ev_lo = vl > 0.0 if ml == 0 else vl >= 0.0
+            has_event = ev_up or ev_lo
+            if has_event or (k < n_out and t_out[k] <= t_new):
+                prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp)
+                stats[ST_RHS] += 3
+            if has_event:
+                th_u = 2.0
+                th_l = 2.0
+                if ev_up:
+                    th_u = _locate(0, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
+                if ev_lo:
+                    th_l = _locate(1, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
+                th = min(th_u, th_l)
+                t_ev = t + th * h
+                while k < n_out and t_out[k] < t_ev:
+                    dense_eval((t_out[k] - t) / h, y, F, ytmp)
+                    for j in range(L.NY):
+                        Y_out[k, j] = ytmp[j]
+                    M_out[k, 0] = mu
+                    M_out[k, 1] = ml
+                    U_out[k] = input_at(t_out[k], us, u_func, use_func, u_limit)
+                    k += 1
+                dense_eval(th, y, F, y_ev)
+                u_ev = input_at(t_ev, us, u_func, use_func, u_limit)
+                do_u = th_u <= 1.0 and (th_u - th) * abs(h) <= SIMULTANEOUS_TOL
+                do_l = th_l <= 1.0 and (th_l - th) * abs(h) <= SIMULTANEOUS_TOL
+                # A slipping disk that reached zero speed is put exactly at rest first,
+                # so that both decisions see the state at the switching instant.
+                if do_u and mu != 0:
+                    y_ev[L.X2] = 0.0
+                if do_l and ml != 0:
+                    y_ev[L.X3] = 0.0
+                nmu = mu
+                nml = ml
+                if do_u:
+                    if mu != 0:
+                        nmu = decide_upper(p, y_ev, u_ev)
+                    else:
+                        need = upper_required(p, y_ev, u_ev)
+                        lo, hi = upper_band(p, y_ev)
+                        nmu = 1 if need - hi >= lo - need else -1
+                if do_l:
+                    if ml != 0:
+                        nml = decide_lower(p, t_ev, y_ev)
+                    else:
+                        need = lower_required(p, t_ev, y_ev)
+                        nml = 1 if need >= 0.0 else -1
+                if do_u:
+                    _log_event(t_ev, 0, mu, nmu, y_ev, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
+                if do_l:
+                    _log_event(t_ev, 1, ml, nml, y_ev, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
+                mu = nmu
+                ml = nml
+                if t_ev - last_event_t <= EVENT_TIME_TOL * 10.0:
+                    events_here += 1
+                    if events_here > MAX_EVENTS_AT_ONE_INSTANT:
+                        status = 3
+                        for j in range(L.NY):
+                            y[j] = y_ev[j]
+                        t = t_ev
+                        break
+                else:
+                    events_here = 0
+                last_event_t = t_ev
+                for j in range(L.NY):
+                    y[j] = y_ev[j]
+                t = t_ev
+                if th >= 1.0:
+                    t = t_new
+                rhs(t, y, u_ev, p, mu, ml, f0)
+                h_prop = _initial_step(
+                    t, y, f0, us, u_func, use_func, u_limit, p, mu, ml, rtol, atol, H_MAX, ytmp, ytmp2
+                )
+                stats[ST_RHS] += 2
+                rejected = False
+                continue  # the restart chose its own step size
+            else:
+                while k < n_out and t_out[k] <= t_new:
+                    dense_eval((t_out[k] - t) / h, y, F, ytmp)
+                    for j in range(L.NY):
+                        Y_out[k, j] = ytmp[j]
+                    M_out[k, 0] = mu
+                    M_out[k, 1] = ml
+                    U_out[k] = input_at(t_out[k], us, u_func, use_func, u_limit)
+                    k += 1
+                for j in range(L.NY):
+                    y[j] = y_new[j]
+                    f0[j] = K[12, j]
+                t = t_new
+            # Step-size control after an accepted step.
+            if err == 0.0:
+                fac = 10.0
+            else:
+                fac = min(10.0, max(0.2, 0.9 * err ** (-ORDER_EXP)))
+            if rejected:  # no growth right after a rejection (Hairer's DOP853)
+                fac = min(fac, 1.0)
+                rejected = False
+            # A step shortened to end a segment does not shrink the proposal.
+            h_prop = min(max(h * fac, h_prop if last else 0.0), H_MAX)
+        if status != 0:
+            break
+
+    # Samples past a premature stop keep the last state (flagged by the status).
+    while k < n_out:
+        for j in range(L.NY):
+            Y_out[k, j] = y[j]
+        M_out[k, 0] = mu
+        M_out[k, 1] = ml
+        U_out[k] = np.nan if status != 0 else U_out[k - 1] if k > 0 else 0.0
+        k += 1
+    modes[0] = mu
+    modes[1] = ml
+    stats[ST_STEPS] = n_steps
+    stats[ST_STATUS] = status
+    stats[ST_H] = h_prop
+    stats[ST_T] = t
+    return status

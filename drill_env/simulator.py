@@ -1,0 +1,364 @@
+"""Python API of the exact nonsmooth simulator: :func:`simulate` and :func:`simulate_batch`.
+
+Three clocks, kept apart: the *integration* clock is adaptive (DOP853 steps chosen by
+the error control, cut at every switching event); the *input* clock is the
+zero-order hold of the voltage (``control_dt``, one value per control period); the
+*output* clock samples the dense solution every ``dt``. None constrains the others:
+outputs are interpolated, and steps end exactly on input changes.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numba as nb
+import numpy as np
+
+from drill_env import _layout as L
+from drill_env.kernel import N_STATS, ST_EVENTS, ST_LOGGED, ST_STATUS, STATUS_MESSAGES, _no_input, run
+from drill_env.params import RigParams, resolve_params
+from drill_env.result import EventLog, SimulationResult
+
+__all__ = ["simulate", "simulate_batch", "initial_state", "DEFAULT_RTOL", "DEFAULT_ATOL"]
+
+DEFAULT_RTOL = 1e-10
+DEFAULT_ATOL = 1e-12
+_OPTIONS = {"rtol", "atol", "control_dt", "voltage_limit", "max_steps", "event_capacity", "t0"}
+
+
+def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndarray:
+    """Full kernel state from a user's initial condition.
+
+    ``x0`` may be None (rig at rest, no twist), a sequence ``(x1, x2, x3)`` (the paper's
+    state; angles start at theta_l = 0), a sequence ``(theta_u, theta_l, x2, x3)``, or a
+    mapping with keys among ``theta_u, theta_l, x1, x2, x3``. The motor torque starts at
+    its steady value km*u0 and the friction memory at |x3|.
+    """
+    y = np.zeros(L.NY)
+    if x0 is not None:
+        if isinstance(x0, Mapping):
+            allowed = {"theta_u", "theta_l", "x1", "x2", "x3", "motor_torque", "memory_speed"}
+            unknown = sorted(set(x0) - allowed)
+            if unknown:
+                raise ValueError(f"x0: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+            if "x1" in x0 and "theta_u" in x0:
+                raise ValueError("x0: give either x1 or theta_u, not both")
+            thl = float(x0.get("theta_l", 0.0))
+            x1 = float(x0["x1"]) if "x1" in x0 else float(x0.get("theta_u", 0.0)) - thl
+            vals = [x1, float(x0.get("x2", 0.0)), float(x0.get("x3", 0.0)), thl]
+        else:
+            arr = np.asarray(x0, dtype=float).ravel()
+            if arr.size == 3:
+                vals = [arr[0], arr[1], arr[2], 0.0]
+            elif arr.size == 4:
+                vals = [arr[0] - arr[1], arr[2], arr[3], arr[1]]
+            elif arr.size == L.NY:
+                vals = list(arr)
+            else:
+                raise ValueError(
+                    f"x0: expected 3 values (x1, x2, x3) or 4 (theta_u, theta_l, x2, x3), got {arr.size}"
+                )
+        for name, v in zip(("x1", "x2", "x3", "theta_l"), vals[:4]):
+            if not math.isfinite(v):
+                raise ValueError(f"x0.{name}: must be finite, got {v!r}")
+        y[: len(vals)] = vals
+        if len(vals) == L.NY:
+            return y
+        if isinstance(x0, Mapping):
+            if "motor_torque" in x0:
+                y[L.TM] = float(x0["motor_torque"])
+                if "memory_speed" in x0:
+                    y[L.WL] = float(x0["memory_speed"])
+                    return y
+    y[L.TM] = params.motor_constant * u0
+    y[L.WL] = abs(y[L.X3])
+    return y
+
+
+def _check_positive(name: str, value: Any) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number, got {value!r}") from None
+    if not math.isfinite(v) or v <= 0.0:
+        raise ValueError(f"{name}: must be finite and > 0, got {value!r}")
+    return v
+
+
+def _input_program(
+    u: Any, t0: float, t_final: float, control_dt: float | None, voltage_limit: float
+) -> tuple[np.ndarray, np.ndarray, Any, bool, float]:
+    """Segments (times, voltages) of the input, or a compiled function of time."""
+    lim = math.inf if voltage_limit is None else float(voltage_limit)
+    if callable(u):
+        fn = u if isinstance(u, nb.core.registry.CPUDispatcher) else nb.njit(u)
+        try:
+            fn(float(t0))
+        except Exception as exc:  # numba's typing errors are long; keep the cause
+            raise TypeError(
+                "u: a function of time must be compilable by numba (use math/numpy "
+                "functions of t only), or pass the voltage as a zero-order-hold sequence "
+                f"with control_dt; numba said: {str(exc).splitlines()[0]}"
+            ) from exc
+        return np.array([t0, t_final]), np.array([0.0]), fn, True, lim
+    arr = np.asarray(u, dtype=float)
+    if arr.ndim == 0:
+        if not math.isfinite(float(arr)):
+            raise ValueError(f"u: the voltage must be finite, got {float(arr)!r}")
+        return np.array([t0, t_final]), np.array([float(arr)]), _no_input, False, lim
+    if arr.ndim != 1 or arr.size == 0:
+        raise ValueError(f"u: expected a number, a 1-D sequence or a function of time, got shape {arr.shape}")
+    if control_dt is None:
+        raise ValueError("control_dt: required when u is a sequence (one voltage per control period)")
+    cdt = _check_positive("control_dt", control_dt)
+    bad = np.flatnonzero(~np.isfinite(arr))
+    if bad.size:
+        raise ValueError(f"u[{bad[0]}]: the voltage must be finite, got {arr[bad[0]]!r}")
+    n_needed = int(math.ceil((t_final - t0) / cdt - 1e-9))
+    if arr.size < n_needed:
+        raise ValueError(
+            f"u: {arr.size} values cover {arr.size * cdt:g} s at control_dt={cdt:g} s, "
+            f"but the simulation lasts {t_final - t0:g} s ({n_needed} values needed)"
+        )
+    seg_t = t0 + cdt * np.arange(n_needed + 1, dtype=float)
+    seg_t[-1] = t_final
+    return seg_t, arr[:n_needed].copy(), _no_input, False, lim
+
+
+def _output_grid(t0: float, t_final: float, dt: float) -> np.ndarray:
+    n = int(math.floor((t_final - t0) / dt * (1 + 1e-12) + 1e-9)) + 1
+    t = t0 + dt * np.arange(n)
+    t[-1] = min(t[-1], t_final)
+    return t
+
+
+def simulate(
+    params_or_preset: RigParams | str,
+    u: float | Sequence[float] | np.ndarray | Callable[[float], float],
+    t_final: float,
+    x0: Any = None,
+    dt: float = 0.01,
+    **options: Any,
+) -> SimulationResult:
+    """Simulate the rig exactly (event-driven, set-valued friction) from t0 to ``t_final``.
+
+    Args:
+        params_or_preset: :class:`RigParams`, a preset name (``"brake"``, ``"no_brake"``)
+            or a YAML file.
+        u: amplifier input voltage [V]: a constant, a zero-order-hold sequence (one value
+            per ``control_dt``), or a function of time ``u(t)`` that numba can compile.
+        t_final: end time [s].
+        x0: initial condition, see :func:`initial_state`; default the rig at rest.
+        dt: output sample period [s]; the solution is sampled from the dense output.
+
+    Options:
+        rtol, atol: integration tolerances (default 1e-10, 1e-12).
+        control_dt: hold period of a voltage sequence [s].
+        voltage_limit: clip u to +-limit [V] as the rig's amplifier does (default: no
+            limit; the clipped voltage is what ``result.u`` holds).
+        t0: start time [s] (default 0).
+        max_steps: cap on integration steps (default: generous).
+        event_capacity: initial size of the event log (grown automatically).
+
+    Returns:
+        :class:`SimulationResult`.
+    """
+    unknown = sorted(set(options) - _OPTIONS)
+    if unknown:
+        raise TypeError(f"simulate: unknown option(s) {unknown}; allowed: {sorted(_OPTIONS)}")
+    params = resolve_params(params_or_preset)
+    t0 = float(options.get("t0", 0.0))
+    if not math.isfinite(t0):
+        raise ValueError(f"t0: must be finite, got {t0!r}")
+    try:
+        t_final = float(t_final)
+    except (TypeError, ValueError):
+        raise ValueError(f"t_final: expected a number, got {t_final!r}") from None
+    if not math.isfinite(t_final) or t_final <= t0:
+        raise ValueError(f"t_final: must be finite and > t0 = {t0:g} s, got {t_final!r}")
+    duration = t_final - t0
+    dt = _check_positive("dt", dt)
+    rtol = _check_positive("rtol", options.get("rtol", DEFAULT_RTOL))
+    atol = _check_positive("atol", options.get("atol", DEFAULT_ATOL))
+    vlim = options.get("voltage_limit")
+    if vlim is not None:
+        vlim = _check_positive("voltage_limit", vlim)
+    max_steps = int(options.get("max_steps", max(100_000, int(duration * 2000))))
+    seg_t, seg_u, fn, use_func, lim = _input_program(
+        u, t0, t_final, options.get("control_dt"), vlim if vlim is not None else math.inf
+    )
+    eff = params.effects
+    if eff.friction_drift != 0.0:
+        worst = 1.0 + eff.friction_drift * (t_final if eff.friction_drift < 0 else t0)
+        if worst <= 0.0:
+            raise ValueError(
+                f"effects.friction_drift: {eff.friction_drift:g} 1/s makes the friction level "
+                f"negative before t = {t_final:g} s"
+            )
+    u0 = float(fn(t0)) if use_func else float(seg_u[0])
+    if vlim is not None:
+        u0 = max(-vlim, min(vlim, u0))
+    y0 = initial_state(params, x0, u0)
+    p = params.as_array()
+    t_out = _output_grid(t0, t_final, dt)
+    cap = int(options.get("event_capacity", 256))
+    while True:
+        y = y0.copy()
+        modes = np.zeros(2, dtype=np.int64)
+        Y = np.empty((t_out.size, L.NY))
+        M = np.empty((t_out.size, 2), dtype=np.int64)
+        U = np.empty(t_out.size)
+        ev_t = np.empty(cap)
+        ev_disk = np.empty(cap, dtype=np.int64)
+        ev_from = np.empty(cap, dtype=np.int64)
+        ev_to = np.empty(cap, dtype=np.int64)
+        ev_y = np.empty((cap, L.NY))
+        stats = np.zeros(N_STATS)
+        status = run(
+            p, y, modes, seg_t, seg_u, fn, use_func, lim, t_out, rtol, atol, 0.0, max_steps,
+            Y, M, U, ev_t, ev_disk, ev_from, ev_to, ev_y, stats,
+        )
+        if stats[ST_EVENTS] <= cap:
+            break
+        cap = int(stats[ST_EVENTS]) + 16
+    n_ev = int(stats[ST_LOGGED])
+    if status != 0:
+        warnings.warn(f"simulate: {STATUS_MESSAGES[int(status)]}", RuntimeWarning, stacklevel=2)
+    events = EventLog(
+        t=ev_t[:n_ev].copy(),
+        disk=ev_disk[:n_ev].copy(),
+        mode_before=ev_from[:n_ev].copy(),
+        mode_after=ev_to[:n_ev].copy(),
+        state=ev_y[:n_ev].copy(),
+    )
+    u_requested = None
+    if vlim is not None:
+        if use_func:
+            u_requested = np.array([fn(tt) for tt in t_out])
+        else:
+            idx = np.clip(np.searchsorted(seg_t, t_out, side="right") - 1, 0, seg_u.size - 1)
+            u_requested = seg_u[idx]
+    return SimulationResult.from_kernel(
+        params=params,
+        t=t_out,
+        Y=Y,
+        M=M,
+        U=U,
+        events=events,
+        stats=stats,
+        status=int(stats[ST_STATUS]),
+        final_state=y,
+        final_modes=modes,
+        u_requested=u_requested,
+    )
+
+
+@nb.njit(cache=True, nogil=True)
+def _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats_all, ev_count):
+    n = P.shape[0]
+    cap = 1
+    ev_t = np.empty(cap)
+    ev_disk = np.empty(cap, dtype=np.int64)
+    ev_from = np.empty(cap, dtype=np.int64)
+    ev_to = np.empty(cap, dtype=np.int64)
+    ev_y = np.empty((cap, L.NY))
+    modes = np.zeros(2, dtype=np.int64)
+    for i in range(n):
+        y = Y0[i].copy()
+        run(
+            P[i], y, modes, seg_t, SEG_U[i], _no_input, False, np.inf, t_out, rtol, atol, 0.0,
+            max_steps, Yo[i], Mo[i], Uo[i], ev_t, ev_disk, ev_from, ev_to, ev_y, stats_all[i],
+        )
+        ev_count[i] = stats_all[i, ST_EVENTS]
+
+
+def simulate_batch(
+    params: RigParams | str | Sequence[RigParams],
+    u: float | Sequence[float] | np.ndarray,
+    t_final: float,
+    x0: Any = None,
+    dt: float = 0.01,
+    *,
+    n: int | None = None,
+    control_dt: float | None = None,
+    voltage_limit: float | None = None,
+    rtol: float = DEFAULT_RTOL,
+    atol: float = DEFAULT_ATOL,
+) -> SimulationResult:
+    """Simulate many rigs in one compiled call.
+
+    ``params``: one parameter set for all rigs or a sequence (one per rig). ``u``: shape
+    (N,) constant voltages, or (N, K) zero-order-hold sequences with ``control_dt``.
+    ``x0``: None or an array of shape (N, 3) / (N, 4). Returns one
+    :class:`SimulationResult` whose arrays have a leading rig axis; event logs are not
+    kept (only their counts, in ``result.stats['events']``).
+    """
+    u_arr = np.asarray(u, dtype=float)
+    if isinstance(params, (RigParams, str)):
+        plist = None
+        base = resolve_params(params)
+    else:
+        plist = [resolve_params(q) for q in params]
+        base = plist[0]
+    n_rigs = n or (len(plist) if plist is not None else (u_arr.shape[0] if u_arr.ndim >= 1 else 1))
+    if plist is not None and len(plist) != n_rigs:
+        raise ValueError(f"params: {len(plist)} parameter sets for {n_rigs} rigs")
+    P = np.stack([q.as_array() for q in plist]) if plist is not None else np.tile(base.as_array(), (n_rigs, 1))
+    t_final = _check_positive("t_final", t_final)
+    dt = _check_positive("dt", dt)
+    if u_arr.ndim == 0:
+        u_arr = np.full(n_rigs, float(u_arr))
+    if u_arr.shape[0] != n_rigs:
+        raise ValueError(f"u: leading dimension {u_arr.shape[0]} does not match {n_rigs} rigs")
+    if not np.all(np.isfinite(u_arr)):
+        raise ValueError("u: voltages must be finite")
+    if voltage_limit is not None:
+        voltage_limit = _check_positive("voltage_limit", voltage_limit)
+        u_arr = np.clip(u_arr, -voltage_limit, voltage_limit)
+    if u_arr.ndim == 1:
+        seg_t = np.array([0.0, t_final])
+        SEG_U = u_arr[:, None].copy()
+    else:
+        seg_t, _, _, _, _ = _input_program(u_arr[0], 0.0, t_final, control_dt, math.inf)
+        SEG_U = np.ascontiguousarray(u_arr[:, : seg_t.size - 1])
+    if x0 is None:
+        Y0 = np.zeros((n_rigs, L.NY))
+        Y0[:, L.TM] = P[:, L.KM] * SEG_U[:, 0]
+    else:
+        x0a = np.asarray(x0, dtype=float)
+        if x0a.ndim != 2 or x0a.shape[0] != n_rigs:
+            raise ValueError(f"x0: expected shape ({n_rigs}, 3) or ({n_rigs}, 4), got {x0a.shape}")
+        Y0 = np.stack(
+            [initial_state(plist[i] if plist else base, x0a[i], SEG_U[i, 0]) for i in range(n_rigs)]
+        )
+    t_out = _output_grid(0.0, t_final, dt)
+    Yo = np.empty((n_rigs, t_out.size, L.NY))
+    Mo = np.empty((n_rigs, t_out.size, 2), dtype=np.int64)
+    Uo = np.empty((n_rigs, t_out.size))
+    stats = np.zeros((n_rigs, N_STATS))
+    ev_count = np.zeros(n_rigs)
+    max_steps = max(100_000, int(t_final * 2000))
+    _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
+    bad = np.flatnonzero(stats[:, ST_STATUS] != 0)
+    if bad.size:
+        warnings.warn(
+            f"simulate_batch: rig {bad[0]}: {STATUS_MESSAGES[int(stats[bad[0], ST_STATUS])]}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    return SimulationResult.from_kernel(
+        params=base if plist is None else plist,
+        t=t_out,
+        Y=Yo,
+        M=Mo,
+        U=Uo,
+        events=None,
+        stats=stats,
+        status=int(stats[:, ST_STATUS].max()),
+        final_state=Yo[:, -1, :],
+        final_modes=Mo[:, -1, :],
+        u_requested=None,
+    )
