@@ -92,6 +92,19 @@ def simulate(
         typer.echo(f"wrote {out} ({res.t.size} rows)")
 
 
+def _register_commands() -> None:
+    import importlib
+    import pkgutil
+
+    from drill_env import commands
+
+    for mod in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        importlib.import_module(f"drill_env.commands.{mod.name}").register(app)
+
+
+_register_commands()
+
+
 def main() -> None:  # entry point
     app()
 
