@@ -7,6 +7,7 @@ Quick start::
     res.to_pandas()
 """
 
+import drill_env.envs  # noqa: F401  (registers DrillString-v0 and DrillStringNoBrake-v0)
 from drill_env.params import (
     ModelEffects,
     ParameterError,

@@ -79,7 +79,13 @@ def lower_friction_slope(params: RigParams, speed: ArrayLike) -> np.ndarray:
     a = np.abs(np.asarray(speed, dtype=float))
     b1, b2 = params.lower_hump_rate_1, params.lower_hump_rate_2
     return (
-        params.lower_hump_1 * 0.5 * b1 / np.cosh(0.5 * b1 * a) ** 2
-        + params.lower_hump_2 * 0.5 * b2 / np.cosh(0.5 * b2 * a) ** 2
+        params.lower_hump_1 * 0.5 * b1 * _sech2(0.5 * b1 * a)
+        + params.lower_hump_2 * 0.5 * b2 * _sech2(0.5 * b2 * a)
         + params.lower_viscous
     )
+
+
+def _sech2(x: np.ndarray) -> np.ndarray:
+    """sech(x)^2 for x >= 0, written with exp(-x) so that it cannot overflow."""
+    e = np.exp(-x)
+    return (2.0 * e / (1.0 + e * e)) ** 2

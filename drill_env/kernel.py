@@ -114,8 +114,30 @@ def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
     ga = _violation(disk, p, t, y, input_at(t, u_seg, u_func, use_func, u_limit), mu, ml)
     dense_eval(1.0, y, F, ytmp)
     gb = _violation(disk, p, t + h, ytmp, input_at(t + h, u_seg, u_func, use_func, u_limit), mu, ml)
-    if ga >= 0.0:
+    if ga > 0.0 or (ga == 0.0 and (mu if disk == 0 else ml) == 0):
         return 0.0
+    if ga == 0.0:
+        # The step started on the surface: a disk just set in motion from rest or just
+        # reversed. Its speed first moves into the slip direction (violation < 0); the
+        # event is where it comes back to zero, not the start. Walk out geometrically
+        # to bracket the end of that first excursion.
+        found = False
+        c = 2.0**-50
+        while c < 1.0:
+            dense_eval(c, y, F, ytmp)
+            tc = t + c * h
+            gc = _violation(disk, p, tc, ytmp, input_at(tc, u_seg, u_func, use_func, u_limit), mu, ml)
+            if gc < 0.0:
+                a = c
+                ga = gc
+                found = True
+            elif found:
+                b = c
+                gb = gc
+                break
+            c *= 2.0
+        if not found:
+            return 0.0  # it never left the surface: switch at once
     side = 0
     for _ in range(200):
         if (b - a) * abs(h) <= EVENT_TIME_TOL:
@@ -383,7 +405,10 @@ def run(
                 rejected = False
                 continue  # the restart chose its own step size
             else:
-                while k < n_out and t_out[k] <= t_new:
+                # A sample on the end of an input segment belongs to the next segment:
+                # the zero-order hold switches at that instant (except at the very end).
+                held = last and seg < seg_t.shape[0] - 2
+                while k < n_out and (t_out[k] < t_new or (t_out[k] == t_new and not held)):
                     dense_eval((t_out[k] - t) / h, y, F, ytmp)
                     for j in range(L.NY):
                         Y_out[k, j] = ytmp[j]

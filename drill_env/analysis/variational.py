@@ -1,0 +1,701 @@
+"""Flow of the nominal rig together with its sensitivities, across friction switches.
+
+The state ``x = (x1, x2, x3)`` (twist, upper and lower disk speeds) is integrated with
+the 3 x 4 sensitivity matrix ``S = d x(t) / d (x1(0), x2(0), x3(0), u)``. Within one
+friction mode the vector field is smooth and ``S' = J S + df/du e4^T``, with the
+analytic Jacobian ``J`` of that mode (the rows of a stuck disk are zero). At every
+switch the sensitivity jumps by the saltation matrix
+
+    S+ = (I + (f+ - f-) n^T / (n^T f-)) S-
+
+where ``n`` is the gradient (in x and u) of the event function: the disk speed for a
+slipping disk that comes to rest or reverses, the required torque minus the edge of
+the static band for a stuck disk that breaks away. For a disk that enters stick the
+new field has zero acceleration of that disk, so the jump is the projection that
+removes the stuck speed (``I - e3 e3^T`` at the lower disk); at break-away the friction
+is continuous (``T_fl(0+) = T_sl``), so ``f+ = f-`` and nothing jumps.
+
+The integrator is the DOP853 method of :mod:`drill_env.integrator` (same tableau) on
+the augmented 15-component system, with its own event location on the dense output:
+the same switching rules as the simulator's kernel (:mod:`drill_env.kernel`), a return
+to a Poincare section, extrema of the speeds and the twist, and a dip of a slipping
+disk's speed below zero that starts and ends inside one step (grazing), which the
+sign test at the step ends alone would miss.
+
+Only the paper's model (no :class:`~drill_env.params.ModelEffects`) is covered: the
+lower angle does not feed back and is not carried.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from drill_env import _layout as L
+from drill_env.dynamics import hump
+from drill_env.integrator import A_EXTRA, E3, E5, INTERP, N_EXT, N_STAGES, ORDER_EXP, A, B, D
+
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+
+NX = 3  # x1, x2, x3
+NS = 4  # sensitivity columns: d/dx1(0), d/dx2(0), d/dx3(0), d/du
+NZ = NX + NX * NS  # augmented state: x, then S row-major
+
+# Poincare section: h(x) = x2 - x3 = -x1' crosses zero downwards (the twist is at a maximum).
+SECTION_NORMAL = np.array([0.0, 1.0, -1.0])
+
+# Slots of the info vector returned by :func:`flow`.
+(
+    I_T,
+    I_STATUS,
+    I_EVENTS,
+    I_STICK_U,
+    I_STICK_L,
+    I_X1MIN,
+    I_X1MAX,
+    I_X2MIN,
+    I_X2MAX,
+    I_X3MIN,
+    I_X3MAX,
+    I_STEPS,
+    I_REJECTED,
+    I_MODE_U,
+    I_MODE_L,
+    I_STICK_PHASES_L,
+    I_REVERSALS,
+) = range(17)
+N_INFO = 17
+
+FLOW_STATUS = {
+    0: "returned to the Poincare section",
+    1: "reached the end time without returning to the section",
+    2: "step size fell below its minimum",
+    3: "switching events repeated at one instant (chattering)",
+    4: "the start point leaves the section on the wrong side (x1 is not at a maximum)",
+    5: "too many steps",
+}
+
+EVENT_TIME_TOL = 1e-13  # [s]
+H_MIN = 1e-12  # [s]
+MAX_EVENTS_AT_ONE_INSTANT = 12
+
+# Event-log codes: the kind of switch and which disk.
+EV_UPPER, EV_LOWER = 0, 1
+
+
+@nb.njit(**_JIT)
+def hump_slope(p, w):
+    """d/dw of :func:`drill_env.dynamics.hump` (the Stribeck/hump part of eq. 14)."""
+    return 0.5 * p[L.T1] * p[L.BETA1] * _sech2(0.5 * p[L.BETA1] * w) + 0.5 * p[L.T2] * p[L.BETA2] * _sech2(
+        0.5 * p[L.BETA2] * w
+    )
+
+
+@nb.njit(**_JIT)
+def _sech2(x):
+    """sech(x)^2 without overflow for large |x|."""
+    e = math.exp(-abs(x))
+    s = 2.0 * e / (1.0 + e * e)
+    return s * s
+
+
+@nb.njit(**_JIT)
+def field(x1, x2, x3, u, p, mu, ml):
+    """Eq. (36) in modes (mu, ml): returns (x1', x2', x3')."""
+    ts = p[L.KTH] * x1
+    f1 = x2 - x3
+    if mu == 0:
+        f2 = 0.0
+    elif mu > 0:
+        f2 = (p[L.KM] * u - ts - p[L.TSUP] - p[L.BUP] * x2) / p[L.JU]
+    else:
+        f2 = (p[L.KM] * u - ts + p[L.TSUN] - p[L.BUN] * x2) / p[L.JU]
+    if ml == 0:
+        f3 = 0.0
+    else:
+        f3 = (ts - ml * (p[L.TSL] + hump(p, ml * x3)) - p[L.BL] * x3) / p[L.JL]
+    return f1, f2, f3
+
+
+@nb.njit(**_JIT)
+def jacobian(x3, p, mu, ml, J):
+    """Jacobian of :func:`field` with respect to (x1, x2, x3, u), into J (3 x 4)."""
+    for i in range(NX):
+        for j in range(NS):
+            J[i, j] = 0.0
+    J[0, 1] = 1.0
+    J[0, 2] = -1.0
+    if mu != 0:
+        J[1, 0] = -p[L.KTH] / p[L.JU]
+        J[1, 1] = -(p[L.BUP] if mu > 0 else p[L.BUN]) / p[L.JU]
+        J[1, 3] = p[L.KM] / p[L.JU]
+    if ml != 0:
+        J[2, 0] = p[L.KTH] / p[L.JL]
+        J[2, 2] = -(hump_slope(p, ml * x3) + p[L.BL]) / p[L.JL]
+
+
+@nb.njit(**_JIT)
+def aug_rhs(z, u, p, mu, ml, dz):
+    """Augmented field: the state and its sensitivity S' = J S + (df/du) e4^T."""
+    f1, f2, f3 = field(z[0], z[1], z[2], u, p, mu, ml)
+    dz[0] = f1
+    dz[1] = f2
+    dz[2] = f3
+    a10 = 0.0
+    a11 = 0.0
+    a13 = 0.0
+    if mu != 0:
+        a10 = -p[L.KTH] / p[L.JU]
+        a11 = -(p[L.BUP] if mu > 0 else p[L.BUN]) / p[L.JU]
+        a13 = p[L.KM] / p[L.JU]
+    a20 = 0.0
+    a22 = 0.0
+    if ml != 0:
+        a20 = p[L.KTH] / p[L.JL]
+        a22 = -(hump_slope(p, ml * z[2]) + p[L.BL]) / p[L.JL]
+    for j in range(NS):
+        s0 = z[NX + j]
+        s1 = z[NX + NS + j]
+        s2 = z[NX + 2 * NS + j]
+        dz[NX + j] = s1 - s2
+        dz[NX + NS + j] = a10 * s0 + a11 * s1 + (a13 if j == NS - 1 else 0.0)
+        dz[NX + 2 * NS + j] = a20 * s0 + a22 * s2
+
+
+@nb.njit(**_JIT)
+def _step(z, f0, h, u, p, mu, ml, K, z_new, ztmp, rtol, atol):
+    """One DOP853 step of the augmented system; returns the scaled error norm."""
+    for j in range(NZ):
+        K[0, j] = f0[j]
+    for s in range(1, N_STAGES):
+        for j in range(NZ):
+            acc = 0.0
+            for r in range(s):
+                acc += A[s, r] * K[r, j]
+            ztmp[j] = z[j] + h * acc
+        aug_rhs(ztmp, u, p, mu, ml, K[s])
+    for j in range(NZ):
+        acc = 0.0
+        for r in range(N_STAGES):
+            acc += B[r] * K[r, j]
+        z_new[j] = z[j] + h * acc
+    aug_rhs(z_new, u, p, mu, ml, K[N_STAGES])
+    err5 = 0.0
+    err3 = 0.0
+    for j in range(NZ):
+        sc = atol + rtol * max(abs(z[j]), abs(z_new[j]))
+        e5 = 0.0
+        e3 = 0.0
+        for r in range(N_STAGES + 1):
+            e5 += E5[r] * K[r, j]
+            e3 += E3[r] * K[r, j]
+        e5 /= sc
+        e3 /= sc
+        err5 += e5 * e5
+        err3 += e3 * e3
+    if err5 == 0.0 and err3 == 0.0:
+        return 0.0
+    return abs(h) * err5 / math.sqrt((err5 + 0.01 * err3) * NZ)
+
+
+@nb.njit(**_JIT)
+def _prepare_dense(z, z_new, h, u, p, mu, ml, K, F, ztmp):
+    for k in range(A_EXTRA.shape[0]):
+        s = N_STAGES + 1 + k
+        for j in range(NZ):
+            acc = 0.0
+            for r in range(s):
+                acc += A_EXTRA[k, r] * K[r, j]
+            ztmp[j] = z[j] + h * acc
+        aug_rhs(ztmp, u, p, mu, ml, K[s])
+    for j in range(NZ):
+        dzj = z_new[j] - z[j]
+        F[0, j] = dzj
+        F[1, j] = h * K[0, j] - dzj
+        F[2, j] = 2.0 * dzj - h * (K[N_STAGES, j] + K[0, j])
+        for i in range(D.shape[0]):
+            acc = 0.0
+            for r in range(N_EXT):
+                acc += D[i, r] * K[r, j]
+            F[3 + i, j] = h * acc
+
+
+@nb.njit(**_JIT)
+def _dense(theta, z, F, out, n):
+    """First ``n`` components of the state at fraction ``theta`` of the step."""
+    x = theta
+    x1 = 1.0 - theta
+    for j in range(n):
+        acc = F[6, j] * x + F[5, j]
+        acc = acc * x1 + F[4, j]
+        acc = acc * x + F[3, j]
+        acc = acc * x1 + F[2, j]
+        acc = acc * x + F[1, j]
+        acc = acc * x1 + F[0, j]
+        out[j] = z[j] + acc * x
+
+
+# -- indicators: functions of the state whose sign changes mark events -------------------
+K_UPPER, K_LOWER, K_SECTION, K_F1, K_F2, K_F3 = 0, 1, 2, 3, 4, 5
+
+
+@nb.njit(**_JIT)
+def _upper_violation(z, u, p, mu):
+    """<= 0 while the upper disk's mode holds."""
+    if mu != 0:
+        return -mu * z[1]
+    need = p[L.KM] * u - p[L.KTH] * z[0]
+    return max(need - p[L.TSUP], -p[L.TSUN] - need)
+
+
+@nb.njit(**_JIT)
+def _lower_violation(z, p, ml):
+    if ml != 0:
+        return -ml * z[2]
+    need = p[L.KTH] * z[0]
+    return max(need - p[L.TSL], -p[L.TSL] - need)
+
+
+@nb.njit(**_JIT)
+def _indicator(kind, z, u, p, mu, ml):
+    if kind == K_UPPER:
+        return _upper_violation(z, u, p, mu)
+    if kind == K_LOWER:
+        return _lower_violation(z, p, ml)
+    if kind == K_SECTION:
+        return z[1] - z[2]
+    f1, f2, f3 = field(z[0], z[1], z[2], u, p, mu, ml)
+    if kind == K_F1:
+        return f1
+    if kind == K_F2:
+        return f2
+    return f3
+
+
+@nb.njit(**_JIT)
+def _locate(kind, sgn, a, b, ga, gb, h, z, F, u, p, mu, ml, ztmp):
+    """First fraction in [a, b] where sgn * indicator >= 0, given ga < 0 <= gb (Illinois)."""
+    side = 0
+    for _ in range(200):
+        if (b - a) * abs(h) <= EVENT_TIME_TOL:
+            break
+        c = (a * gb - b * ga) / (gb - ga)
+        if not (a < c < b):
+            c = 0.5 * (a + b)
+        _dense(c, z, F, ztmp, NX)
+        gc = sgn * _indicator(kind, ztmp, u, p, mu, ml)
+        if gc >= 0.0:
+            b = c
+            gb = gc
+            if side == -1:
+                ga *= 0.5
+            side = -1
+        else:
+            a = c
+            ga = gc
+            if side == 1:
+                gb *= 0.5
+            side = 1
+    return b
+
+
+@nb.njit(**_JIT)
+def _extremum(comp, theta, z, F, u, p, mu, ml, ztmp, info):
+    """Record the value of component ``comp`` at fraction ``theta`` in its min/max slots."""
+    _dense(theta, z, F, ztmp, NX)
+    v = ztmp[comp]
+    lo = I_X1MIN + 2 * comp
+    if v < info[lo]:
+        info[lo] = v
+    if v > info[lo + 1]:
+        info[lo + 1] = v
+
+
+@nb.njit(**_JIT)
+def _track_extrema(theta_end, h, z, F, d0, d1, u, p, mu, ml, ztmp, info):
+    """Extrema of x1, x2, x3 inside [0, theta_end] of a step, where a derivative changes sign."""
+    for comp in range(NX):
+        a0 = d0[comp]
+        a1 = d1[comp]
+        if a0 == 0.0 or a1 == 0.0 or (a0 > 0.0) == (a1 > 0.0):
+            continue
+        sgn = 1.0 if a0 < 0.0 else -1.0
+        th = _locate(K_F1 + comp, sgn, 0.0, 1.0, sgn * a0, sgn * a1, h, z, F, u, p, mu, ml, ztmp)
+        if th <= theta_end:
+            _extremum(comp, th, z, F, u, p, mu, ml, ztmp, info)
+
+
+@nb.njit(**_JIT)
+def _dip(disk, h, z, F, d0, d1, u, p, mu, ml, ztmp):
+    """Fraction at which a slipping disk's speed first reaches zero inside a step whose ends
+    both have it moving (a grazing dip), or 2.0 when there is none."""
+    m = mu if disk == 0 else ml
+    if m == 0:
+        return 2.0
+    c = 1 + disk  # speed component
+    a0 = m * d0[c]
+    a1 = m * d1[c]
+    if not (a0 < 0.0 and a1 > 0.0):  # |speed| must have a minimum inside the step
+        return 2.0
+    th_min = _locate(K_F2 + disk, m * 1.0, 0.0, 1.0, a0, a1, h, z, F, u, p, mu, ml, ztmp)
+    _dense(th_min, z, F, ztmp, NX)
+    if m * ztmp[c] > 0.0:
+        return 2.0
+    g0 = -m * z[c]
+    gm = -m * ztmp[c]
+    if g0 >= 0.0:
+        return 0.0
+    return _locate(K_UPPER + disk, 1.0, 0.0, th_min, g0, gm, h, z, F, u, p, mu, ml, ztmp)
+
+
+@nb.njit(**_JIT)
+def _back_at_rest(disk, h, z, F, g1, u, p, mu, ml, ztmp):
+    """A disk that starts the step at rest in a slip mode and ends it at rest or behind:
+    the fraction at which it is back at zero speed after a short excursion in its
+    direction, or 0.0 when it never moved that way (the step is then cut at once)."""
+    kind = K_UPPER + disk
+    # Golden-section search for the most negative violation (the largest excursion).
+    gr = 0.5 * (math.sqrt(5.0) - 1.0)
+    a = 0.0
+    b = 1.0
+    c = b - gr * (b - a)
+    d = a + gr * (b - a)
+    _dense(c, z, F, ztmp, NX)
+    gc = _indicator(kind, ztmp, u, p, mu, ml)
+    _dense(d, z, F, ztmp, NX)
+    gd = _indicator(kind, ztmp, u, p, mu, ml)
+    for _ in range(60):
+        if gc < gd:
+            b = d
+            d = c
+            gd = gc
+            c = b - gr * (b - a)
+            _dense(c, z, F, ztmp, NX)
+            gc = _indicator(kind, ztmp, u, p, mu, ml)
+        else:
+            a = c
+            c = d
+            gc = gd
+            d = a + gr * (b - a)
+            _dense(d, z, F, ztmp, NX)
+            gd = _indicator(kind, ztmp, u, p, mu, ml)
+    th = c if gc < gd else d
+    gm = min(gc, gd)
+    if gm >= 0.0:
+        return 0.0
+    return _locate(kind, 1.0, th, 1.0, gm, g1, h, z, F, u, p, mu, ml, ztmp)
+
+
+@nb.njit(**_JIT)
+def _apply_switch(disk, z, u, p, mu, ml, new_mode, release_sign):
+    """Saltation jump of the sensitivity at a switch of ``disk`` from its current mode."""
+    old = mu if disk == 0 else ml
+    fm1, fm2, fm3 = field(z[0], z[1], z[2], u, p, mu, ml)
+    if disk == 0:
+        fp1, fp2, fp3 = field(z[0], z[1], z[2], u, p, new_mode, ml)
+    else:
+        fp1, fp2, fp3 = field(z[0], z[1], z[2], u, p, mu, new_mode)
+    # Gradient n of the event function in (x1, x2, x3, u).
+    n0 = 0.0
+    n1 = 0.0
+    n2 = 0.0
+    n3 = 0.0
+    if old != 0:  # a slipping disk reached zero speed: g = -old * speed
+        if disk == 0:
+            n1 = -old
+        else:
+            n2 = -old
+    else:  # a stuck disk breaks away: g = +-(required torque) - band edge
+        if disk == 0:
+            n0 = -release_sign * p[L.KTH]
+            n3 = release_sign * p[L.KM]
+        else:
+            n0 = release_sign * p[L.KTH]
+    den = n0 * fm1 + n1 * fm2 + n2 * fm3
+    if den == 0.0:
+        return False
+    d1 = (fp1 - fm1) / den
+    d2 = (fp2 - fm2) / den
+    d3 = (fp3 - fm3) / den
+    for j in range(NS):
+        nts = n0 * z[NX + j] + n1 * z[NX + NS + j] + n2 * z[NX + 2 * NS + j]
+        if j == NS - 1:
+            nts += n3
+        z[NX + j] += d1 * nts
+        z[NX + NS + j] += d2 * nts
+        z[NX + 2 * NS + j] += d3 * nts
+    return True
+
+
+@nb.njit(**_JIT)
+def _decide(disk, z, u, p):
+    """Mode of a disk at zero speed: stick when its required torque lies in the closed band."""
+    if disk == 0:
+        need = p[L.KM] * u - p[L.KTH] * z[0]
+        if need > p[L.TSUP]:
+            return 1
+        if need < -p[L.TSUN]:
+            return -1
+        return 0
+    need = p[L.KTH] * z[0]
+    if need > p[L.TSL]:
+        return 1
+    if need < -p[L.TSL]:
+        return -1
+    return 0
+
+
+@nb.njit(**_JIT)
+def initial_modes(z, u, p):
+    """Modes from the state: a moving disk slips, a disk at rest is decided by its torques."""
+    mu = 1 if z[1] > 0.0 else (-1 if z[1] < 0.0 else _decide(0, z, u, p))
+    ml = 1 if z[2] > 0.0 else (-1 if z[2] < 0.0 else _decide(1, z, u, p))
+    return mu, ml
+
+
+@nb.njit(**_JIT)
+def flow(z, u, p, modes, t_max, to_section, rtol, atol, h_max, max_steps, info, ev_t, ev_kind):
+    """Integrate the state and its sensitivity from t = 0; ``z`` (NZ) is updated in place.
+
+    ``modes`` (int64[2]) gives the starting modes and receives the final ones. With
+    ``to_section`` the integration stops at the first downward crossing of
+    x2 - x3 = 0 after having been above it (the start point is expected on the section,
+    leaving it downwards). ``info`` (N_INFO) receives the time, status and measures of the
+    path; ``ev_t``/``ev_kind`` log the switches (kind = 10*disk + 3 + new mode, capacity
+    permitting). Returns the status (see FLOW_STATUS).
+    """
+    K = np.empty((N_EXT, NZ))
+    F = np.empty((INTERP, NZ))
+    f0 = np.empty(NZ)
+    z_new = np.empty(NZ)
+    ztmp = np.empty(NZ)
+    zev = np.empty(NZ)
+    d0 = np.empty(NX)
+    d1 = np.empty(NX)
+    for j in range(N_INFO):
+        info[j] = 0.0
+    for c in range(NX):
+        info[I_X1MIN + 2 * c] = z[c]
+        info[I_X1MAX + 2 * c] = z[c]
+    mu = modes[0]
+    ml = modes[1]
+    t = 0.0
+    status = 1
+    n_ev = 0
+    events_here = 0
+    last_event_t = -1.0
+    aug_rhs(z, u, p, mu, ml, f0)
+    if to_section and f0[1] - f0[2] >= 0.0:
+        info[I_STATUS] = 4
+        return 4
+    armed = False
+    h = min(h_max, 1e-2)
+    rejected = False
+    n_steps = 0
+    n_rej = 0
+    while t < t_max:
+        if n_steps >= max_steps:
+            status = 5
+            break
+        last = False
+        if t + h >= t_max:
+            h = t_max - t
+            last = True
+        err = _step(z, f0, h, u, p, mu, ml, K, z_new, ztmp, rtol, atol)
+        if not (err <= 1.0):
+            n_rej += 1
+            rejected = True
+            h *= max(0.2, 0.9 * err ** (-ORDER_EXP)) if math.isfinite(err) else 0.2
+            if h < H_MIN:
+                status = 2
+                break
+            continue
+        n_steps += 1
+        for c in range(NX):
+            d0[c] = f0[c]
+            d1[c] = K[N_STAGES, c]
+        _prepare_dense(z, z_new, h, u, p, mu, ml, K, F, ztmp)
+        # Earliest event inside the step.
+        th_u = 2.0
+        th_l = 2.0
+        th_s = 2.0
+        gu0 = _upper_violation(z, u, p, mu)
+        gu1 = _upper_violation(z_new, u, p, mu)
+        if (gu1 > 0.0) if mu == 0 else (gu1 >= 0.0):
+            if gu0 < 0.0:
+                th_u = _locate(K_UPPER, 1.0, 0.0, 1.0, gu0, gu1, h, z, F, u, p, mu, ml, ztmp)
+            elif mu != 0:
+                th_u = _back_at_rest(0, h, z, F, gu1, u, p, mu, ml, ztmp)
+            else:
+                th_u = 0.0
+        else:
+            th_u = _dip(0, h, z, F, d0, d1, u, p, mu, ml, ztmp)
+        gl0 = _lower_violation(z, p, ml)
+        gl1 = _lower_violation(z_new, p, ml)
+        if (gl1 > 0.0) if ml == 0 else (gl1 >= 0.0):
+            if gl0 < 0.0:
+                th_l = _locate(K_LOWER, 1.0, 0.0, 1.0, gl0, gl1, h, z, F, u, p, mu, ml, ztmp)
+            elif ml != 0:
+                th_l = _back_at_rest(1, h, z, F, gl1, u, p, mu, ml, ztmp)
+            else:
+                th_l = 0.0
+        else:
+            th_l = _dip(1, h, z, F, d0, d1, u, p, mu, ml, ztmp)
+        if to_section and armed:
+            s0 = z[1] - z[2]
+            s1 = z_new[1] - z_new[2]
+            if s0 > 0.0 and s1 <= 0.0:
+                th_s = _locate(K_SECTION, -1.0, 0.0, 1.0, -s0, -s1, h, z, F, u, p, mu, ml, ztmp)
+        th = min(th_u, th_l, th_s)
+        if th > 1.0:
+            _track_extrema(1.0, h, z, F, d0, d1, u, p, mu, ml, ztmp, info)
+            if mu == 0:
+                info[I_STICK_U] += h
+            if ml == 0:
+                info[I_STICK_L] += h
+            for j in range(NZ):
+                z[j] = z_new[j]
+                f0[j] = K[N_STAGES, j]
+            t += h
+            for c in range(NX):
+                _v = z[c]
+                if _v < info[I_X1MIN + 2 * c]:
+                    info[I_X1MIN + 2 * c] = _v
+                if _v > info[I_X1MAX + 2 * c]:
+                    info[I_X1MAX + 2 * c] = _v
+            if z[1] - z[2] > 0.0:
+                armed = True
+            fac = 10.0 if err == 0.0 else min(10.0, max(0.2, 0.9 * err ** (-ORDER_EXP)))
+            if rejected:
+                fac = min(fac, 1.0)
+                rejected = False
+            if not last:
+                h = min(h * fac, h_max)
+            continue
+        # An event at fraction th: move there.
+        _track_extrema(th, h, z, F, d0, d1, u, p, mu, ml, ztmp, info)
+        _dense(th, z, F, zev, NZ)
+        if mu == 0:
+            info[I_STICK_U] += th * h
+        if ml == 0:
+            info[I_STICK_L] += th * h
+        t_ev = t + th * h
+        if th_s == th:
+            for j in range(NZ):
+                z[j] = zev[j]
+            t = t_ev
+            status = 0
+            break
+        disk = 0 if th_u == th else 1
+        m_old = mu if disk == 0 else ml
+        c = 1 + disk
+        release = 0.0
+        if m_old != 0:
+            zev[c] = 0.0  # a slipping disk that reached zero speed is put exactly at rest
+            new = _decide(disk, zev, u, p)
+        else:
+            if disk == 0:
+                need = p[L.KM] * u - p[L.KTH] * zev[0]
+                new = 1 if need - p[L.TSUP] >= -p[L.TSUN] - need else -1
+            else:
+                need = p[L.KTH] * zev[0]
+                new = 1 if need >= 0.0 else -1
+            release = float(new)
+        if not _apply_switch(disk, zev, u, p, mu, ml, new, release):
+            status = 2
+            for j in range(NZ):
+                z[j] = zev[j]
+            t = t_ev
+            break
+        if n_ev < ev_t.shape[0]:
+            ev_t[n_ev] = t_ev
+            ev_kind[n_ev] = 10 * disk + 3 + new
+        n_ev += 1
+        if disk == 1 and new == 0:
+            info[I_STICK_PHASES_L] += 1.0
+        if m_old != 0 and new == -m_old:
+            info[I_REVERSALS] += 1.0
+        if disk == 0:
+            mu = new
+        else:
+            ml = new
+        if t_ev - last_event_t <= 10.0 * EVENT_TIME_TOL:
+            events_here += 1
+            if events_here > MAX_EVENTS_AT_ONE_INSTANT:
+                status = 3
+                for j in range(NZ):
+                    z[j] = zev[j]
+                t = t_ev
+                break
+        else:
+            events_here = 0
+        last_event_t = t_ev
+        for j in range(NZ):
+            z[j] = zev[j]
+        t = t_ev
+        for cc in range(NX):
+            _v = z[cc]
+            if _v < info[I_X1MIN + 2 * cc]:
+                info[I_X1MIN + 2 * cc] = _v
+            if _v > info[I_X1MAX + 2 * cc]:
+                info[I_X1MAX + 2 * cc] = _v
+        if z[1] - z[2] > 0.0:
+            armed = True
+        aug_rhs(z, u, p, mu, ml, f0)
+        h = max(min(h, h_max), 1e-6)
+        rejected = False
+    info[I_T] = t
+    info[I_STATUS] = status
+    info[I_EVENTS] = n_ev
+    info[I_STEPS] = n_steps
+    info[I_REJECTED] = n_rej
+    info[I_MODE_U] = mu
+    info[I_MODE_L] = ml
+    modes[0] = mu
+    modes[1] = ml
+    return status
+
+
+def augmented_initial(x: np.ndarray) -> np.ndarray:
+    """Augmented state (x, S = [I | 0]) to start :func:`flow` from."""
+    z = np.zeros(NZ)
+    z[:NX] = x
+    for i in range(NX):
+        z[NX + i * NS + i] = 1.0
+    return z
+
+
+def split_augmented(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, S) from an augmented state; S is 3 x 4 (columns x1(0), x2(0), x3(0), u)."""
+    return z[:NX].copy(), z[NX:].reshape(NX, NS).copy()
+
+
+def flow_map(
+    p: np.ndarray,
+    u: float,
+    x0: np.ndarray,
+    t_end: float,
+    *,
+    rtol: float = 1e-11,
+    atol: float = 1e-13,
+    h_max: float = 0.1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """State and sensitivity after ``t_end`` seconds from x0 at voltage u.
+
+    Returns (x, S, modes, info): S = d x(t_end) / d (x0, u) (3 x 4), the final modes and
+    the info vector (see the I_* slots).
+    """
+    x0 = np.asarray(x0, dtype=float)
+    z = augmented_initial(x0)
+    mu, ml = initial_modes(z, float(u), p)
+    modes = np.array([mu, ml], dtype=np.int64)
+    info = np.zeros(N_INFO)
+    ev_t = np.zeros(1)
+    ev_k = np.zeros(1, dtype=np.int64)
+    status = flow(z, float(u), p, modes, float(t_end), False, rtol, atol, h_max, 10_000_000, info, ev_t, ev_k)
+    if status != 1:  # 1: the end time was reached (no section requested)
+        raise RuntimeError(f"flow_map: {FLOW_STATUS[status]}")
+    x, S = split_augmented(z)
+    return x, S, modes, info

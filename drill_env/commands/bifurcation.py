@@ -1,0 +1,133 @@
+"""``drill-env bifurcation`` and ``drill-env rig-comparison``: the analysis of Sec. 3 and 4."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import typer
+
+RIG_VOLTAGE_LIMIT = 5.0  # [V] the amplifier input range of the rig, Sec. 2.1
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("bifurcation")
+    def bifurcation(
+        preset: str = typer.Option("brake", help="Rig preset (brake, no_brake) or a YAML file."),
+        umax: float = typer.Option(5.0, help="Upper end of the voltage range [V]."),
+        umin: float = typer.Option(0.0, help="Lower end of the voltage range [V]."),
+        out: Path = typer.Option(..., help="Directory for bifurcation.json and the figures."),
+        check: bool = typer.Option(
+            True, "--check/--no-check", help="Confirm the diagram by brute-force simulation."
+        ),
+    ) -> None:
+        """Bifurcation diagram in the voltage: equilibria, Hopf points, periodic orbits, points A-F.
+
+        Writes OUT/bifurcation.json, the figures fig6_equilibria.png, fig8_bifurcation.png,
+        period.png and fig9_limit_cycles.png, and with --check OUT/brute_force_check.json.
+        """
+        if not (math.isfinite(umin) and math.isfinite(umax)) or umax <= umin:
+            _fail(f"need finite --umin < --umax, got {umin!r}, {umax!r}")
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+        from rich.table import Table
+
+        from drill_env.analysis import bifurcation_diagram, brute_force_check
+        from drill_env.analysis.plots import save_figures
+        from drill_env.params import ParameterError, resolve_params
+
+        try:
+            params = resolve_params(preset)
+        except ParameterError as exc:
+            _fail(str(exc))
+        if params.effects.active:
+            _fail(
+                f"the analysis covers the paper's model only; the preset switches on {list(params.effects.active)}"
+            )
+        console = Console(stderr=True)
+        if umax > RIG_VOLTAGE_LIMIT or umin < -RIG_VOLTAGE_LIMIT:
+            console.print(
+                f"[yellow]note: the range exceeds the rig's +-{RIG_VOLTAGE_LIMIT:g} V amplifier input; "
+                "the model is analysed there all the same[/yellow]"
+            )
+        out.mkdir(parents=True, exist_ok=True)
+        columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn())
+        with Progress(*columns, console=console, transient=False) as prog:
+            task = prog.add_task("continuation", total=umax - umin)
+
+            def on_point(c) -> None:
+                prog.update(
+                    task,
+                    completed=min(max(c.u - umin, 0.0), umax - umin),
+                    description=f"continuation: u = {c.u:7.4f} V, amplitude {c.amplitude:7.4f} rad/s",
+                )
+
+            diagram = bifurcation_diagram(params, u_max=umax, u_min=umin, on_point=on_point)
+            prog.update(task, completed=umax - umin, description="continuation: done")
+            result = None
+            if check:
+                ctask = prog.add_task("brute-force check", total=1.0)
+
+                def on_stage(stage: str, frac: float) -> None:
+                    prog.update(ctask, completed=frac, description=f"brute-force check: {stage}")
+
+                result = brute_force_check(diagram, progress=on_stage)
+                prog.update(ctask, completed=1.0, description="brute-force check: done")
+        diagram.save_json(out / "bifurcation.json")
+        if result is not None:
+            result.save_json(out / "brute_force_check.json")
+        paths = save_figures(diagram, out, check=result)
+
+        table = Table(title=f"{diagram.preset}, {umin:g} to {umax:g} V")
+        for col in ("point", "u [V]", "type"):
+            table.add_column(col)
+        for name, pt in diagram.points.items():
+            table.add_row(name, f"{pt.u:.6f}", pt.type)
+        for pt in diagram.other_points:
+            table.add_row(f"({pt.name})", f"{pt.u:.6f}", pt.type)
+        Console().print(table)
+        absent = [k for k in "ABCDEF" if k not in diagram.points]
+        if absent:
+            typer.echo(f"not in the range: {', '.join(absent)}")
+        for br in diagram.branches:
+            typer.echo(
+                f"branch from the Hopf point at {br.start.u:.4f} V: {len(br.cycles)} orbits, ends: {br.end_reason}"
+            )
+        chk = diagram.checks()
+        if chk["orbits"]:
+            typer.echo(
+                f"{chk['orbits']} orbits: max |trivial multiplier - 1| = {chk['trivial_multiplier_max_deviation']:.1e}, "
+                f"max periodicity residual = {chk['periodicity_max_residual']:.1e}"
+            )
+        typer.echo(f"diagram computed in {diagram.timings['total']:.2f} s")
+        if result is not None:
+            typer.echo(result.summary())
+        typer.echo(f"wrote {out / 'bifurcation.json'}" + "".join(f", {p.name}" for p in paths))
+        if result is not None and not result.passed:
+            raise typer.Exit(code=1)
+
+    @app.command("rig-comparison")
+    def rig_comparison_cmd(
+        preset: str = typer.Option("brake", help="Rig preset; the paper's measurements are with the brake."),
+        out: Path | None = typer.Option(None, help="Markdown file to write (a .json beside it)."),
+    ) -> None:
+        """Compare the model's steady states with the measurements quoted in the paper (Sec. 4)."""
+        from drill_env.analysis import rig_comparison
+        from drill_env.params import ParameterError
+
+        try:
+            comp = rig_comparison(preset)
+        except ParameterError as exc:
+            _fail(str(exc))
+        text = comp.to_markdown()
+        if out is not None:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            comp.save(out)
+        typer.echo(text)
+        if out is not None:
+            typer.echo(f"wrote {out} and {out.with_suffix('.json')}")

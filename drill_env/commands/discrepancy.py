@@ -1,0 +1,126 @@
+"""``drill-env synth`` and ``drill-env discrepancy``: hidden-effect data and the discrepancy workflow."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def _progress():
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    return Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        transient=True,
+    )
+
+
+def synth(
+    preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
+    effect: str = typer.Option(..., help="Hidden effect: none, a library effect, or external_torque."),
+    magnitude: float | None = typer.Option(
+        None, help="Magnitude of the effect (its meaning per effect is in the README); default: "
+        "drawn log-uniformly from the documented detectable range."
+    ),
+    seed: int = typer.Option(0, help="Seed of everything random (effect phases, runs, noise)."),
+    out: Path = typer.Option(..., help="Dataset folder to write (runs + dataset.json)."),
+    answer: Path = typer.Option(..., help="File that receives the effect and its parameters (JSON)."),
+    noise: float = typer.Option(1e-3, help="Angle noise before quantisation [rad]."),
+    counts: int = typer.Option(2000, help="Encoder counts per revolution."),
+    rate: float = typer.Option(500.0, help="Sample rate [Hz] (100-10000)."),
+    duration: float = typer.Option(150.0, help="Recorded length of each run [s]."),
+    voltages: str = typer.Option(
+        "0.2,0.5,0.7,1.0,2.0,3.0,4.5", help="Constant-voltage runs [V], comma-separated ('' for none)."
+    ),
+    random_runs: int = typer.Option(3, help="Quasi-random voltage runs."),
+) -> None:
+    """Make measured-like data from a truth model with one hidden effect."""
+    from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
+    from drill_env.params import ParameterError
+
+    try:
+        volts = tuple(float(v) for v in voltages.split(",") if v.strip())
+    except ValueError:
+        _fail(f"--voltages: expected comma-separated numbers, got {voltages!r}")
+    try:
+        cfg = SynthConfig(
+            preset=preset, voltages=volts, random_runs=random_runs, duration_s=duration,
+            sample_rate_hz=rate, encoder_counts_per_rev=counts, angle_noise_std=noise,
+        )
+        with _progress() as prog:
+            task = prog.add_task("simulating runs", total=len(volts) + random_runs)
+            res = make_dataset(
+                effect, seed=seed, magnitude=magnitude, config=cfg,
+                progress=lambda i, n: prog.update(task, completed=i),
+            )
+        write_synthetic(res, out, answer, preset=preset)
+    except (ValueError, ParameterError) as exc:
+        _fail(str(exc))
+    typer.echo(f"wrote {len(res.runs)} runs to {out}; the answer is in {answer}")
+
+
+def discrepancy(
+    data_dir: Path = typer.Argument(..., help="Dataset folder (CSV runs + dataset.json)."),
+    out: Path = typer.Option(..., help="Output folder: report.md, result.json, figures, model.yaml."),
+    heldout: str | None = typer.Option(
+        None, help="Comma-separated run names to hold out (default: every third run by voltage)."
+    ),
+    seed: int = typer.Option(0, help="Seed of the bootstrap."),
+    no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
+) -> None:
+    """Find where and why measured data disagree with the nominal model; name the missing effect."""
+    from drill_env.discrepancy.dataset import DatasetError
+    from drill_env.discrepancy.workflow import run_discrepancy
+
+    held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout else None
+    try:
+        with _progress() as prog:
+            tasks: dict[str, int] = {}
+
+            def progress(stage: str, i: int, n: int) -> None:
+                if stage not in tasks:
+                    tasks[stage] = prog.add_task(stage, total=n)
+                prog.update(tasks[stage], completed=i)
+
+            res = run_discrepancy(data_dir, out, heldout=held, figures=not no_figures, seed=seed, progress=progress)
+    except (DatasetError, ValueError) as exc:
+        _fail(str(exc))
+    typer.echo(res.verdict_line())
+
+
+
+
+def discrepancy_study(
+    out: Path = typer.Option(Path("results/discrepancy"), help="Output folder of the study."),
+    seeds: int = typer.Option(5, help="Seeds per effect in the confusion matrix."),
+    sweep_seeds: int = typer.Option(3, help="Seeds per point of the magnitude and noise sweeps."),
+    paper_case_only: bool = typer.Option(False, "--paper-case-only", help="Only the paper's case."),
+    skip_paper_case: bool = typer.Option(False, "--skip-paper-case", help="Skip the paper's case."),
+) -> None:
+    """Hidden-effect study (confusion matrix, detection vs magnitude and noise) and the paper's case."""
+    from drill_env.discrepancy.study import paper_case, run_study
+
+    if not paper_case_only:
+        with _progress() as prog:
+            task = prog.add_task("hidden-effect study", total=None)
+            summary = run_study(
+                out, seeds=seeds, sweep_seeds=sweep_seeds,
+                progress=lambda i, n: prog.update(task, completed=i, total=n),
+            )
+        typer.echo(f"confusion-matrix accuracy {summary['confusion_accuracy']:.1%}; see {out / 'confusion.md'}")
+    if not skip_paper_case:
+        case = paper_case(out / "paper_case")
+        typer.echo(f"paper's case: {case['verdict']} (confidence {case['confidence']:.2f}); see "
+                   f"{out / 'paper_case' / 'paper_case.md'}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command(name="synth")(synth)
+    app.command(name="discrepancy")(discrepancy)
+    app.command(name="discrepancy-study")(discrepancy_study)

@@ -1,0 +1,42 @@
+"""Model-discrepancy workflow: where, and by which missing effect, measured data leave the model.
+
+* :mod:`~drill_env.discrepancy.dataset` -- the measured-data format, loader and writer;
+* :mod:`~drill_env.discrepancy.synth` -- measured-like data from a truth model with one
+  hidden effect;
+* :mod:`~drill_env.discrepancy.equation_error` -- the filtered equation error and its
+  noise floor;
+* :mod:`~drill_env.discrepancy.effects` -- the candidate library;
+* :mod:`~drill_env.discrepancy.decide` -- fitting, held-out scoring, the decision rule;
+* :mod:`~drill_env.discrepancy.compare` -- sensor-space comparison by simulation;
+* :mod:`~drill_env.discrepancy.workflow`, :mod:`~drill_env.discrepancy.report` -- the
+  command's whole run and its report;
+* :mod:`~drill_env.discrepancy.study` -- the hidden-effect study.
+"""
+
+from drill_env.discrepancy.dataset import (
+    DatasetError,
+    MeasuredDataset,
+    MeasuredRun,
+    load_dataset,
+    write_dataset,
+)
+from drill_env.discrepancy.effects import CANDIDATES, candidate_names
+from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
+from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse, run_discrepancy
+
+__all__ = [
+    "CANDIDATES",
+    "DatasetError",
+    "HIDDEN_EFFECTS",
+    "MeasuredDataset",
+    "MeasuredRun",
+    "RESULT_EFFECTS",
+    "SynthConfig",
+    "analyse",
+    "candidate_names",
+    "load_dataset",
+    "make_dataset",
+    "run_discrepancy",
+    "write_dataset",
+    "write_synthetic",
+]

@@ -1,0 +1,221 @@
+"""The candidate library: physical effects the nominal model leaves out.
+
+Each candidate has a physical parametric form (the one the simulator implements, see
+:class:`drill_env.params.ModelEffects`), a signature in the equation error (which disk,
+which measured signal it follows) and a map from its fitted parameters to the
+``effects:`` entries of a rig YAML. In the equation error every candidate is a set of
+columns ``K[basis]/h^2`` at the windows of :class:`~drill_env.discrepancy.equation_error.RunEquations`,
+added to the nominal torques with coefficients to fit; the two lag effects are
+nonlinear in one time constant, which is found on a grid with the coefficient fixed
+by physics (1).
+
+Notation: ``sgn`` the direction of slip, ``S(w)`` the Stribeck part of the lower
+friction, ``T_sl`` its static level, ``T_su`` the static level of the upper friction
+on the current side.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from drill_env.discrepancy.equation_error import RunEquations, stribeck
+
+__all__ = ["Candidate", "CANDIDATES", "candidate_names"]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect of the library."""
+
+    name: str
+    title: str
+    form: str  # the physical parametric form
+    signature: str  # what it looks like in the residual
+    n_params: int  # fitted parameters (for the lag effects: the time constant)
+    columns: Callable[..., tuple[np.ndarray, np.ndarray]]  # (eq[, tau]) -> (X_upper, X_lower)
+    to_parameters: Callable[..., dict[str, float]]  # (coef[, tau]) -> physical parameters
+    to_model_effects: Callable[[dict[str, float]], dict[str, float]]
+    admissible: Callable[[dict[str, float]], str | None]  # None, or why the fit is unphysical
+    tau_grid: np.ndarray | None = None  # time constants tried [s] (lag effects)
+
+    @property
+    def is_lag(self) -> bool:
+        return self.tau_grid is not None
+
+
+def _zeros(n: int, k: int) -> np.ndarray:
+    return np.zeros((n, k))
+
+
+def _lower_level(eq: RunEquations) -> np.ndarray:
+    """-sgn (T_sl + S(|x3|)) per sample: the friction part that position and drift scale."""
+    p = eq.params
+    return -np.sign(eq.speed_l) * (p.lower_static + stribeck(p, np.abs(eq.speed_l)))
+
+
+def _harmonics(eq: RunEquations, level: np.ndarray, theta: np.ndarray, disk: str) -> np.ndarray:
+    cols = [level * np.cos(theta), -level * np.sin(theta), level * np.cos(2 * theta), -level * np.sin(2 * theta)]
+    return np.column_stack([eq.kernel(c, disk) for c in cols])
+
+
+def _cols_position_lower(eq: RunEquations):
+    xl = _harmonics(eq, _lower_level(eq), eq.theta_l, "lower")
+    return _zeros(len(eq.upper), 4), xl
+
+
+def _cols_position_upper(eq: RunEquations):
+    p = eq.params
+    level = np.where(eq.speed_u >= 0.0, -p.upper_static_pos, p.upper_static_neg)
+    xu = _harmonics(eq, level, eq.theta_u, "upper")
+    return xu, _zeros(len(eq.lower), 4)
+
+
+def _position_parameters(prefix: str):
+    def conv(coef, tau=None):
+        a1, a2 = math.hypot(coef[0], coef[1]), math.hypot(coef[2], coef[3])
+        return {
+            f"{prefix}_position_amp_1": a1,
+            f"{prefix}_position_phase_1": math.atan2(coef[1], coef[0]) % (2 * math.pi),
+            f"{prefix}_position_amp_2": a2,
+            f"{prefix}_position_phase_2": math.atan2(coef[3], coef[2]) % (2 * math.pi),
+        }
+
+    return conv
+
+
+def _position_admissible(prefix: str):
+    def check(par):
+        total = par[f"{prefix}_position_amp_1"] + par[f"{prefix}_position_amp_2"]
+        return None if total < 0.95 else f"|a1| + |a2| = {total:.3g} would make the friction change sign"
+
+    return check
+
+
+def _cols_string_damping(eq: RunEquations):
+    twist = eq.theta_u - eq.theta_l
+    xu = -eq.kernel_rate(twist, "upper")[:, None]
+    xl = eq.kernel_rate(twist, "lower")[:, None]
+    return xu, xl
+
+
+def _cols_drift(eq: RunEquations):
+    xl = eq.kernel(_lower_level(eq) * eq.t_rel, "lower")[:, None]
+    return _zeros(len(eq.upper), 1), xl
+
+
+def _cols_motor_lag(eq: RunEquations, tau: float):
+    km = eq.params.motor_constant
+    u = eq.u
+    e = math.exp(-eq.dt / tau)
+    # Motor torque of the lagged motor, exact for a zero-order-hold voltage, from its
+    # steady value at the first sample.
+    from scipy.signal import lfilter
+
+    tm_next, _ = lfilter([1.0 - e], [1.0, -e], km * u, zi=[e * km * u[0]])
+    tm = np.empty_like(u)
+    tm[0] = km * u[0]
+    tm[1:] = tm_next[:-1]
+    xu = eq.kernel_lag(tm - km * u, tau, "upper")[:, None]
+    return xu, _zeros(len(eq.lower), 1)
+
+
+def _cols_friction_memory(eq: RunEquations, tau: float):
+    from scipy.signal import lfilter
+
+    p = eq.params
+    speed = np.abs(eq.speed_l)
+    e = math.exp(-eq.dt / tau)
+    w_next, _ = lfilter([1.0 - e], [1.0, -e], speed, zi=[e * speed[0]])
+    w = np.empty_like(speed)
+    w[0] = speed[0]
+    w[1:] = w_next[:-1]
+    basis = -np.sign(eq.speed_l) * (stribeck(p, w) - stribeck(p, speed))
+    return _zeros(len(eq.upper), 1), eq.kernel(basis, "lower")[:, None]
+
+
+def _nonneg(key: str):
+    def check(par):
+        return None if par[key] >= 0.0 else f"{key} = {par[key]:.3g} < 0 is not physical"
+
+    return check
+
+
+CANDIDATES: tuple[Candidate, ...] = (
+    Candidate(
+        name="position_friction_lower",
+        title="position-dependent friction, lower disk",
+        form="T_fl = sgn (T_sl + S(|x3|)) (1 + a1 cos(theta_l + phi1) + a2 cos(2 theta_l + phi2)) + b_l x3",
+        signature="lower-disk residual following cos/sin of theta_l and 2 theta_l: lines at the lower disk's "
+        "rotation rate and its double, moving with the voltage",
+        n_params=4,
+        columns=_cols_position_lower,
+        to_parameters=_position_parameters("lower"),
+        to_model_effects=lambda par: dict(par),
+        admissible=_position_admissible("lower"),
+    ),
+    Candidate(
+        name="position_friction_upper",
+        title="position-dependent friction, upper disk",
+        form="T_fu = sgn T_su (1 + a1 cos(theta_u + phi1) + a2 cos(2 theta_u + phi2)) + b_u x2",
+        signature="upper-disk residual following cos/sin of theta_u and 2 theta_u",
+        n_params=4,
+        columns=_cols_position_upper,
+        to_parameters=_position_parameters("upper"),
+        to_model_effects=lambda par: dict(par),
+        admissible=_position_admissible("upper"),
+    ),
+    Candidate(
+        name="string_damping",
+        title="torsional damping of the string",
+        form="T_string = k_theta x1 + b_theta (x2 - x3)",
+        signature="equal and opposite residuals on both disks proportional to the twist rate x2 - x3",
+        n_params=1,
+        columns=_cols_string_damping,
+        to_parameters=lambda coef, tau=None: {"string_damping": float(coef[0])},
+        to_model_effects=lambda par: {"string_damping": par["string_damping"]},
+        admissible=_nonneg("string_damping"),
+    ),
+    Candidate(
+        name="motor_inductance",
+        title="rotor inductance (lag of the motor torque)",
+        form="tau_m T_m' = k_m u - T_m, tau_m = L_r / (R_i + R_r)",
+        signature="upper-disk residual decaying after each voltage step, proportional to the step",
+        n_params=1,
+        columns=_cols_motor_lag,
+        to_parameters=lambda coef, tau=None: {"motor_lag": float(tau)},
+        to_model_effects=lambda par: {"motor_lag": par["motor_lag"]},
+        admissible=lambda par: None,
+        tau_grid=np.geomspace(5e-4, 0.3, 28),
+    ),
+    Candidate(
+        name="friction_memory",
+        title="friction memory (frictional lag of the Stribeck part)",
+        form="T_fl = sgn (T_sl + S(w)) + b_l x3, tau_f w' = |x3| - w",
+        signature="lower-disk residual while the lower speed changes, of the sign of its acceleration",
+        n_params=1,
+        columns=_cols_friction_memory,
+        to_parameters=lambda coef, tau=None: {"friction_lag": float(tau)},
+        to_model_effects=lambda par: {"friction_lag": par["friction_lag"]},
+        admissible=lambda par: None,
+        tau_grid=np.geomspace(5e-3, 3.0, 28),
+    ),
+    Candidate(
+        name="friction_drift",
+        title="slow drift of the lower friction level",
+        form="T_fl = sgn (T_sl + S(|x3|)) (1 + d t) + b_l x3, t from the start of the recording",
+        signature="lower-disk residual growing linearly with time since the start of each run",
+        n_params=1,
+        columns=_cols_drift,
+        to_parameters=lambda coef, tau=None: {"friction_drift": float(coef[0])},
+        to_model_effects=lambda par: {"friction_drift": par["friction_drift"]},
+        admissible=lambda par: None,
+    ),
+)
+
+
+def candidate_names() -> list[str]:
+    return [c.name for c in CANDIDATES]

@@ -1,0 +1,263 @@
+"""``report.md`` and figures of a discrepancy analysis."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_report", "plot_spectra"]
+
+
+def _fmt(x, digits=4) -> str:
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    if isinstance(x, (float, np.floating)):
+        if not math.isfinite(float(x)):
+            return "-"
+        return f"{float(x):.{digits}g}"
+    return str(x)
+
+
+def _table(header: list[str], rows: list[list]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(v) for v in r) + " |")
+    return "\n".join(lines)
+
+
+def plot_spectra(ax, comp_nominal, comp_after=None, title=""):
+    band = (comp_nominal.freqs > 0) & (comp_nominal.freqs <= 2.0)
+    f = comp_nominal.freqs[band]
+    ax.loglog(f, comp_nominal.psd_measured[band], color="k", lw=1.2, label="measured")
+    ax.loglog(f, comp_nominal.psd_model[band], color="tab:red", lw=1, label="nominal model")
+    if comp_after is not None:
+        ax.loglog(f, comp_after.psd_model[band], color="tab:blue", lw=1, ls="--", label="with effect")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("PSD of lower speed [(rad/s)^2/Hz]")
+    ax.set_title(title, fontsize=9)
+
+
+def _figures(res, out: Path) -> list[tuple[str, str]]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figs = []
+    d = res.decision
+    held = [n for n in d.heldout_runs if n in res.nominal]
+    runs = {r.name: r for r in res.dataset.runs}
+
+    # candidate gains
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    names = [s.name for s in d.scores]
+    gains = [max(s.gain, 1e-2) for s in d.scores]
+    colors = ["tab:green" if s.significant else "tab:gray" for s in d.scores]
+    ax.barh(names, gains, color=colors)
+    ax.scatter([s.threshold for s in d.scores], names, marker="|", s=200, color="k", label="threshold")
+    ax.set_xscale("log")
+    ax.set_xlabel("held-out gain (drop of the sum of squares, noise units)")
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "candidates.png", dpi=110)
+    plt.close(fig)
+    figs.append(("candidates.png", "Held-out gain of each candidate against its significance threshold."))
+
+    # equation error per run
+    eqs = res.equations
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    for disk, ax in zip(("upper", "lower"), axes, strict=False):
+        for i, eq in enumerate(eqs):
+            w = getattr(eq, disk)
+            if len(w) == 0:
+                continue
+            x = i + w.t / max(eq.run.duration, 1e-9) * 0.9
+            ax.plot(x, w.z, ".", ms=2)
+        ax.axhline(3, color="k", lw=0.5, ls=":")
+        ax.axhline(-3, color="k", lw=0.5, ls=":")
+        ax.set_ylabel(f"{disk} residual / noise")
+        ax.set_yscale("symlog", linthresh=3)
+    axes[1].set_xticks(np.arange(len(eqs)) + 0.45)
+    axes[1].set_xticklabels([eq.run.label.replace(" (", "\n(") for eq in eqs], fontsize=6)
+    fig.tight_layout()
+    fig.savefig(out / "equation_error.png", dpi=110)
+    plt.close(fig)
+    figs.append(("equation_error.png", "Nominal equation error per window, in units of its noise floor "
+                 "(dotted: +-3); each run's windows in time order."))
+
+    if held:
+        # spectra of the held-out runs
+        k = len(held)
+        fig, axes = plt.subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
+        for ax, name in zip(axes[0], held, strict=False):
+            plot_spectra(ax, res.nominal[name], res.after.get(name), runs[name].label)
+        axes[0][0].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "spectra.png", dpi=110)
+        plt.close(fig)
+        figs.append(("spectra.png", "Power spectra of the lower-disk speed on the held-out runs: measured, "
+                     "free-running nominal model and model with the effect."))
+        # residual spectra of the short-horizon prediction
+        fig, axes = plt.subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
+        for ax, name in zip(axes[0], held, strict=False):
+            c = res.nominal[name]
+            band = (c.freqs > 0) & (c.freqs <= 10.0)
+            ax.loglog(c.freqs[band], c.psd_short_residual[band], color="tab:red", lw=1, label="nominal")
+            if name in res.after:
+                a = res.after[name]
+                ax.loglog(a.freqs[band], a.psd_short_residual[band], color="tab:blue", lw=1, label="with effect")
+            ax.set_title(runs[name].label, fontsize=9)
+            ax.set_xlabel("frequency [Hz]")
+            ax.set_ylabel("PSD of speed residual")
+        axes[0][0].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "residual_spectra.png", dpi=110)
+        plt.close(fig)
+        figs.append(("residual_spectra.png", "Spectra of the short-horizon speed residual (measured minus "
+                     "model restarted from the measured state every few seconds), held-out runs."))
+        # trajectories
+        fig, axes = plt.subplots(k, 1, figsize=(9, 2.4 * k), squeeze=False)
+        for ax, name in zip(axes[:, 0], held, strict=False):
+            c = res.nominal[name]
+            sel = c.t <= min(c.t[-1], 40.0)
+            ax.plot(c.t[sel], c.measured_speed[sel], color="k", lw=0.8, label="measured")
+            ax.plot(c.t[sel], c.short_speed[sel], color="tab:red", lw=0.8, label="nominal, short horizons")
+            if name in res.after:
+                ax.plot(c.t[sel], res.after[name].short_speed[sel], color="tab:blue", lw=0.8, ls="--",
+                        label="with effect, short horizons")
+            ax.set_ylabel("lower speed [rad/s]")
+            ax.set_title(runs[name].label, fontsize=9)
+        axes[-1, 0].set_xlabel("time since start of recording [s]")
+        axes[0, 0].legend(fontsize=7, loc="upper right")
+        fig.tight_layout()
+        fig.savefig(out / "trajectories.png", dpi=110)
+        plt.close(fig)
+        figs.append(("trajectories.png", "Lower-disk speed, first 40 s of each held-out run: measured and "
+                     "models restarted from the measured state."))
+
+    # bifurcation points
+    const = [n for n, c in res.nominal.items() if c.features_measured is not None]
+    if const:
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for n in const:
+            c = res.nominal[n]
+            v = c.voltage
+            fm, fs = c.features_measured, c.features_model
+            mk = "o" if n in d.heldout_runs else "s"
+            ax.plot([v] * 3, [fm.min_speed, fm.mean_speed, fm.max_speed], mk, color="k", mfc="none")
+            ax.plot([v - 0.04] * 3, [fs.min_speed, fs.mean_speed, fs.max_speed], "x", color="tab:red")
+            if n in res.after:
+                fa = res.after[n].features_model
+                ax.plot([v + 0.04] * 3, [fa.min_speed, fa.mean_speed, fa.max_speed], "+", color="tab:blue")
+        ax.plot([], [], "o", color="k", mfc="none", label="measured (circle: held out)")
+        ax.plot([], [], "x", color="tab:red", label="nominal model")
+        if res.after:
+            ax.plot([], [], "+", color="tab:blue", label="with effect (held-out runs)")
+        ax.set_xlabel("constant voltage u [V]")
+        ax.set_ylabel("lower speed min / mean / max [rad/s]")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "bifurcation.png", dpi=110)
+        plt.close(fig)
+        figs.append(("bifurcation.png", "Experimental bifurcation-diagram points (min, mean, max of the "
+                     "lower-disk speed over the second half of each constant-voltage run)."))
+    return figs
+
+
+def write_report(res, out: Path, *, figures: bool = True) -> Path:
+    d = res.decision
+    lines = ["# Model-discrepancy report", ""]
+    lines += [f"**{res.verdict_line()}**", ""]
+    ds = res.dataset
+    lines += [
+        f"Dataset: {len(ds.runs)} runs, preset `{ds.preset}`, {ds.encoder_counts_per_rev} encoder counts "
+        f"per revolution, {ds.sample_rate_hz:g} Hz. Angle noise estimated from the data: "
+        f"upper {res.noise.upper:.3g} rad, lower {res.noise.lower:.3g} rad "
+        f"(quantisation alone {res.noise.quantisation:.3g} rad).",
+        "",
+        f"Training runs: {', '.join(d.train_runs)}. Held-out runs: {', '.join(d.heldout_runs)}.",
+        "",
+        f"Reason: {d.reason}. Bootstrap over runs: {d.bootstrap_counts}.",
+        "",
+    ]
+    if res.corrected is not None:
+        lines += [
+            "The chosen effect is written as a rig configuration, `model.yaml` (its `effects:` entry); "
+            "`drill_env.simulate(\"model.yaml\", ...)` and `drill_env.load_params(\"model.yaml\")` accept it. "
+            "Times in it count from the start of a recording (simulate with `t0 = 0` there).",
+            "",
+        ]
+    lines += ["## Where the nominal model disagrees", ""]
+    rows = []
+    for w in res.where:
+        rows.append([
+            w["label"],
+            w["upper_ss_per_window"],
+            w["lower_ss_per_window"],
+            w.get("short_horizon_angle_over_floor", float("nan")),
+            w.get("spectrum_distance_db", float("nan")),
+            ", ".join(f"{f:.3g}" for f in w.get("disagreeing_frequencies_hz", [])) or "-",
+        ])
+    lines += [
+        "Equation error as sum of squares per window in noise units (1 = at the noise floor); short-horizon "
+        "angle error over the angle noise; spectral distance of the lower-disk speed [dB] and the "
+        "frequencies [Hz] where the spectra differ by more than 6 dB.",
+        "",
+        _table(["run", "upper SS/window", "lower SS/window", "short-horizon angle / floor",
+                "spectrum distance [dB]", "disagreeing frequencies [Hz]"], rows),
+        "",
+    ]
+    const = [w for w in res.where if "steady_measured" in w]
+    if const:
+        rows = []
+        for w in const:
+            m, s = w["steady_measured"], w["steady_model"]
+            rows.append([w["label"], m["mean_speed"], s["mean_speed"], m["min_speed"], s["min_speed"],
+                         m["max_speed"], s["max_speed"], m["period"], s["period"], m["stick_fraction"],
+                         s["stick_fraction"]])
+        lines += [
+            "Steady state (second half of each constant-voltage run), measured vs nominal model:",
+            "",
+            _table(["run", "mean meas", "mean model", "min meas", "min model", "max meas", "max model",
+                    "period meas [s]", "period model [s]", "stuck meas", "stuck model"], rows),
+            "",
+        ]
+    ln = res.line
+    lines += [
+        f"Strongest common spectral line of the residual: {ln.frequency_hz:.4g} Hz, drop of the sum of squares "
+        f"{ln.reduction:.4g} against a threshold of {ln.threshold:.4g} "
+        f"({'significant' if ln.significant else 'not significant'}; "
+        f"{'locked to the rotation of the lower disk' if ln.related_to_rotation else 'not locked to rotation'}).",
+        "",
+        "## Which effect",
+        "",
+    ]
+    rows = [[s.name, s.gain, s.threshold, s.significant,
+             ", ".join(f"{k}={v:.4g}" for k, v in s.parameters.items()), s.note or ""] for s in d.scores]
+    lines += [
+        "Each candidate is fitted on the training runs and scored on the held-out runs: the gain is the drop "
+        "of the held-out sum of squares (noise units), normalised by the remaining misfit; the threshold is "
+        "max(chi2 quantile at 1e-3, k ln n).",
+        "",
+        _table(["candidate", "held-out gain", "threshold", "significant", "fitted parameters", "note"], rows),
+        "",
+        "## Gap before and after, held-out runs",
+        "",
+    ]
+    keys = list(res.gap_before)
+    rows = [[k, res.gap_before[k], res.gap_after.get(k, float("nan"))] for k in keys]
+    lines += [_table(["metric", "nominal model", "with the chosen effect"], rows), ""]
+    if res.corrected is None:
+        lines += ["No effect was added, so the model and its gap are unchanged.", ""]
+    if figures:
+        figs = _figures(res, out)
+        lines += ["## Figures", ""]
+        for fn, cap in figs:
+            lines += [f"![{fn}]({fn})", "", cap, ""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path

@@ -1,0 +1,340 @@
+"""Measured-like data from a truth model with one hidden effect.
+
+The truth model is a preset plus one effect (or none). Each run starts from rest at a
+random angle, is simulated exactly through a pre-roll that is not recorded (long
+enough for the steady state of a constant-voltage run), and is then recorded:
+the angles go through the rig's measurement chain (:func:`drill_env.sensors.measure`:
+Gaussian angle noise, then floor quantisation to encoder counts), the voltage is
+recorded as the zero-order hold it is. Two kinds of runs:
+
+* constant-voltage runs like the paper's (Sec. 4), by default at 0.2, 0.5, 0.7, 1.0,
+  2.0, 3.0 and 4.5 V;
+* quasi-random runs for identification: random levels in [0, 5] V, each held for a
+  random 0.5-2 s (whole multiples of 0.1 s).
+
+The effect's name and parameters go to the answer file only; the data folder holds
+the runs and ``dataset.json`` (preset, encoder resolution, sample rate).
+
+Hidden effects (``HIDDEN_EFFECTS``): each has a magnitude with a documented
+detectable range it is drawn from, log-uniformly, unless ``magnitude`` is given; its
+other parameters (phases, second harmonic, frequency, sign) are always random. The
+ranges are listed in the README and in ``results/discrepancy/confusion.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drill_env.discrepancy.dataset import MeasuredRun, write_dataset
+from drill_env.params import RigParams, load_params
+
+__all__ = [
+    "HiddenEffect",
+    "HIDDEN_EFFECTS",
+    "SynthConfig",
+    "SynthResult",
+    "make_dataset",
+    "write_synthetic",
+]
+
+_TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class HiddenEffect:
+    """A truth-model effect: how its magnitude maps to ModelEffects fields."""
+
+    name: str
+    magnitude_meaning: str  # what --magnitude sets, with units
+    low: float  # documented detectable range of the magnitude
+    high: float
+    build: Callable[[float, np.random.Generator], dict[str, float]]
+    in_library: bool = True
+    max_magnitude: float = math.inf  # hard validity limit of the magnitude
+
+    def draw(self, rng: np.random.Generator) -> float:
+        if self.low == self.high:
+            return self.low
+        # log-uniform: every octave of the range is equally represented
+        return float(math.exp(rng.uniform(math.log(self.low), math.log(self.high))))
+
+
+def _position(prefix: str) -> Callable[[float, np.random.Generator], dict[str, float]]:
+    def build(a1: float, rng: np.random.Generator) -> dict[str, float]:
+        return {
+            f"{prefix}_position_amp_1": a1,
+            f"{prefix}_position_phase_1": float(rng.uniform(0.0, _TWO_PI)),
+            f"{prefix}_position_amp_2": float(a1 * rng.uniform(0.0, 0.5)),
+            f"{prefix}_position_phase_2": float(rng.uniform(0.0, _TWO_PI)),
+        }
+
+    return build
+
+
+def _drift(rate: float, rng: np.random.Generator) -> dict[str, float]:
+    return {"friction_drift": float(rate * rng.choice([-1.0, 1.0]))}
+
+
+def _external(amp: float, rng: np.random.Generator) -> dict[str, float]:
+    return {
+        "disturbance_amp": amp,
+        "disturbance_freq": float(math.exp(rng.uniform(math.log(0.5), math.log(4.0)))),
+        "disturbance_phase": float(rng.uniform(0.0, _TWO_PI)),
+    }
+
+
+HIDDEN_EFFECTS: dict[str, HiddenEffect] = {
+    e.name: e
+    for e in (
+        HiddenEffect("none", "(no magnitude)", 0.0, 0.0, lambda m, rng: {}),
+        HiddenEffect(
+            "position_friction_lower",
+            "a1 [-]: once-per-revolution modulation of the lower static + Stribeck friction "
+            "(a2 = a1 x U(0, 0.5); phases uniform)",
+            0.01,
+            0.2,
+            _position("lower"),
+            max_magnitude=0.66,
+        ),
+        HiddenEffect(
+            "position_friction_upper",
+            "a1 [-]: once-per-revolution modulation of the upper static friction "
+            "(a2 = a1 x U(0, 0.5); phases uniform)",
+            0.04,
+            0.3,
+            _position("upper"),
+            max_magnitude=0.66,
+        ),
+        HiddenEffect(
+            "string_damping",
+            "b_theta [N m s/rad]: torsional damping of the string",
+            5e-4,
+            0.01,
+            lambda m, rng: {"string_damping": m},
+        ),
+        HiddenEffect(
+            "motor_inductance",
+            "tau_m = L_r/(R_i + R_r) [s]: lag of the motor torque",
+            2e-3,
+            0.05,
+            lambda m, rng: {"motor_lag": m},
+        ),
+        HiddenEffect(
+            "friction_memory",
+            "tau_f [s]: frictional lag of the Stribeck part of the lower friction",
+            0.02,
+            0.5,
+            lambda m, rng: {"friction_lag": m},
+        ),
+        HiddenEffect(
+            "friction_drift",
+            "|rate| [1/s]: relative change of the lower friction level per second (sign random)",
+            1e-4,
+            2e-3,
+            _drift,
+            max_magnitude=0.005,
+        ),
+        HiddenEffect(
+            "external_torque",
+            "A [N m]: external torque A sin(w t + phi) on the lower disk, w log-uniform in "
+            "[0.5, 4] rad/s, unrelated to rotation (outside the candidate library)",
+            5e-3,
+            0.03,
+            _external,
+            in_library=False,
+        ),
+    )
+}
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """Experiment design of a synthetic dataset (SI units)."""
+
+    preset: str = "brake"
+    voltages: tuple[float, ...] = (0.2, 0.5, 0.7, 1.0, 2.0, 3.0, 4.5)  # constant-voltage runs [V]
+    random_runs: int = 3  # quasi-random voltage runs
+    duration_s: float = 150.0  # recorded length of each run [s]
+    pre_roll_s: float = 60.0  # simulated before the recording starts [s]
+    sample_rate_hz: float = 500.0
+    encoder_counts_per_rev: int = 2000
+    angle_noise_std: float = 1e-3  # [rad] Gaussian angle noise before quantisation
+    hold_min_s: float = 0.5  # quasi-random runs: hold time of a level [s]
+    hold_max_s: float = 2.0
+    hold_quantum_s: float = 0.1
+    level_max_v: float = 5.0
+
+    def __post_init__(self) -> None:
+        for v in self.voltages:
+            if not (math.isfinite(v) and abs(v) <= 5.0):
+                raise ValueError(f"voltages: {v!r} V is outside the rig's range [-5, 5] V")
+        if self.random_runs < 0:
+            raise ValueError(f"random_runs: must be >= 0, got {self.random_runs}")
+        if not self.voltages and self.random_runs == 0:
+            raise ValueError("voltages/random_runs: the dataset would hold no run")
+        if not 100.0 <= self.sample_rate_hz <= 10_000.0:
+            raise ValueError(f"sample_rate_hz: {self.sample_rate_hz!r} is outside [100, 10000] Hz")
+        if not 10.0 <= self.duration_s <= 3600.0:
+            raise ValueError(f"duration_s: {self.duration_s!r} is outside [10, 3600] s")
+        if not 0.0 <= self.pre_roll_s <= 600.0:
+            raise ValueError(f"pre_roll_s: {self.pre_roll_s!r} is outside [0, 600] s")
+        if not 1 <= self.encoder_counts_per_rev <= 1 << 26:
+            raise ValueError(f"encoder_counts_per_rev: {self.encoder_counts_per_rev!r} is outside [1, 2^26]")
+        if not (math.isfinite(self.angle_noise_std) and self.angle_noise_std >= 0.0):
+            raise ValueError(f"angle_noise_std: must be >= 0, got {self.angle_noise_std!r}")
+        if not 0.0 < self.level_max_v <= 5.0:
+            raise ValueError(f"level_max_v: {self.level_max_v!r} is outside (0, 5] V")
+
+
+@dataclass
+class SynthResult:
+    runs: list[MeasuredRun]
+    truth: RigParams
+    answer: dict[str, Any] = field(default_factory=dict)
+
+
+def _truth_params(preset: str, effect: str, magnitude: float | None, rng: np.random.Generator):
+    if effect not in HIDDEN_EFFECTS:
+        raise ValueError(f"effect: unknown effect {effect!r}; allowed: {sorted(HIDDEN_EFFECTS)}")
+    spec = HIDDEN_EFFECTS[effect]
+    if effect == "none":
+        if magnitude not in (None, 0.0):
+            raise ValueError("magnitude: the effect 'none' takes no magnitude")
+        return load_params(preset), spec, 0.0, {}
+    mag = spec.draw(rng) if magnitude is None else float(magnitude)
+    if not (math.isfinite(mag) and 0.0 < mag < spec.max_magnitude):
+        raise ValueError(
+            f"magnitude: {magnitude!r} is outside the allowed range (0, {spec.max_magnitude:g}) for {effect} "
+            f"({spec.magnitude_meaning}); detectable range [{spec.low:g}, {spec.high:g}]"
+        )
+    fields_ = spec.build(mag, rng)
+    return load_params(preset, **fields_), spec, mag, fields_
+
+
+def _random_levels(cfg: SynthConfig, total_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Zero-order-hold levels, one per hold quantum, covering ``total_s``."""
+    n = int(math.ceil(total_s / cfg.hold_quantum_s)) + 1
+    out = np.empty(n)
+    i = 0
+    lo = int(round(cfg.hold_min_s / cfg.hold_quantum_s))
+    hi = int(round(cfg.hold_max_s / cfg.hold_quantum_s))
+    while i < n:
+        k = int(rng.integers(lo, hi + 1))
+        out[i : i + k] = rng.uniform(0.0, cfg.level_max_v)
+        i += k
+    return out
+
+
+def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: str) -> MeasuredRun:
+    from drill_env.sensors import SensorConfig, measure
+    from drill_env.simulator import simulate
+
+    dt = 1.0 / cfg.sample_rate_hz
+    n_pre = int(round(cfg.pre_roll_s / dt))
+    n_rec = int(round(cfg.duration_s / dt)) + 1
+    t0 = -n_pre * dt
+    t_final = (n_rec - 1) * dt
+    angle0 = float(rng.uniform(0.0, _TWO_PI))
+    x0 = {"theta_u": angle0, "theta_l": angle0}
+    if np.ndim(u_levels) == 0:
+        res = simulate(truth, float(u_levels), t_final, x0=x0, dt=dt, t0=t0)
+    else:
+        res = simulate(truth, u_levels, t_final, x0=x0, dt=dt, t0=t0, control_dt=cdt)
+    k0 = res.t.size - n_rec
+    t_true = res.t[k0:]
+    if abs(t_true[0]) > 1e-6 * dt + 1e-9:
+        raise RuntimeError(f"internal: recording grid misaligned (t[0] = {t_true[0]!r})")
+    if np.ndim(u_levels) == 0:
+        u = np.full(n_rec, float(u_levels))
+    else:
+        idx = np.floor((t_true - t0) / cdt + 1e-9).astype(int)
+        u = np.asarray(u_levels)[np.minimum(idx, len(u_levels) - 1)]
+    sensors = SensorConfig(
+        counts_per_rev=cfg.encoder_counts_per_rev,
+        sample_rate_hz=cfg.sample_rate_hz,
+        angle_noise_std=cfg.angle_noise_std,
+    )
+    meas = measure(
+        res.theta_u[k0:],
+        res.theta_l[k0:],
+        sensors,
+        initial_speeds=(float(res.x2[k0]), float(res.x3[k0])),
+        seed=rng,
+    )
+    # the recording clock starts wherever it started
+    t_start = float(np.round(rng.uniform(0.0, 100.0) / dt) * dt)
+    return MeasuredRun(
+        name=name,
+        t=t_start + dt * np.arange(n_rec),
+        u=u,
+        theta_u=meas.upper_angle,
+        theta_l=meas.lower_angle,
+    )
+
+
+def make_dataset(
+    effect: str,
+    *,
+    seed: int,
+    magnitude: float | None = None,
+    config: SynthConfig | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> SynthResult:
+    """Simulate a truth model with one hidden effect and record it like the rig."""
+    cfg = config or SynthConfig()
+    rng = np.random.default_rng(seed)
+    truth, spec, mag, fields_ = _truth_params(cfg.preset, effect, magnitude, rng)
+    runs: list[MeasuredRun] = []
+    total = len(cfg.voltages) + cfg.random_runs
+    designs: list[Any] = [float(v) for v in cfg.voltages]
+    for _ in range(cfg.random_runs):
+        designs.append(_random_levels(cfg, cfg.pre_roll_s + cfg.duration_s, rng))
+    for i, design in enumerate(designs):
+        runs.append(_simulate_run(truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}"))
+        if progress is not None:
+            progress(i + 1, total)
+    answer = {
+        "effect": effect,
+        "in_library": spec.in_library,
+        "magnitude": mag,
+        "magnitude_meaning": spec.magnitude_meaning,
+        "detectable_range": [spec.low, spec.high],
+        "model_effects": fields_,
+        "seed": seed,
+        "preset": cfg.preset,
+        "design": {
+            "voltages": list(cfg.voltages),
+            "random_runs": cfg.random_runs,
+            "duration_s": cfg.duration_s,
+            "pre_roll_s": cfg.pre_roll_s,
+            "sample_rate_hz": cfg.sample_rate_hz,
+            "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
+            "angle_noise_std": cfg.angle_noise_std,
+        },
+    }
+    return SynthResult(runs=runs, truth=truth, answer=answer)
+
+
+def write_synthetic(result: SynthResult, out: str | Path, answer_file: str | Path, *, preset: str) -> None:
+    """Write the runs to ``out`` and the answer (effect and parameters) to ``answer_file`` only."""
+    out = Path(out).resolve()
+    answer_file = Path(answer_file).resolve()
+    if out == answer_file.parent or out in answer_file.parents:
+        raise ValueError(
+            f"answer: {answer_file} lies inside the data folder {out}; the answer must be kept apart from the data"
+        )
+    write_dataset(
+        out,
+        result.runs,
+        preset=preset,
+        encoder_counts_per_rev=int(result.answer["design"]["encoder_counts_per_rev"]),
+    )
+    answer_file.parent.mkdir(parents=True, exist_ok=True)
+    answer_file.write_text(json.dumps(result.answer, indent=2) + "\n")

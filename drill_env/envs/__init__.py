@@ -1,0 +1,50 @@
+"""Gymnasium environments of the drill-string rig.
+
+Importing this package (``import drill_env`` does) registers them:
+
+* ``DrillString-v0``: the rig with the brake on the lower disk (the paper's experiments);
+* ``DrillStringNoBrake-v0``: the rig without the brake.
+
+Both have a native vector version: ``gymnasium.make_vec(id, num_envs=N)`` returns a
+:class:`~drill_env.envs.vector.DrillStringVectorEnv` that steps all rigs in one compiled
+call.
+"""
+
+from __future__ import annotations
+
+__all__ = ["register_envs", "ENV_IDS", "MAX_EPISODE_STEPS"]
+
+ENV_IDS = {"DrillString-v0": "brake", "DrillStringNoBrake-v0": "no_brake"}
+MAX_EPISODE_STEPS = 400  # 20 s at the default control period of 0.05 s
+
+
+def register_envs() -> None:
+    """Register the environments with Gymnasium (safe to call more than once)."""
+    import gymnasium
+
+    for env_id, preset in ENV_IDS.items():
+        if env_id in gymnasium.registry:
+            continue
+        gymnasium.register(
+            id=env_id,
+            entry_point="drill_env.envs.drill_string:DrillStringEnv",
+            vector_entry_point="drill_env.envs.vector:DrillStringVectorEnv",
+            max_episode_steps=MAX_EPISODE_STEPS,
+            kwargs={"params": preset},
+        )
+
+
+def __getattr__(name: str):
+    # Lazy access to the classes: importing drill_env must stay light.
+    if name == "DrillStringEnv":
+        from drill_env.envs.drill_string import DrillStringEnv
+
+        return DrillStringEnv
+    if name == "DrillStringVectorEnv":
+        from drill_env.envs.vector import DrillStringVectorEnv
+
+        return DrillStringVectorEnv
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+register_envs()

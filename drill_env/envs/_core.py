@@ -1,0 +1,423 @@
+"""Compiled hot path of the environments: one call integrates a control period of a rig,
+samples its sensors at the sensor rate and computes the reward terms.
+
+Three clocks (see :mod:`drill_env.simulator`): the adaptive integration clock of the
+exact simulator, the sensor clock (``Ts``, 1 kHz by default) at which the dense solution
+is sampled and fed through :mod:`drill_env.sensors`, and the control clock
+(``control_dt = n_sub * Ts``) at which the voltage changes (zero-order hold). Time is
+kept as an integer count of sensor ticks, so sample instants never drift.
+
+The single-rig functions are called directly by :class:`DrillStringEnv` and in a loop by
+:class:`DrillStringVectorEnv`, so N single environments and one vector environment of N
+rigs run the same compiled code and agree bit for bit.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from drill_env import _layout as L
+from drill_env.kernel import N_STATS, ST_H, run
+from drill_env.sensors import S_QL, S_QU, S_VL, S_VU, sensor_noise, sensor_reset, sensor_sample
+
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+
+
+@nb.cfunc("float64(float64)", cache=True)
+def zero_input(t):
+    """Placeholder input function for the kernel (the voltage is a zero-order hold).
+
+    Passed as an argument, a C function keeps the callers cacheable on disk, which a
+    compiled dispatcher referenced from compiled code would not.
+    """
+    return 0.0
+
+
+# -- per-rig episode scalars ------------------------------------------------------------------
+EP_TICK = 0  # sensor ticks since the rig was switched on (time = tick * Ts)
+EP_TICK0 = 1  # tick at which the episode started
+EP_H = 2  # step size proposed by the integrator, carried across control periods [s]
+EP_U = 3  # last applied voltage [V]
+EP_TARGET = 4  # target lower-disk speed [rad/s]
+EP_UNOM = 5  # nominal voltage of the operating point [V]
+EP_MEAN_U = 6  # upper encoder speed averaged over the last control period [rad/s]
+EP_MEAN_L = 7  # lower encoder speed averaged over the last control period [rad/s]
+EP_STATUS = 8  # kernel status of the last call (0 = ok)
+NEP = 9
+
+# -- environment configuration (shared by all rigs of an env) ------------------------------------
+EC_RTOL = 0
+EC_ATOL = 1
+EC_NSUB = 2  # sensor samples per control period
+EC_W_TRACK = 3
+EC_W_STICK = 4
+EC_W_OSC = 5
+EC_W_EFFORT = 6
+EC_SPEED_REF = 7  # floor of the speed that normalises the reward terms [rad/s]
+EC_VMAX = 8  # amplifier limit [V]
+EC_SETTLE = 9  # control periods run at the end of an open-loop warm-up to settle the sensors
+EC_MAX_STEPS = 10  # integration step cap per control period
+EC_SCALE = 11  # NOBS observation divisors (all 1 for physical units)
+NOBS = 8
+NEC = EC_SCALE + NOBS
+
+# -- observation entries -----------------------------------------------------------------------
+OB_LOWER_SPEED, OB_UPPER_SPEED, OB_TWIST, OB_LOWER_MEAN, OB_UPPER_MEAN, OB_VOLTAGE, OB_TARGET, OB_UNOM = (
+    range(NOBS)
+)
+
+# -- per-step outputs ----------------------------------------------------------------------------
+O_TRACK, O_STICK, O_OSC, O_EFFORT, O_REWARD, O_STATUS = range(6)
+O_TRUE = 6  # twist, upper speed, lower speed, upper angle, lower angle (true values)
+O_UPPER_STUCK = 11
+O_LOWER_STUCK = 12
+NOUT = 13
+N_TRUE = 5
+
+# -- start states --------------------------------------------------------------------------------
+START_REST, START_EQUILIBRIUM, START_OPEN_LOOP = 0, 1, 2
+
+
+@nb.njit(**_JIT)
+def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ufn):
+    seg_t = np.empty(2)
+    seg_t[0] = t0
+    seg_t[1] = t1
+    seg_u = np.empty(1)
+    seg_u[0] = u
+    ev_t = np.empty(1)
+    ev_disk = np.empty(1, dtype=np.int64)
+    ev_from = np.empty(1, dtype=np.int64)
+    ev_to = np.empty(1, dtype=np.int64)
+    ev_y = np.empty((1, L.NY))
+    stats = np.zeros(N_STATS)
+    status = run(
+        p,
+        y,
+        modes,
+        seg_t,
+        seg_u,
+        ufn,
+        False,
+        np.inf,
+        t_out,
+        ecfg[EC_RTOL],
+        ecfg[EC_ATOL],
+        ep[EP_H],
+        int(ecfg[EC_MAX_STEPS]),
+        ybuf,
+        mbuf,
+        ubuf,
+        ev_t,
+        ev_disk,
+        ev_from,
+        ev_to,
+        ev_y,
+        stats,
+    )
+    ep[EP_H] = stats[ST_H]
+    return status
+
+
+@nb.njit(**_JIT)
+def _write_obs(y, ep, ecfg, sst, obs):
+    obs[OB_LOWER_SPEED] = sst[S_VL] / ecfg[EC_SCALE + OB_LOWER_SPEED]
+    obs[OB_UPPER_SPEED] = sst[S_VU] / ecfg[EC_SCALE + OB_UPPER_SPEED]
+    obs[OB_TWIST] = (sst[S_QU] - sst[S_QL]) / ecfg[EC_SCALE + OB_TWIST]
+    obs[OB_LOWER_MEAN] = ep[EP_MEAN_L] / ecfg[EC_SCALE + OB_LOWER_MEAN]
+    obs[OB_UPPER_MEAN] = ep[EP_MEAN_U] / ecfg[EC_SCALE + OB_UPPER_MEAN]
+    obs[OB_VOLTAGE] = ep[EP_U] / ecfg[EC_SCALE + OB_VOLTAGE]
+    obs[OB_TARGET] = ep[EP_TARGET] / ecfg[EC_SCALE + OB_TARGET]
+    obs[OB_UNOM] = ep[EP_UNOM] / ecfg[EC_SCALE + OB_UNOM]
+
+
+@nb.njit(**_JIT)
+def _write_true(y, modes, out):
+    out[O_TRUE] = y[L.X1]
+    out[O_TRUE + 1] = y[L.X2]
+    out[O_TRUE + 2] = y[L.X3]
+    out[O_TRUE + 3] = y[L.X1] + y[L.THL]
+    out[O_TRUE + 4] = y[L.THL]
+    out[O_UPPER_STUCK] = 1.0 if modes[0] == 0 else 0.0
+    out[O_LOWER_STUCK] = 1.0 if modes[1] == 0 else 0.0
+
+
+@nb.njit(**_JIT)
+def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, ufn):
+    """Advance one rig by one control period at the (already limited) voltage ``u`` [V].
+
+    Integrates exactly, samples the true state every ``Ts`` into ``ybuf/mbuf/ubuf``,
+    runs the sensor chain on each sample, and writes the observation into ``obs`` and the
+    reward terms, status and true state into ``out``. Returns the kernel status.
+    """
+    n = int(ecfg[EC_NSUB])
+    ts = scfg[1]  # sensors.C_TS
+    tick0 = ep[EP_TICK]
+    t_out = np.empty(n)
+    for k in range(n):
+        t_out[k] = (tick0 + k + 1) * ts
+    status = _integrate(p, y, modes, tick0 * ts, (tick0 + n) * ts, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ufn)
+    qu0 = sst[S_QU]
+    ql0 = sst[S_QL]
+    target = ep[EP_TARGET]
+    sref = max(target, ecfg[EC_SPEED_REF])
+    noise = np.empty((n, 4))
+    sensor_noise(scfg, rng, noise)
+    track = 0.0
+    stick = 0.0
+    osc = 0.0
+    for k in range(n):
+        thl = ybuf[k, L.THL]
+        sensor_sample(scfg, sst, ybuf[k, L.X1] + thl, thl, noise, k)
+        e = (ybuf[k, L.X3] - target) / sref
+        track += e * e
+        r = (ybuf[k, L.X2] - ybuf[k, L.X3]) / sref
+        osc += r * r
+        if mbuf[k, 1] == 0:
+            stick += 1.0
+    ep[EP_TICK] = tick0 + n
+    ep[EP_U] = u
+    ep[EP_STATUS] = status
+    span = n * ts
+    ep[EP_MEAN_U] = (sst[S_QU] - qu0) / span
+    ep[EP_MEAN_L] = (sst[S_QL] - ql0) / span
+    de = (u - ep[EP_UNOM]) / ecfg[EC_VMAX]
+    out[O_TRACK] = track / n
+    out[O_STICK] = stick / n
+    out[O_OSC] = osc / n
+    out[O_EFFORT] = de * de
+    out[O_REWARD] = -(
+        ecfg[EC_W_TRACK] * out[O_TRACK]
+        + ecfg[EC_W_STICK] * out[O_STICK]
+        + ecfg[EC_W_OSC] * out[O_OSC]
+        + ecfg[EC_W_EFFORT] * out[O_EFFORT]
+    )
+    out[O_STATUS] = status
+    _write_true(y, modes, out)
+    _write_obs(y, ep, ecfg, sst, obs)
+    return status
+
+
+@nb.njit(**_JIT)
+def rig_reset(
+    p,
+    y,
+    modes,
+    ep,
+    ecfg,
+    scfg,
+    sst,
+    rng,
+    y0,
+    start,
+    warm_ticks,
+    target,
+    u_nom,
+    obs,
+    out,
+    ybuf,
+    mbuf,
+    ubuf,
+    ufn,
+):
+    """Put one rig at the start of an episode.
+
+    ``start``: START_REST (``y0`` at rest, no voltage before), START_EQUILIBRIUM (``y0`` on
+    the nominal slip equilibrium, ``u_nom`` applied) or START_OPEN_LOOP (from ``y0`` at rest,
+    ``u_nom`` applied open loop for ``warm_ticks`` sensor ticks; the last EC_SETTLE control
+    periods run the sensors so that their filters are settled). Returns the kernel status.
+    """
+    for j in range(L.NY):
+        y[j] = y0[j]
+    modes[0] = 0
+    modes[1] = 0
+    for j in range(NEP):
+        ep[j] = 0.0
+    ep[EP_TARGET] = target
+    ep[EP_UNOM] = u_nom
+    status = 0
+    if start == START_REST:
+        sensor_reset(scfg, sst, y[L.X1] + y[L.THL], y[L.THL], 0.0, 0.0)
+    elif start == START_EQUILIBRIUM:
+        ep[EP_U] = u_nom
+        sensor_reset(scfg, sst, y[L.X1] + y[L.THL], y[L.THL], y[L.X2], y[L.X3])
+        ep[EP_MEAN_U] = y[L.X2]
+        ep[EP_MEAN_L] = y[L.X3]
+    else:
+        n = int(ecfg[EC_NSUB])
+        settle = int(ecfg[EC_SETTLE])
+        free = warm_ticks - settle * n
+        ts = scfg[1]
+        if free > 0:
+            t_out = np.empty(1)
+            t_out[0] = free * ts
+            y1 = np.empty((1, L.NY))
+            m1 = np.empty((1, 2), dtype=np.int64)
+            u1 = np.empty(1)
+            status = _integrate(p, y, modes, 0.0, free * ts, u_nom, t_out, y1, m1, u1, ep, ecfg, ufn)
+            ep[EP_TICK] = free
+        else:
+            ep[EP_TICK] = 0.0
+        sensor_reset(scfg, sst, y[L.X1] + y[L.THL], y[L.THL], y[L.X2], y[L.X3])
+        for _ in range(settle):
+            if status != 0:
+                break
+            status = rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u_nom, obs, out, ybuf, mbuf, ubuf, ufn)
+        ep[EP_U] = u_nom
+    # modes at the start: a disk at rest is stuck (a moving one slips in its direction)
+    if status == 0 and start != START_OPEN_LOOP:
+        modes[0] = 0 if y[L.X2] == 0.0 else (1 if y[L.X2] > 0.0 else -1)
+        modes[1] = 0 if y[L.X3] == 0.0 else (1 if y[L.X3] > 0.0 else -1)
+    ep[EP_TICK0] = ep[EP_TICK]
+    ep[EP_STATUS] = status
+    for j in range(NOUT):
+        out[j] = 0.0
+    out[O_STATUS] = status
+    _write_true(y, modes, out)
+    _write_obs(y, ep, ecfg, sst, obs)
+    return status
+
+
+@nb.njit(**_JIT)
+def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF, ufn):
+    """``rig_step`` for every rig i with ``active[i]``; one compiled call for N rigs."""
+    for i in range(P.shape[0]):
+        if active[i]:
+            rig_step(
+                P[i],
+                Y[i],
+                MODES[i],
+                EP[i],
+                ecfg,
+                SCFG[i],
+                SST[i],
+                RNG[i],
+                U[i],
+                OBS[i],
+                OUT[i],
+                YBUF[i],
+                MBUF[i],
+                UBUF[i],
+                ufn,
+            )
+
+
+@nb.njit(**_JIT)
+def batch_reset(
+    P,
+    Y,
+    MODES,
+    EP,
+    ecfg,
+    SCFG,
+    SST,
+    RNG,
+    Y0,
+    START,
+    WARM,
+    TARGET,
+    UNOM,
+    which,
+    OBS,
+    OUT,
+    YBUF,
+    MBUF,
+    UBUF,
+    ufn,
+):
+    """``rig_reset`` for every rig i with ``which[i]``."""
+    for i in range(P.shape[0]):
+        if which[i]:
+            rig_reset(
+                P[i],
+                Y[i],
+                MODES[i],
+                EP[i],
+                ecfg,
+                SCFG[i],
+                SST[i],
+                RNG[i],
+                Y0[i],
+                START[i],
+                WARM[i],
+                TARGET[i],
+                UNOM[i],
+                OBS[i],
+                OUT[i],
+                YBUF[i],
+                MBUF[i],
+                UBUF[i],
+                ufn,
+            )
+
+
+# -- entry points -------------------------------------------------------------------------------
+# Unboxing a C function passed from Python costs microseconds per call, so the Python-facing
+# entry points take it from a global. They are not cached on disk (a function referencing a
+# C function as a global cannot be); compiling them is quick because everything they call is.
+
+
+@nb.njit(nogil=True, fastmath=False, error_model="numpy")
+def step_one(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf):
+    return rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, zero_input)
+
+
+@nb.njit(nogil=True, fastmath=False, error_model="numpy")
+def reset_one(
+    p, y, modes, ep, ecfg, scfg, sst, rng, y0, start, warm_ticks, target, u_nom, obs, out, ybuf, mbuf, ubuf
+):
+    return rig_reset(
+        p,
+        y,
+        modes,
+        ep,
+        ecfg,
+        scfg,
+        sst,
+        rng,
+        y0,
+        start,
+        warm_ticks,
+        target,
+        u_nom,
+        obs,
+        out,
+        ybuf,
+        mbuf,
+        ubuf,
+        zero_input,
+    )
+
+
+@nb.njit(nogil=True, fastmath=False, error_model="numpy")
+def step_many(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF):
+    batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF, zero_input)
+
+
+@nb.njit(nogil=True, fastmath=False, error_model="numpy")
+def reset_many(
+    P, Y, MODES, EP, ecfg, SCFG, SST, RNG, Y0, START, WARM, TARGET, UNOM, which, OBS, OUT, YBUF, MBUF, UBUF
+):
+    batch_reset(
+        P,
+        Y,
+        MODES,
+        EP,
+        ecfg,
+        SCFG,
+        SST,
+        RNG,
+        Y0,
+        START,
+        WARM,
+        TARGET,
+        UNOM,
+        which,
+        OBS,
+        OUT,
+        YBUF,
+        MBUF,
+        UBUF,
+        zero_input,
+    )

@@ -1,0 +1,443 @@
+"""Configuration shared by the single and the vector environment.
+
+:class:`EnvSettings` turns the keyword arguments of ``gymnasium.make`` into validated
+objects and compiled-kernel vectors once; :meth:`EnvSettings.draw_episode` draws
+everything random about an episode from one ``np.random.Generator``, so a single
+environment and a rig of the vector environment with the same seed draw the same
+numbers in the same order.
+
+Nominal vs true plant: the operating point (target speed, nominal voltage, regime) and
+the equilibrium start state come from the *nominal* model, the preset as given; domain
+randomisation only changes the *true* plant that is simulated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drill_env import _layout as L
+from drill_env.envs import _core as C
+from drill_env.envs.task import (
+    REGIMES,
+    VOLTAGE_LIMIT,
+    OperatingPoint,
+    OperatingPointSampler,
+    TaskConfig,
+    equilibrium_state,
+)
+from drill_env.params import ParameterError, RigParams, resolve_params
+from drill_env.sensors import SensorConfig, rng_state
+
+__all__ = [
+    "RewardWeights",
+    "DomainRandomization",
+    "EnvSettings",
+    "EpisodeSetup",
+    "START_STATES",
+    "OBSERVATION_NAMES",
+    "OBSERVATION_UNITS",
+    "OBSERVATION_SCALES",
+    "TRUE_STATE_NAMES",
+    "REWARD_NAMES",
+]
+
+START_STATES = {"rest": C.START_REST, "equilibrium": C.START_EQUILIBRIUM, "open_loop": C.START_OPEN_LOOP}
+
+OBSERVATION_NAMES = (
+    "lower_speed",
+    "upper_speed",
+    "twist",
+    "lower_speed_mean",
+    "upper_speed_mean",
+    "voltage",
+    "target_speed",
+    "nominal_voltage",
+)
+OBSERVATION_UNITS = ("rad/s", "rad/s", "rad", "rad/s", "rad/s", "V", "rad/s", "V")
+SPEED_SCALE = 10.0  # [rad/s] about the equilibrium speed at 5 V (8.85 rad/s with the brake)
+TWIST_SCALE = 2.0  # [rad] above the static twist T_sl/k_theta = 1.2 rad (brake)
+OBSERVATION_SCALES = (
+    SPEED_SCALE,
+    SPEED_SCALE,
+    TWIST_SCALE,
+    SPEED_SCALE,
+    SPEED_SCALE,
+    VOLTAGE_LIMIT,
+    SPEED_SCALE,
+    VOLTAGE_LIMIT,
+)
+# Safe bounds of the observation in physical units. With |u| <= 5 V the motor can feed at
+# most (5 km)^2 / (4 b_up) = 40 W more than the upper disk dissipates, so in a 20 s episode
+# the string's energy stays below ~810 J: speeds below ~230 rad/s, twist below ~150 rad.
+# The bounds are far outside anything the rig reaches; they exist because the spaces
+# must be finite.
+SPEED_BOUND = 1000.0  # [rad/s]
+TWIST_BOUND = 1000.0  # [rad]
+OBSERVATION_LOW = (
+    -SPEED_BOUND,
+    -SPEED_BOUND,
+    -TWIST_BOUND,
+    -SPEED_BOUND,
+    -SPEED_BOUND,
+    -VOLTAGE_LIMIT,
+    0.0,
+    0.0,
+)
+OBSERVATION_HIGH = (
+    SPEED_BOUND,
+    SPEED_BOUND,
+    TWIST_BOUND,
+    SPEED_BOUND,
+    SPEED_BOUND,
+    VOLTAGE_LIMIT,
+    SPEED_BOUND,
+    VOLTAGE_LIMIT,
+)
+TRUE_STATE_NAMES = ("twist", "upper_speed", "lower_speed", "upper_angle", "lower_angle")
+REWARD_NAMES = ("tracking", "stick", "oscillation", "effort")
+SPEED_REF_FLOOR = 1.0  # [rad/s] reward terms are normalised by max(target speed, this)
+SETTLE_TIME = 0.2  # [s] sensors run at the end of an open-loop warm-up before the episode
+MAX_RANDOMIZATION_TRIES = 100
+MAX_WARMUP_RETRIES = 5
+
+
+def _number(name: str, value: Any, lo: float, hi: float = math.inf, *, lo_incl: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name}: expected a number, got {value!r}")
+    v = float(value)
+    ok = math.isfinite(v) and (v >= lo if lo_incl else v > lo) and v <= hi
+    if not ok:
+        lb = "[" if lo_incl else "("
+        rb = "]" if math.isfinite(hi) else ")"
+        raise ValueError(f"{name}: {value!r} is outside the allowed range {lb}{lo:g}, {hi:g}{rb}")
+    return v
+
+
+def _from_mapping(cls, value, name):
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        allowed = {f.name for f in fields(cls)}
+        unknown = sorted(set(value) - allowed)
+        if unknown:
+            raise ValueError(f"{name}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        return cls(**value)
+    raise ValueError(f"{name}: expected {cls.__name__}, a dict or None, got {type(value).__name__}")
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the reward terms; reward = -(sum of weight * term), see the env docstring."""
+
+    tracking: float = 1.0
+    stick: float = 1.0
+    oscillation: float = 0.5
+    effort: float = 0.1
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            object.__setattr__(self, f.name, _number(f"reward_weights.{f.name}", getattr(self, f.name), 0.0))
+
+
+_FRICTION_FIELDS = (
+    "upper_static_pos",
+    "upper_static_neg",
+    "upper_viscous_pos",
+    "upper_viscous_neg",
+    "lower_static",
+    "lower_viscous",
+    "lower_hump_1",
+    "lower_hump_2",
+    "lower_hump_rate_1",
+    "lower_hump_rate_2",
+)
+_INERTIA_FIELDS = ("upper_inertia", "lower_inertia")
+
+
+@dataclass(frozen=True)
+class DomainRandomization:
+    """Per-episode randomisation of the true plant and the sensors (off unless requested).
+
+    Each friction coefficient (upper static and viscous levels, lower static, viscous,
+    hump amplitudes and rates) and each inertia is multiplied by its own factor drawn
+    uniformly from ``[1 - rel, 1 + rel]``; a draw that makes the lower friction
+    non-dissipative (eq. 4) is redrawn. The encoder resolution is drawn from
+    ``encoder_counts`` (empty: keep the sensors' value) and the noise levels uniformly
+    from their ``(low, high)`` ranges.
+    """
+
+    friction_rel: float = 0.1  # [-]
+    inertia_rel: float = 0.05  # [-]
+    stiffness_rel: float = 0.0  # [-] string stiffness k_theta
+    motor_constant_rel: float = 0.0  # [-] k_m
+    encoder_counts: tuple[int, ...] = (1000, 2000, 4000)  # [counts/rev]
+    angle_noise_std: tuple[float, float] = (0.0, 5e-4)  # [rad]
+    speed_noise_std: tuple[float, float] = (0.0, 0.05)  # [rad/s]
+
+    def __post_init__(self) -> None:
+        for name in ("friction_rel", "inertia_rel", "stiffness_rel", "motor_constant_rel"):
+            _number(f"domain_randomization.{name}", getattr(self, name), 0.0, 0.5)
+        counts = self.encoder_counts
+        if isinstance(counts, (int, np.integer)) and not isinstance(counts, bool):
+            counts = (int(counts),)
+        try:
+            counts = tuple(counts)
+        except TypeError:
+            raise ValueError(
+                f"domain_randomization.encoder_counts: expected a sequence of integers, got {counts!r}"
+            ) from None
+        for c in counts:
+            if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not 1 <= int(c) < 2**31:
+                raise ValueError(f"domain_randomization.encoder_counts: {c!r} is not an integer in [1, 2^31)")
+        object.__setattr__(self, "encoder_counts", tuple(int(c) for c in counts))
+        for name in ("angle_noise_std", "speed_noise_std"):
+            rng = getattr(self, name)
+            try:
+                lo, hi = (float(v) for v in rng)
+            except (TypeError, ValueError):
+                raise ValueError(f"domain_randomization.{name}: expected (low, high), got {rng!r}") from None
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi):
+                raise ValueError(
+                    f"domain_randomization.{name}: expected finite 0 <= low <= high, got {rng!r}"
+                )
+            object.__setattr__(self, name, (lo, hi))
+
+    @classmethod
+    def from_any(cls, value: Any) -> DomainRandomization | None:
+        if value is None or value is False:
+            return None
+        if value is True:
+            return cls()
+        return _from_mapping(cls, value, "domain_randomization")
+
+
+@dataclass(frozen=True)
+class EpisodeSetup:
+    """Everything random about one episode, drawn before the rig is simulated."""
+
+    point: OperatingPoint
+    start: int
+    warm_ticks: int
+    params: np.ndarray  # true plant, RigParams.as_array()
+    sensor_config: SensorConfig  # the episode's measurement chain
+    sensors: np.ndarray  # sensor_config.as_array()
+    rng: np.ndarray  # uint64[4], noise generator state
+    y0: np.ndarray  # kernel state at the start (before the warm-up)
+
+
+class EnvSettings:
+    """Validated configuration of a drill-string environment (see DrillStringEnv's arguments)."""
+
+    def __init__(
+        self,
+        params: RigParams | str | Path = "brake",
+        params_overrides: Mapping[str, Any] | None = None,
+        control_dt: float = 0.05,
+        sensors: SensorConfig | Mapping[str, Any] | None = None,
+        task: TaskConfig | Mapping[str, Any] | None = None,
+        start: str = "open_loop",
+        warmup_time: float = 30.0,
+        warmup_jitter: float = 5.0,
+        reward_weights: RewardWeights | Mapping[str, float] | None = None,
+        domain_randomization: DomainRandomization | Mapping[str, Any] | bool | None = None,
+        action_mode: str = "normalized",
+        normalize_observation: bool = True,
+        rtol: float = 1e-8,
+        atol: float = 1e-10,
+    ):
+        if params_overrides is not None and not isinstance(params_overrides, Mapping):
+            raise ValueError(
+                f"params_overrides: expected a dict of parameter values, got {params_overrides!r}"
+            )
+        try:
+            self.params = resolve_params(params, **dict(params_overrides or {}))
+        except ParameterError:
+            raise
+        self.sensors = SensorConfig.from_any(sensors)
+        ts = self.sensors.sample_period
+        self.control_dt = _number("control_dt", control_dt, 0.0, 60.0, lo_incl=False)
+        n_sub = int(round(self.control_dt / ts))
+        if n_sub < 1 or abs(n_sub * ts - self.control_dt) > 1e-9 * self.control_dt:
+            raise ValueError(
+                f"control_dt: {control_dt!r} s must be a whole number (>= 1) of sensor periods "
+                f"(1/sample_rate_hz = {ts:g} s)"
+            )
+        self.n_sub = n_sub
+        self.task = TaskConfig.from_any(task)
+        if start not in START_STATES:
+            raise ValueError(f"start: {start!r} is not one of {sorted(START_STATES)}")
+        self.start = start
+        self.warmup_time = _number("warmup_time", warmup_time, 0.0, 3600.0)
+        self.warmup_jitter = _number("warmup_jitter", warmup_jitter, 0.0, 3600.0)
+        self.reward_weights = _from_mapping(RewardWeights, reward_weights, "reward_weights")
+        self.randomization = DomainRandomization.from_any(domain_randomization)
+        if action_mode not in ("normalized", "voltage"):
+            raise ValueError(f"action_mode: {action_mode!r} is not one of ['normalized', 'voltage']")
+        self.action_mode = action_mode
+        if not isinstance(normalize_observation, (bool, np.bool_)):
+            raise ValueError(f"normalize_observation: expected True or False, got {normalize_observation!r}")
+        self.normalize_observation = bool(normalize_observation)
+        self.rtol = _number("rtol", rtol, 1e-14, 1e-3)
+        self.atol = _number("atol", atol, 1e-16, 1e-3)
+        self.sampler = OperatingPointSampler(self.params, self.task)
+        self.action_to_volts = VOLTAGE_LIMIT if action_mode == "normalized" else 1.0
+        settle_time = max(SETTLE_TIME, (self.sensors.delay_samples + 50) * ts)
+        self.settle_periods = max(1, int(math.ceil(settle_time / self.control_dt - 1e-9)))
+        self.ecfg = self._env_vector()
+        self._p_nominal = self.params.as_array()
+        self._scfg_nominal = self.sensors.as_array()
+
+    def observation_space(self):
+        """The observation Box (normalised or physical units)."""
+        from gymnasium import spaces
+
+        scale = self.ecfg[C.EC_SCALE : C.EC_SCALE + C.NOBS]
+        low = np.asarray(OBSERVATION_LOW) / scale
+        high = np.asarray(OBSERVATION_HIGH) / scale
+        return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+
+    def action_space(self):
+        """The action Box: the voltage / 5 V (normalized) or the voltage [V]."""
+        from gymnasium import spaces
+
+        amax = 1.0 if self.action_mode == "normalized" else VOLTAGE_LIMIT
+        return spaces.Box(-amax, amax, shape=(1,), dtype=np.float32)
+
+    def _env_vector(self) -> np.ndarray:
+        e = np.zeros(C.NEC)
+        e[C.EC_RTOL] = self.rtol
+        e[C.EC_ATOL] = self.atol
+        e[C.EC_NSUB] = self.n_sub
+        w = self.reward_weights
+        e[C.EC_W_TRACK] = w.tracking
+        e[C.EC_W_STICK] = w.stick
+        e[C.EC_W_OSC] = w.oscillation
+        e[C.EC_W_EFFORT] = w.effort
+        e[C.EC_SPEED_REF] = SPEED_REF_FLOOR
+        e[C.EC_VMAX] = VOLTAGE_LIMIT
+        e[C.EC_SETTLE] = self.settle_periods
+        e[C.EC_MAX_STEPS] = max(100_000, 20_000 * self.n_sub)
+        e[C.EC_SCALE : C.EC_SCALE + C.NOBS] = OBSERVATION_SCALES if self.normalize_observation else 1.0
+        return e
+
+    @property
+    def sensor_state_size(self) -> int:
+        from drill_env.sensors import state_size
+
+        return state_size(self.sensors.delay_samples)
+
+    # -- per episode ---------------------------------------------------------------------------
+    def parse_options(self, options: Mapping[str, Any] | None) -> dict[str, Any]:
+        """Validate ``reset(options=...)``: at most one of target_speed / nominal_voltage /
+        regime, and optionally start."""
+        if options is None:
+            return {}
+        if not isinstance(options, Mapping):
+            raise ValueError(f"options: expected a dict, got {type(options).__name__}")
+        allowed = {"target_speed", "nominal_voltage", "regime", "start"}
+        unknown = sorted(set(options) - allowed - {"reset_mask"})
+        if unknown:
+            raise ValueError(f"options: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        chosen = [k for k in ("target_speed", "nominal_voltage", "regime") if k in options]
+        if len(chosen) > 1:
+            raise ValueError(
+                f"options: give at most one of target_speed, nominal_voltage, regime; got {chosen}"
+            )
+        out: dict[str, Any] = {}
+        s = self.sampler
+        if "target_speed" in options:
+            v = options["target_speed"]
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                raise ValueError(
+                    f"target_speed: expected a number in (0, {s.speed_max:.6g}] rad/s, got {v!r}"
+                )
+            out["point"] = s.point_from_speed(v)
+        elif "nominal_voltage" in options:
+            v = options["nominal_voltage"]
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                raise ValueError(f"nominal_voltage: expected a number in ({s.uc1:.6g}, 5] V, got {v!r}")
+            out["point"] = s.point_from_voltage(v)
+        elif "regime" in options:
+            if options["regime"] not in REGIMES:
+                raise ValueError(f"regime: {options['regime']!r} is not one of {REGIMES}")
+            out["regime"] = options["regime"]
+        if "start" in options:
+            if options["start"] not in START_STATES:
+                raise ValueError(f"start: {options['start']!r} is not one of {sorted(START_STATES)}")
+            out["start"] = options["start"]
+        return out
+
+    def draw_episode(self, rng: np.random.Generator, opts: Mapping[str, Any]) -> EpisodeSetup:
+        """Draw an episode (operating point, warm-up length, plant, sensors, noise seed)."""
+        if "point" in opts:
+            point = opts["point"]
+        elif "regime" in opts:
+            point = self.sampler.point_in_regime(opts["regime"], rng)
+        else:
+            point = self.sampler.sample(rng)
+        start = START_STATES[opts.get("start", self.start)]
+        warm_ticks = self.draw_warm_ticks(rng)
+        p = self._p_nominal
+        sensors = self.sensors
+        scfg = self._scfg_nominal
+        dr = self.randomization
+        if dr is not None:
+            p = self._randomized_params(rng, dr)
+            sensors = self._randomized_sensors(rng, dr)
+            scfg = sensors.as_array()
+        words = rng.integers(0, 2**64, size=4, dtype=np.uint64)
+        if start == C.START_EQUILIBRIUM:
+            y0 = equilibrium_state(self.sampler.params, point.nominal_voltage)
+            y0[L.TM] = p[L.KM] * point.nominal_voltage
+        else:
+            y0 = np.zeros(L.NY)
+            if start == C.START_OPEN_LOOP:
+                y0[L.TM] = p[L.KM] * point.nominal_voltage
+        return EpisodeSetup(point, start, warm_ticks, p, sensors, scfg, rng_state(words), y0)
+
+    def draw_warm_ticks(self, rng: np.random.Generator) -> int:
+        """Length of the open-loop warm-up in sensor ticks (drawn for every start state, so
+        the random stream does not depend on it)."""
+        t = self.warmup_time + self.warmup_jitter * float(rng.uniform())
+        return int(round(t / self.sensors.sample_period))
+
+    def _randomized_params(self, rng: np.random.Generator, dr: DomainRandomization) -> np.ndarray:
+        rels = (
+            [(f, dr.friction_rel) for f in _FRICTION_FIELDS]
+            + [(f, dr.inertia_rel) for f in _INERTIA_FIELDS]
+            + [("string_stiffness", dr.stiffness_rel), ("motor_constant", dr.motor_constant_rel)]
+        )
+        base = self.params
+        for _ in range(MAX_RANDOMIZATION_TRIES):
+            factors = rng.uniform(-1.0, 1.0, size=len(rels))
+            changes = {
+                name: getattr(base, name) * (1.0 + rel * f)
+                for (name, rel), f in zip(rels, factors, strict=True)
+                if rel > 0
+            }
+            try:
+                return base.replace(**changes).as_array()
+            except ParameterError:
+                continue  # non-dissipative lower friction: draw again
+        raise ValueError(
+            "domain_randomization: no valid plant found in "
+            f"{MAX_RANDOMIZATION_TRIES} draws; reduce friction_rel ({dr.friction_rel:g})"
+        )
+
+    def _randomized_sensors(self, rng: np.random.Generator, dr: DomainRandomization) -> SensorConfig:
+        cfg = self.sensors
+        changes: dict[str, Any] = {}
+        if dr.encoder_counts:
+            changes["counts_per_rev"] = dr.encoder_counts[int(rng.integers(len(dr.encoder_counts)))]
+        changes["angle_noise_std"] = float(rng.uniform(*dr.angle_noise_std))
+        changes["speed_noise_std"] = float(rng.uniform(*dr.speed_noise_std))
+        return dataclasses.replace(cfg, **changes)

@@ -1,0 +1,36 @@
+"""Shared fixtures: the two presets and a few long runs that several tests read."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+# The reference solver lives beside the tests (tests/oracle.py); the benchmarks import
+# it the same way.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import drill_env  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def brake() -> drill_env.RigParams:
+    return drill_env.load_params("brake")
+
+
+@pytest.fixture(scope="session")
+def no_brake() -> drill_env.RigParams:
+    return drill_env.load_params("no_brake")
+
+
+@pytest.fixture(scope="session")
+def brake_2v(brake) -> drill_env.SimulationResult:
+    """300 s of the braked rig at 2 V from rest: stick-slip (Fig. 9)."""
+    return drill_env.simulate(brake, 2.0, 300.0)
+
+
+@pytest.fixture(scope="session")
+def brake_1v(brake) -> drill_env.SimulationResult:
+    """300 s of the braked rig at 1 V from rest: a limit cycle without stick (Fig. 9)."""
+    return drill_env.simulate(brake, 1.0, 300.0)
