@@ -61,7 +61,7 @@ TARGET_RATIO = 100.0
 TARGET_SIM_RATE = 100_000.0  # simulated s per wall s
 TARGET_ERROR = 1e-6
 
-out = Console(highlight=False)
+out = Console(highlight=False, soft_wrap=True)  # plain lines, also when piped
 progress = Progress(
     TextColumn("{task.description}"),
     BarColumn(),
@@ -108,7 +108,7 @@ def main() -> None:
     out.print(f"drill-env {drill_env.__version__} simulator benchmark, brake preset")
     out.print(
         f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}, "
-        f"{os.cpu_count()} cpu(s) visible, single-threaded"
+        f"{os.cpu_count()} cpu(s) visible, single-threaded; load average {os.getloadavg()[0]:.2f}"
     )
 
     with progress:
@@ -165,7 +165,7 @@ def main() -> None:
             f"{args.repeat} (drill-env) / {args.repeat_scipy} (solve_ivp) runs"
         )
         header = (
-            f"  {'case':<28}{'drill-env rtol':>15}{'error':>9}{'time':>10}{'sim s/s':>10}"
+            f"  {'case':<40}{'drill-env rtol':>15}{'error':>9}{'time':>10}{'sim s/s':>10}"
             f"{'solve_ivp rtol':>16}{'error':>9}{'time':>10}{'ratio':>8}"
         )
         out.print(header)
@@ -190,7 +190,7 @@ def main() -> None:
                 ratios.append(ratio)
                 rates[u, name] = T_RUN / t_drill
                 out.print(
-                    f"  {f'{u:g} V {label} ({name})':<28}{rtol:>15.0e}{err:>9.1e}{t_drill * 1e3:>8.2f}ms"
+                    f"  {f'{u:g} V {label} ({name})':<40}{rtol:>15.0e}{err:>9.1e}{t_drill * 1e3:>8.2f}ms"
                     f"{T_RUN / t_drill:>10.0f}{s_rtol:>16.0e}{scipy_err[u, s_rtol]:>9.1e}"
                     f"{t_scipy * 1e3:>8.0f}ms{ratio:>7.0f}x"
                 )

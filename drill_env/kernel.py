@@ -11,6 +11,10 @@ which its indicator changes sign:
   in its (closed) static band, otherwise it keeps or reverses its direction;
 * the torque that holds a stuck disk leaves the band: it slips towards that side.
 
+A slipping disk's speed can also touch zero and recover inside one step (next to a
+grazing orbit), with the same sign at both ends: when the speed falls at the start of a
+step and rises at its end, the bottom of that dip is searched on the dense output too.
+
 The two disks decouple at zero speed (a stuck disk's acceleration is zero), so each
 disk's decision needs only the state, never the other disk's friction.
 
@@ -46,6 +50,7 @@ from drill_env.integrator import (
 )
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_JIT_FN = dict(nogil=True, fastmath=False, error_model="numpy")  # takes u_func: see integrator
 
 STATUS_MESSAGES = {
     0: "The end of the integration interval was reached.",
@@ -107,13 +112,59 @@ def _violation(disk, p, t, y, u, mu, ml):
 
 
 @nb.njit(**_JIT)
-def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp):
-    """Fraction of the step at which ``disk``'s violation first becomes >= 0 (Illinois)."""
+def _speed_dip(j, mode, y, F, ytmp):
+    """Fraction of the step at which the speed ``mode * y[j]`` of a slipping disk is least,
+    if it reaches zero there, else 2.0.
+
+    Called when the speed falls at the start of the step and rises at its end, so that it
+    has one minimum inside; golden-section search on the dense output.
+    """
+    g = 0.6180339887498949
     a = 0.0
     b = 1.0
+    c = b - g * (b - a)
+    d = a + g * (b - a)
+    dense_eval(c, y, F, ytmp)
+    fc = mode * ytmp[j]
+    dense_eval(d, y, F, ytmp)
+    fd = mode * ytmp[j]
+    for _ in range(80):
+        if fc <= 0.0:
+            return c
+        if fd <= 0.0:
+            return d
+        if b - a < 1e-13:
+            break
+        if fc < fd:
+            b = d
+            d = c
+            fd = fc
+            c = b - g * (b - a)
+            dense_eval(c, y, F, ytmp)
+            fc = mode * ytmp[j]
+        else:
+            a = c
+            c = d
+            fc = fd
+            d = a + g * (b - a)
+            dense_eval(d, y, F, ytmp)
+            fd = mode * ytmp[j]
+    return 2.0
+
+
+@nb.njit(**_JIT_FN)
+def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp, b0):
+    """Fraction of the step at which ``disk``'s violation first becomes >= 0 (Illinois).
+
+    The violation is >= 0 at fraction ``b0`` (the end of the step, or the bottom of a dip
+    of the speed inside it).
+    """
+    a = 0.0
+    b = b0
     ga = _violation(disk, p, t, y, input_at(t, u_seg, u_func, use_func, u_limit), mu, ml)
-    dense_eval(1.0, y, F, ytmp)
-    gb = _violation(disk, p, t + h, ytmp, input_at(t + h, u_seg, u_func, use_func, u_limit), mu, ml)
+    dense_eval(b, y, F, ytmp)
+    tb = t + b * h
+    gb = _violation(disk, p, tb, ytmp, input_at(tb, u_seg, u_func, use_func, u_limit), mu, ml)
     if ga > 0.0 or (ga == 0.0 and (mu if disk == 0 else ml) == 0):
         return 0.0
     if ga == 0.0:
@@ -123,7 +174,7 @@ def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
         # to bracket the end of that first excursion.
         found = False
         c = 2.0**-50
-        while c < 1.0:
+        while c < b0:
             dense_eval(c, y, F, ytmp)
             tc = t + c * h
             gc = _violation(disk, p, tc, ytmp, input_at(tc, u_seg, u_func, use_func, u_limit), mu, ml)
@@ -163,7 +214,7 @@ def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
     return b
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_JIT_FN)
 def _initial_step(t, y, f0, us, u_func, use_func, u_limit, p, mu, ml, rtol, atol, h_max, ytmp, f1):
     """Starting step after a restart, from the sizes of y, f and f' (Hairer's rule)."""
     d0 = 0.0
@@ -212,7 +263,7 @@ def _log_event(t, disk, old, new, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
     stats[ST_EVENTS] = i + 1
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_JIT_FN)
 def run(
     p,
     y,
@@ -329,17 +380,35 @@ def run(
             vl = _violation_lower(p, t_new, y_new, ml)
             ev_up = vu > 0.0 if mu == 0 else vu >= 0.0
             ev_lo = vl > 0.0 if ml == 0 else vl >= 0.0
+            # A slipping disk whose speed falls at the start of the step and rises at its
+            # end may touch zero and recover inside the step, with no sign change at the
+            # ends: look for the bottom of that dip on the dense output.
+            dip_u = not ev_up and mu != 0 and mu * f0[L.X2] < 0.0 and mu * K[12, L.X2] > 0.0
+            dip_l = not ev_lo and ml != 0 and ml * f0[L.X3] < 0.0 and ml * K[12, L.X3] > 0.0
+            b_u = 1.0
+            b_l = 1.0
+            dense = False
+            if dip_u or dip_l:
+                prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp)
+                stats[ST_RHS] += 3
+                dense = True
+                if dip_u:
+                    b_u = _speed_dip(L.X2, mu, y, F, ytmp)
+                    ev_up = b_u <= 1.0
+                if dip_l:
+                    b_l = _speed_dip(L.X3, ml, y, F, ytmp)
+                    ev_lo = b_l <= 1.0
             has_event = ev_up or ev_lo
-            if has_event or (k < n_out and t_out[k] <= t_new):
+            if not dense and (has_event or (k < n_out and t_out[k] <= t_new)):
                 prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp)
                 stats[ST_RHS] += 3
             if has_event:
                 th_u = 2.0
                 th_l = 2.0
                 if ev_up:
-                    th_u = _locate(0, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
+                    th_u = _locate(0, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp, b_u)
                 if ev_lo:
-                    th_l = _locate(1, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
+                    th_l = _locate(1, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp, b_l)
                 th = min(th_u, th_l)
                 t_ev = t + th * h
                 while k < n_out and t_out[k] < t_ev:

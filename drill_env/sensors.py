@@ -209,12 +209,12 @@ def lowpass_coefficients(
 
 
 def quantize_angle(theta: ArrayLike, counts_per_rev: int | None) -> np.ndarray:
-    """Encoder reading of the angle ``theta`` [rad]: floor-quantised to whole counts."""
+    """Encoder reading of the angle ``theta`` [rad]: floor-quantised to whole counts
+    (computed as the compiled chain does it)."""
     th = np.asarray(theta, dtype=float)
     if counts_per_rev is None:
         return th.copy()
-    r = 2.0 * math.pi / counts_per_rev
-    return np.floor(th / r) * r
+    return np.floor(th * (counts_per_rev / (2.0 * math.pi))) * (2.0 * math.pi / counts_per_rev)
 
 
 # -- noise generator (xoshiro256**), state in a uint64[4] array ---------------------------------

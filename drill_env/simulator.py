@@ -256,10 +256,8 @@ def simulate(
     )
 
 
-@nb.njit(cache=True, nogil=True)
-def _run_batch(P, Y0, seg_t, SEG_U, u_func, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats_all, ev_count):
-    # u_func comes in as an argument: a compiled function referenced as a global here
-    # would keep numba from caching this function.
+@nb.njit(nogil=True)  # not cached on disk: it takes the input function (see integrator)
+def _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats_all, ev_count):
     n = P.shape[0]
     cap = 1
     ev_t = np.empty(cap)
@@ -271,7 +269,7 @@ def _run_batch(P, Y0, seg_t, SEG_U, u_func, t_out, rtol, atol, max_steps, Yo, Mo
     for i in range(n):
         y = Y0[i].copy()
         run(
-            P[i], y, modes, seg_t, SEG_U[i], u_func, False, np.inf, t_out, rtol, atol, 0.0,
+            P[i], y, modes, seg_t, SEG_U[i], _no_input, False, np.inf, t_out, rtol, atol, 0.0,
             max_steps, Yo[i], Mo[i], Uo[i], ev_t, ev_disk, ev_from, ev_to, ev_y, stats_all[i],
         )
         ev_count[i] = stats_all[i, ST_EVENTS]
@@ -343,7 +341,7 @@ def simulate_batch(
     stats = np.zeros((n_rigs, N_STATS))
     ev_count = np.zeros(n_rigs)
     max_steps = max(100_000, int(t_final * 2000))
-    _run_batch(P, Y0, seg_t, SEG_U, _no_input, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
+    _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
     bad = np.flatnonzero(stats[:, ST_STATUS] != 0)
     if bad.size:
         warnings.warn(

@@ -115,13 +115,8 @@ def test_grazing_points_by_simulation(no_brake_diagram, which):
     assert lowest[sticky] <= 0.0
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the simulator's kernel tests the lower-disk speed for a zero only at step ends, "
-    "so a short dip below zero inside one step (next to grazing) is integrated through "
-    "on the slip branch instead of sticking",
-)
 def test_simulator_sticks_on_the_short_stick_phase_next_to_e(no_brake_diagram):
+    """A zero of the lower-disk speed inside one step (next to grazing) is found, not integrated through."""
     d = no_brake_diagram
     (c,) = [c for c in d.cycles_at(d.points["E"].u - 2e-3) if c.stable]
     assert 0.0 < c.stick_fraction < 0.01  # the orbit sticks for about 18 ms per period

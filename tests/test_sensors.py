@@ -84,8 +84,12 @@ def _gain(order, counts, omega, amp_speed=20.0, n_periods=40):
     n = int(round(n_periods * 2 * np.pi / omega * FS)) + 2000
     t = np.arange(1, n + 1) * TS
     theta = 3.0 * t + (amp_speed / omega) * np.sin(omega * t)  # speed 3 + A cos(w t)
-    m = measure(theta, np.zeros_like(theta), {"counts_per_rev": counts, "filter_order": order},
-                initial_speeds=(3.0 + amp_speed, 0.0))
+    m = measure(
+        theta,
+        np.zeros_like(theta),
+        {"counts_per_rev": counts, "filter_order": order},
+        initial_speeds=(3.0 + amp_speed, 0.0),
+    )
     sel = slice(2000, None)  # drop the transient of the filter
     X = np.column_stack([np.cos(omega * t[sel]), np.sin(omega * t[sel]), np.ones(t[sel].size)])
     coef, *_ = np.linalg.lstsq(X, m.upper_speed[sel], rcond=None)

@@ -193,6 +193,7 @@ def test_step_cap_reports_status(brake):
         ("no_brake", 1.0, 300.0),  # stick-slip between D and E, Fig. 8(a)
         ("no_brake", -1.0, 150.0),
         ("no_brake", 3.0, 100.0),  # above E: an equilibrium again
+        ("no_brake", 1.29, 400.0),  # next to E: stick phases of 25 ms once per period
     ],
 )
 def test_agrees_with_reference_through_stick_slip_cycles(preset, u, t_final):
@@ -616,6 +617,31 @@ def test_no_chattering_where_a_reversal_is_followed_by_a_quick_stop(brake):
         assert 1e-4 < res.events.t[reversal + 1] - res.events.t[reversal] < 0.2
 
 
+@pytest.fixture(scope="module")
+def near_e_reference(no_brake):
+    return oracle_simulate(no_brake, 1.29, 400.0)
+
+
+@pytest.mark.parametrize("rtol", [1e-6, 1e-8, 1e-10])
+def test_a_short_stick_phase_inside_one_step_is_not_skipped(no_brake, near_e_reference, rtol):
+    # Next to point E the lower speed touches zero for 25 ms per 4 s period. A step can
+    # start and end with the speed positive while it dips through zero in between: the
+    # dip must still be found, the disk must stick, and it must never run backwards on
+    # the forward slip branch.
+    res = drill_env.simulate(no_brake, 1.29, 400.0, dt=0.001, rtol=rtol, atol=1e-2 * rtol)
+    assert res.status == 0
+    assert np.all(res.x3[res.mode_l == 1] >= 0.0)
+    sticks = (res.events.disk == 1) & (res.events.mode_after == 0)
+    ref = near_e_reference
+    ref_sticks = sum(d == 1 and a == 0 for d, a in zip(ref.event_disk, ref.event_after, strict=True))
+    assert ref_sticks > 90  # one per period over 400 s
+    assert sticks.sum() == ref_sticks
+    np.testing.assert_allclose(res.events.t, ref.event_t, rtol=0, atol=1e3 * rtol)
+    last = res.window(100.0)
+    assert 0.004 < last.stick_l.mean() < 0.008
+    assert last.x3.min() == 0.0
+
+
 # -- batches -------------------------------------------------------------------------------------
 
 
@@ -699,3 +725,27 @@ def test_bad_batch_input_names_the_field(brake):
         drill_env.simulate_batch(brake, [1.0, 2.0], 10.0, x0=np.zeros((3, 3)))
     with pytest.raises(ValueError, match="control_dt"):
         drill_env.simulate_batch(brake, np.ones((2, 4)), 10.0)
+
+
+# -- compiled-code cache -------------------------------------------------------------------------
+
+
+def test_kernels_taking_the_input_function_are_not_disk_cached():
+    # numba keys a disk cache of such a function on the input function object of one
+    # process: it never hits in the next process, gains files with every process, and
+    # can fail to save once a key's function object is gone (numba issue 2956).
+    from numba.core.caching import NullCache
+
+    from drill_env import integrator, kernel, simulator
+
+    for fn in (
+        integrator.input_at,
+        integrator.step,
+        integrator.prepare_dense,
+        kernel._locate,
+        kernel._initial_step,
+        kernel.run,
+        simulator._run_batch,
+    ):
+        assert isinstance(fn._cache, NullCache), fn.py_func.__name__
+    assert not isinstance(kernel._violation._cache, NullCache)  # the others still are

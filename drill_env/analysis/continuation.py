@@ -91,14 +91,6 @@ class PeriodicBranch:
     def u(self) -> np.ndarray:
         return np.array([c.u for c in self.cycles])
 
-    @property
-    def emerges_towards(self) -> float:
-        """Sign of u - u_H of the cycles next to the starting Hopf point."""
-        for c in self.cycles:
-            if abs(c.u - self.start.u) > 0:
-                return math.copysign(1.0, c.u - self.start.u)
-        return 0.0
-
 
 def _signature(c: LimitCycle) -> tuple[int, int, int]:
     """The switching pattern of an orbit: (lower disk sticks, reverses, upper disk sticks)."""

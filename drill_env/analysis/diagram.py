@@ -226,7 +226,6 @@ class BifurcationDiagram:
                 }
                 for br in self.branches
             ],
-            "timings_s": self.timings,
         }
 
     def save_json(self, path: str | Path) -> None:

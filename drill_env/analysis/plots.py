@@ -59,7 +59,7 @@ def _segment_curves(diagram: BifurcationDiagram, seg: PeriodicSegment):
 
 
 def _label_point(ax, name: str, u: float, y: float) -> None:
-    ax.plot([u], [y], "o", color=_POINT_COLOR, ms=4, zorder=5)
+    ax.plot([u], [y], "o", color=_POINT_COLOR, ms=4, zorder=5)  # above curves and markers
     ax.annotate(name, (u, y), textcoords="offset points", xytext=(4, 4), color=_POINT_COLOR, fontsize=10)
 
 
@@ -116,14 +116,14 @@ def plot_bifurcation(diagram: BifurcationDiagram, ax=None, check: BruteForceChec
         _, ax = plt.subplots(figsize=(8, 5))
     for b in diagram.equilibrium_branches:
         st = bool(np.mean(b.stable) > 0.5)
-        ax.plot(b.u, b.x3, _style(st), color=_EQ_COLOR, lw=1.5)
+        ax.plot(b.u, b.x3, _style(st), color=_EQ_COLOR, lw=1.5, zorder=3)
         k = b.u.size // 2
         ax.annotate(b.name, (b.u[k], b.x3[k]), textcoords="offset points", xytext=(0, -12), fontsize=9)
     for seg in diagram.periodic_segments:
         st = bool(np.mean(seg.stable[1:-1] if len(seg.cycles) > 2 else seg.stable) > 0.5)
         u, lo, hi = _segment_curves(diagram, seg)
-        ax.plot(u, hi, _style(st), color=_CYCLE_COLOR, lw=1.5)
-        ax.plot(u, lo, _style(st), color=_CYCLE_COLOR, lw=1.5)
+        ax.plot(u, hi, _style(st), color=_CYCLE_COLOR, lw=1.5, zorder=3)
+        ax.plot(u, lo, _style(st), color=_CYCLE_COLOR, lw=1.5, zorder=3)
         k = len(seg.cycles) // 2
         c = seg.cycles[k]
         ax.annotate(
@@ -144,7 +144,7 @@ def plot_bifurcation(diagram: BifurcationDiagram, ax=None, check: BruteForceChec
         for yy in y:
             _label_point(ax, name, pt.u, yy)
     if check is not None:
-        marks = {"small": ("o", 5), "large": ("s", 4), "forward": ("^", 5), "backward": ("v", 5)}
+        marks = {"small": ("o", 4), "large": ("s", 3), "forward": ("^", 4), "backward": ("v", 4)}
         for kind, (m, size) in marks.items():
             rs = [r for r in check.runs if r.kind == kind]
             if not rs:
@@ -155,11 +155,13 @@ def plot_bifurcation(diagram: BifurcationDiagram, ax=None, check: BruteForceChec
                 [r.x3_max for r in rs],
                 m,
                 mfc="none",
+                mew=0.8,
                 color="tab:orange",
                 ms=size,
+                zorder=2,
                 label=f"simulation: {kind}",
             )
-            ax.plot(uu, [r.x3_min for r in rs], m, mfc="none", color="tab:orange", ms=size)
+            ax.plot(uu, [r.x3_min for r in rs], m, mfc="none", mew=0.8, color="tab:orange", ms=size, zorder=2)
         ax.legend(fontsize=8, loc="upper left")
     ax.set_xlim(diagram.u_min, diagram.u_max)
     ax.set_xlabel("u [V]")

@@ -128,15 +128,18 @@ class BruteForceCheck:
             },
             "coexistence_C_F": self.coexistence,
             "sweep_jumps": self.jumps,
-            "seconds": self.seconds,
             "runs": [clean(asdict(r)) for r in self.runs],
         }
 
     def save_json(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n")
 
+    def plot(self, diagram: BifurcationDiagram, ax=None):
+        """The diagram's Fig. 8 with the steady max/min of x3 of every run as open markers."""
+        return diagram.plot("fig8", ax=ax, check=self)
 
-def _default_grid(diagram: BifurcationDiagram, n: int) -> np.ndarray:
+
+def _default_grid(diagram: BifurcationDiagram, n: int, settle: float) -> np.ndarray:
     lo, hi = diagram.u_min, diagram.u_max
     step = (hi - lo) / n
     grid = list(lo + step * (np.arange(n) + 0.5))
@@ -148,14 +151,21 @@ def _default_grid(diagram: BifurcationDiagram, n: int) -> np.ndarray:
             inside = [g for g in grid if a < g < b]
             if len(inside) < 2 and b - a > 1e-3:
                 grid += [a + (b - a) / 3, a + 2 * (b - a) / 3]
-    # Keep clear of the Hopf points and folds, where the transients decay slowly.
-    specials = [pt.u for pt in diagram.points.values() if pt.type.startswith(("hopf", "fold"))]
+    # Keep clear of the Hopf points and folds, where transients decay (or grow) slowly:
+    # next to a Hopf point the rate is |d Re(lambda)/du| |u - u_H|, and ``settle`` must
+    # cover some twenty time constants of it.
     gap = 0.01 * max(1.0, (hi - lo) / 2.5)
+    specials = []
+    for pt in diagram.points.values():
+        if pt.type.startswith("hopf"):
+            specials.append((pt.u, max(gap, 20.0 / (settle * abs(pt.detail["crossing_speed"])))))
+        elif pt.type.startswith("fold"):
+            specials.append((pt.u, gap))
     out = []
     for g in sorted(grid):
-        for s in specials:
-            if abs(g - s) < gap:
-                g = s + math.copysign(gap, g - s if g != s else 1.0)
+        for s, width in specials:
+            if abs(g - s) < width:
+                g = s + math.copysign(width, g - s if g != s else 1.0)
         if lo < g < hi:
             out.append(g)
     return np.unique(np.round(out, 10))
@@ -205,7 +215,7 @@ def brute_force_check(
 
     t_start = time.perf_counter()
     params = diagram.params
-    grid = _default_grid(diagram, n_grid) if u_grid is None else np.asarray(u_grid, dtype=float)
+    grid = _default_grid(diagram, n_grid, settle) if u_grid is None else np.asarray(u_grid, dtype=float)
     report = progress or (lambda stage, frac: None)
     eqs = [equilibria(params, u)[0] for u in grid]
     small = []

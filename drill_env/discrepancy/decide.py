@@ -24,7 +24,8 @@ The rule (all numbers in :class:`DecisionRule`):
    windows), and ``none`` if it does not.
 5. The confidence is the fraction of bootstrap replicates (training and held-out runs
    each resampled with replacement, within each kind of run: constant or varying
-   voltage) that reach the same answer.
+   voltage) that reach the same answer. A named effect that wins in fewer than
+   ``min_confidence`` of the replicates is not named: the answer falls back to rule 4.
 """
 
 from __future__ import annotations
@@ -58,7 +59,9 @@ class DecisionRule:
     floor_tolerance: float = 0.15  # relative error allowed on the noise floor
     excess_z: float = 4.0  # sigmas of chi^2 above which the excess is significant
     min_explained: float = 0.5  # fraction of the excess the named effect must remove
+    min_confidence: float = 0.5  # a named effect must win in at least this share of the bootstrap
     line_alpha: float = 1e-4  # level of the spectral-line test (Bonferroni over frequencies)
+    line_run_fraction: float = 0.5  # share of runs that must show the line on their own (p < 0.01)
     autocorr_z: float = 4.5  # z-score of the neighbour correlation that counts as structure
     bootstrap: int = 200
     ridge: float = 1e-9
@@ -207,7 +210,11 @@ class LineScan:
 
 
 def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) -> LineScan:
-    """Scan for a sinusoid at one frequency common to all runs in the nominal residual."""
+    """Scan for a sinusoid at one frequency common to the runs in the nominal residual.
+
+    Each run and disk gets its own amplitude and phase; the line is significant when the
+    total drop of the sum of squares passes a Bonferroni-corrected chi^2 test and at least
+    ``line_run_fraction`` of the runs show it on their own."""
     groups = []
     for eq in eqs:
         for w in (eq.upper, eq.lower):
@@ -220,8 +227,8 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
     f_lo = 3.0 / t_max
     f_hi = 0.45 / stride_t
     freqs = np.geomspace(f_lo, f_hi, n_freq)
-    red = np.zeros(freqs.size)
-    for _, w in groups:
+    red_g = np.zeros((len(groups), freqs.size))
+    for g, (_, w) in enumerate(groups):
         z = w.z
         s = 1.0 / w.sigma
         for i, f in enumerate(freqs):
@@ -230,13 +237,21 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
             A = X.T @ X
             b = X.T @ z
             try:
-                red[i] += float(b @ np.linalg.solve(A, b))
+                red_g[g, i] = float(b @ np.linalg.solve(A, b))
             except np.linalg.LinAlgError:
                 pass
+    red = red_g.sum(axis=0)
     i = int(np.argmax(red))
     dof = 2 * len(groups)
     thr = float(stats.chi2.isf(rule.line_alpha / freqs.size, dof))
     f = float(freqs[i])
+    # a line common to the runs shows in most of them on its own, not in one or two
+    # (an undithered encoder at constant speed can alias into a line of a single run)
+    single = float(stats.chi2.isf(0.01, 2))
+    shown = {}
+    for g, (eq, _) in enumerate(groups):
+        shown[eq.run.name] = shown.get(eq.run.name, False) or bool(red_g[g, i] > single)
+    common = sum(shown.values()) >= rule.line_run_fraction * len(shown)
     ratios = []
     amps = {}
     for eq in eqs:
@@ -255,7 +270,7 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
         frequency_hz=f,
         reduction=float(red[i]),
         threshold=thr,
-        significant=bool(red[i] > thr),
+        significant=bool(red[i] > thr and common),
         dof=dof,
         rotation_ratio=ratios,
         related_to_rotation=related,
@@ -385,6 +400,17 @@ def decide(
         if progress is not None:
             progress(b + 1, rule.bootstrap)
     confidence = counts.get(effect, 0) / max(rule.bootstrap, 1)
+    if effect not in ("none", "unexplained") and rule.bootstrap > 0 and confidence < rule.min_confidence:
+        # significant on these runs but not stable over resampled runs: do not force a name
+        has_structure = structure["excess_all"] or structure["correlated"] or structure["line"]
+        fallback = "unexplained" if has_structure else "none"
+        reason = (
+            f"{effect} was significant but wins in only {confidence:.0%} of the bootstrap replicates "
+            f"(< {rule.min_confidence:.0%}); answer {fallback}"
+        )
+        effect = fallback
+        confidence = counts.get(effect, 0) / max(rule.bootstrap, 1)
+        winner = None
     n_h = sum(s.n for s in ho)
     q0_h = sum(s.ztz for s in ho)
     excess = {

@@ -18,20 +18,23 @@ import numba as nb
 import numpy as np
 
 from drill_env import _layout as L
-from drill_env.kernel import N_STATS, ST_H, run
-from drill_env.sensors import S_QL, S_QU, S_VL, S_VU, sensor_noise, sensor_reset, sensor_sample
+from drill_env.kernel import N_STATS, ST_H, _no_input, run
+from drill_env.sensors import (
+    C_ANGLE_NOISE,
+    C_SPEED_NOISE,
+    S_QL,
+    S_QU,
+    S_VL,
+    S_VU,
+    sensor_noise,
+    sensor_reset,
+    sensor_sample,
+)
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
-
-
-@nb.cfunc("float64(float64)", cache=True)
-def zero_input(t):
-    """Placeholder input function for the kernel (the voltage is a zero-order hold).
-
-    Passed as an argument, a C function keeps the callers cacheable on disk, which a
-    compiled dispatcher referenced from compiled code would not.
-    """
-    return 0.0
+# Not cached on disk, like the kernel's ``run`` that these functions compile in: a disk
+# cache would also keep a stale copy of the kernel after it changes (numba checks only the
+# caller's own file). They compile once per process, in a few seconds.
+_JIT = dict(nogil=True, fastmath=False, error_model="numpy")
 
 
 # -- per-rig episode scalars ------------------------------------------------------------------
@@ -80,25 +83,40 @@ START_REST, START_EQUILIBRIUM, START_OPEN_LOOP = 0, 1, 2
 
 
 @nb.njit(**_JIT)
-def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ufn):
-    seg_t = np.empty(2)
+def workspace(n):
+    """Scratch arrays for one control period of ``n`` sensor samples: sample times, noise
+    (zero unless a rig's chain is noisy; ws[10][0] = 1 while it holds noise), the kernel's
+    segment, event and statistics arrays. A batch reuses one for all rigs."""
+    return (
+        np.empty(n),
+        np.zeros((n, 4)),
+        np.empty(2),
+        np.empty(1),
+        np.empty(1),
+        np.empty(1, dtype=np.int64),
+        np.empty(1, dtype=np.int64),
+        np.empty(1, dtype=np.int64),
+        np.empty((1, L.NY)),
+        np.zeros(N_STATS),
+        np.zeros(1),
+    )
+
+
+@nb.njit(**_JIT)
+def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ws):
+    seg_t = ws[2]
+    seg_u = ws[3]
+    stats = ws[9]
     seg_t[0] = t0
     seg_t[1] = t1
-    seg_u = np.empty(1)
     seg_u[0] = u
-    ev_t = np.empty(1)
-    ev_disk = np.empty(1, dtype=np.int64)
-    ev_from = np.empty(1, dtype=np.int64)
-    ev_to = np.empty(1, dtype=np.int64)
-    ev_y = np.empty((1, L.NY))
-    stats = np.zeros(N_STATS)
     status = run(
         p,
         y,
         modes,
         seg_t,
         seg_u,
-        ufn,
+        _no_input,
         False,
         np.inf,
         t_out,
@@ -109,11 +127,11 @@ def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ufn):
         ybuf,
         mbuf,
         ubuf,
-        ev_t,
-        ev_disk,
-        ev_from,
-        ev_to,
-        ev_y,
+        ws[4],
+        ws[5],
+        ws[6],
+        ws[7],
+        ws[8],
         stats,
     )
     ep[EP_H] = stats[ST_H]
@@ -144,26 +162,39 @@ def _write_true(y, modes, out):
 
 
 @nb.njit(**_JIT)
-def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, ufn):
+def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf):
     """Advance one rig by one control period at the (already limited) voltage ``u`` [V].
 
     Integrates exactly, samples the true state every ``Ts`` into ``ybuf/mbuf/ubuf``,
     runs the sensor chain on each sample, and writes the observation into ``obs`` and the
     reward terms, status and true state into ``out``. Returns the kernel status.
     """
+    return _rig_step(
+        p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, workspace(int(ecfg[EC_NSUB]))
+    )
+
+
+@nb.njit(**_JIT)
+def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, ws):
     n = int(ecfg[EC_NSUB])
     ts = scfg[1]  # sensors.C_TS
     tick0 = ep[EP_TICK]
-    t_out = np.empty(n)
+    t_out = ws[0]
     for k in range(n):
         t_out[k] = (tick0 + k + 1) * ts
-    status = _integrate(p, y, modes, tick0 * ts, (tick0 + n) * ts, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ufn)
+    status = _integrate(p, y, modes, tick0 * ts, (tick0 + n) * ts, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ws)
     qu0 = sst[S_QU]
     ql0 = sst[S_QL]
     target = ep[EP_TARGET]
     sref = max(target, ecfg[EC_SPEED_REF])
-    noise = np.empty((n, 4))
-    sensor_noise(scfg, rng, noise)
+    noise = ws[1]
+    dirty = ws[10]
+    if scfg[C_ANGLE_NOISE] > 0.0 or scfg[C_SPEED_NOISE] > 0.0:
+        sensor_noise(scfg, rng, noise)
+        dirty[0] = 1.0
+    elif dirty[0] != 0.0:
+        noise[:, :] = 0.0
+        dirty[0] = 0.0
     track = 0.0
     stick = 0.0
     osc = 0.0
@@ -219,7 +250,6 @@ def rig_reset(
     ybuf,
     mbuf,
     ubuf,
-    ufn,
 ):
     """Put one rig at the start of an episode.
 
@@ -249,13 +279,14 @@ def rig_reset(
         settle = int(ecfg[EC_SETTLE])
         free = warm_ticks - settle * n
         ts = scfg[1]
+        ws = workspace(n)
         if free > 0:
             t_out = np.empty(1)
             t_out[0] = free * ts
             y1 = np.empty((1, L.NY))
             m1 = np.empty((1, 2), dtype=np.int64)
             u1 = np.empty(1)
-            status = _integrate(p, y, modes, 0.0, free * ts, u_nom, t_out, y1, m1, u1, ep, ecfg, ufn)
+            status = _integrate(p, y, modes, 0.0, free * ts, u_nom, t_out, y1, m1, u1, ep, ecfg, ws)
             ep[EP_TICK] = free
         else:
             ep[EP_TICK] = 0.0
@@ -263,7 +294,7 @@ def rig_reset(
         for _ in range(settle):
             if status != 0:
                 break
-            status = rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u_nom, obs, out, ybuf, mbuf, ubuf, ufn)
+            status = _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u_nom, obs, out, ybuf, mbuf, ubuf, ws)
         ep[EP_U] = u_nom
     # modes at the start: a disk at rest is stuck (a moving one slips in its direction)
     if status == 0 and start != START_OPEN_LOOP:
@@ -280,11 +311,12 @@ def rig_reset(
 
 
 @nb.njit(**_JIT)
-def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF, ufn):
+def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF):
     """``rig_step`` for every rig i with ``active[i]``; one compiled call for N rigs."""
+    ws = workspace(int(ecfg[EC_NSUB]))
     for i in range(P.shape[0]):
         if active[i]:
-            rig_step(
+            _rig_step(
                 P[i],
                 Y[i],
                 MODES[i],
@@ -299,7 +331,7 @@ def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF,
                 YBUF[i],
                 MBUF[i],
                 UBUF[i],
-                ufn,
+                ws,
             )
 
 
@@ -324,7 +356,6 @@ def batch_reset(
     YBUF,
     MBUF,
     UBUF,
-    ufn,
 ):
     """``rig_reset`` for every rig i with ``which[i]``."""
     for i in range(P.shape[0]):
@@ -348,76 +379,4 @@ def batch_reset(
                 YBUF[i],
                 MBUF[i],
                 UBUF[i],
-                ufn,
             )
-
-
-# -- entry points -------------------------------------------------------------------------------
-# Unboxing a C function passed from Python costs microseconds per call, so the Python-facing
-# entry points take it from a global. They are not cached on disk (a function referencing a
-# C function as a global cannot be); compiling them is quick because everything they call is.
-
-
-@nb.njit(nogil=True, fastmath=False, error_model="numpy")
-def step_one(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf):
-    return rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, zero_input)
-
-
-@nb.njit(nogil=True, fastmath=False, error_model="numpy")
-def reset_one(
-    p, y, modes, ep, ecfg, scfg, sst, rng, y0, start, warm_ticks, target, u_nom, obs, out, ybuf, mbuf, ubuf
-):
-    return rig_reset(
-        p,
-        y,
-        modes,
-        ep,
-        ecfg,
-        scfg,
-        sst,
-        rng,
-        y0,
-        start,
-        warm_ticks,
-        target,
-        u_nom,
-        obs,
-        out,
-        ybuf,
-        mbuf,
-        ubuf,
-        zero_input,
-    )
-
-
-@nb.njit(nogil=True, fastmath=False, error_model="numpy")
-def step_many(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF):
-    batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF, zero_input)
-
-
-@nb.njit(nogil=True, fastmath=False, error_model="numpy")
-def reset_many(
-    P, Y, MODES, EP, ecfg, SCFG, SST, RNG, Y0, START, WARM, TARGET, UNOM, which, OBS, OUT, YBUF, MBUF, UBUF
-):
-    batch_reset(
-        P,
-        Y,
-        MODES,
-        EP,
-        ecfg,
-        SCFG,
-        SST,
-        RNG,
-        Y0,
-        START,
-        WARM,
-        TARGET,
-        UNOM,
-        which,
-        OBS,
-        OUT,
-        YBUF,
-        MBUF,
-        UBUF,
-        zero_input,
-    )

@@ -227,7 +227,8 @@ class EpisodeSetup:
     point: OperatingPoint
     start: int
     warm_ticks: int
-    params: np.ndarray  # true plant, RigParams.as_array()
+    plant: RigParams  # the true plant of this episode (randomised or nominal)
+    params: np.ndarray  # plant.as_array()
     sensor_config: SensorConfig  # the episode's measurement chain
     sensors: np.ndarray  # sensor_config.as_array()
     rng: np.ndarray  # uint64[4], noise generator state
@@ -245,7 +246,7 @@ class EnvSettings:
         sensors: SensorConfig | Mapping[str, Any] | None = None,
         task: TaskConfig | Mapping[str, Any] | None = None,
         start: str = "open_loop",
-        warmup_time: float = 30.0,
+        warmup_time: float = 20.0,
         warmup_jitter: float = 5.0,
         reward_weights: RewardWeights | Mapping[str, float] | None = None,
         domain_randomization: DomainRandomization | Mapping[str, Any] | bool | None = None,
@@ -258,10 +259,7 @@ class EnvSettings:
             raise ValueError(
                 f"params_overrides: expected a dict of parameter values, got {params_overrides!r}"
             )
-        try:
-            self.params = resolve_params(params, **dict(params_overrides or {}))
-        except ParameterError:
-            raise
+        self.params = resolve_params(params, **dict(params_overrides or {}))
         self.sensors = SensorConfig.from_any(sensors)
         ts = self.sensors.sample_period
         self.control_dt = _number("control_dt", control_dt, 0.0, 60.0, lo_incl=False)
@@ -386,12 +384,14 @@ class EnvSettings:
             point = self.sampler.sample(rng)
         start = START_STATES[opts.get("start", self.start)]
         warm_ticks = self.draw_warm_ticks(rng)
+        plant = self.params
         p = self._p_nominal
         sensors = self.sensors
         scfg = self._scfg_nominal
         dr = self.randomization
         if dr is not None:
-            p = self._randomized_params(rng, dr)
+            plant = self._randomized_params(rng, dr)
+            p = plant.as_array()
             sensors = self._randomized_sensors(rng, dr)
             scfg = sensors.as_array()
         words = rng.integers(0, 2**64, size=4, dtype=np.uint64)
@@ -402,7 +402,7 @@ class EnvSettings:
             y0 = np.zeros(L.NY)
             if start == C.START_OPEN_LOOP:
                 y0[L.TM] = p[L.KM] * point.nominal_voltage
-        return EpisodeSetup(point, start, warm_ticks, p, sensors, scfg, rng_state(words), y0)
+        return EpisodeSetup(point, start, warm_ticks, plant, p, sensors, scfg, rng_state(words), y0)
 
     def draw_warm_ticks(self, rng: np.random.Generator) -> int:
         """Length of the open-loop warm-up in sensor ticks (drawn for every start state, so
@@ -410,7 +410,7 @@ class EnvSettings:
         t = self.warmup_time + self.warmup_jitter * float(rng.uniform())
         return int(round(t / self.sensors.sample_period))
 
-    def _randomized_params(self, rng: np.random.Generator, dr: DomainRandomization) -> np.ndarray:
+    def _randomized_params(self, rng: np.random.Generator, dr: DomainRandomization) -> RigParams:
         rels = (
             [(f, dr.friction_rel) for f in _FRICTION_FIELDS]
             + [(f, dr.inertia_rel) for f in _INERTIA_FIELDS]
@@ -425,7 +425,7 @@ class EnvSettings:
                 if rel > 0
             }
             try:
-                return base.replace(**changes).as_array()
+                return base.replace(**changes)
             except ParameterError:
                 continue  # non-dissipative lower friction: draw again
         raise ValueError(

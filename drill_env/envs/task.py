@@ -46,7 +46,7 @@ from scipy.optimize import brentq
 
 from drill_env import _layout as L
 from drill_env.friction import lower_friction_curve, lower_friction_slope
-from drill_env.kernel import N_STATS, ST_EVENTS, ST_LOGGED, STATUS_MESSAGES, run
+from drill_env.kernel import N_STATS, ST_EVENTS, ST_LOGGED, STATUS_MESSAGES, _no_input, run
 from drill_env.params import ModelEffects, RigParams
 
 __all__ = [
@@ -66,7 +66,7 @@ __all__ = [
 REGIMES = ("equilibrium", "limit_cycle", "stick_slip")
 VOLTAGE_LIMIT = 5.0  # [V] the amplifier input range of the rig is [-5, 5] V (Sec. 2.1)
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_JIT = dict(nogil=True, fastmath=False, error_model="numpy")  # calls the kernel: not disk-cached
 
 
 def nominal_params(params: RigParams) -> RigParams:
@@ -87,17 +87,32 @@ def nominal_voltage(params: RigParams, speed: float) -> float:
     ) / (params.motor_constant)
 
 
+def _torque_balance(params: RigParams, u: float):
+    """km u - T_up(w) - T_l(w) at the slip equilibrium, as a scalar function of w (math only:
+    it is solved at every episode start)."""
+    tsup, bup, km = params.upper_static_pos, params.upper_viscous_pos, params.motor_constant
+    tsl, bl = params.lower_static, params.lower_viscous
+    t1, t2 = params.lower_hump_1, params.lower_hump_2
+    h1, h2 = 0.5 * params.lower_hump_rate_1, 0.5 * params.lower_hump_rate_2
+    tanh = math.tanh
+
+    def f(w: float) -> float:
+        return km * u - (tsup + bup * w + tsl + t1 * tanh(h1 * w) + t2 * tanh(h2 * w) + bl * w)
+
+    return f
+
+
 def equilibrium_speed(params: RigParams, voltage: float) -> float:
-    """Lower-disk speed of the slip equilibrium at ``voltage`` [V] -> [rad/s]; 0 if u <= uc1."""
+    """Lower-disk speed of the slip equilibrium at ``voltage`` [V] -> [rad/s]; 0 if u <= uc1.
+
+    The torque balance is increasing in w by condition (21), so the root is unique.
+    """
     u = float(voltage)
     if u <= params.uc1:
         return 0.0
-
-    def f(w: float) -> float:
-        return nominal_voltage(params, w) - u
-
+    f = _torque_balance(params, u)
     hi = 1.0
-    while f(hi) < 0.0:
+    while f(hi) > 0.0:
         hi *= 2.0
         if hi > 1e6:
             raise ValueError(f"voltage: no equilibrium speed found for {u:g} V")
@@ -160,7 +175,7 @@ def hopf_voltages(params: RigParams, u_max: float = VOLTAGE_LIMIT) -> tuple[floa
 
 
 @nb.njit(**_JIT)
-def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, ufn, res):
+def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps, res):
     """From rest at each voltage: settle, then watch a window. res[i] = (lower stick events,
     x3 range first half, x3 range second half, mean x3, status)."""
     cap = 8192
@@ -197,14 +212,14 @@ def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, ufn, res)
             modes,
             seg_t,
             seg_u,
-            ufn,
+            _no_input,
             False,
             np.inf,
             t1,
             rtol,
             atol,
             0.0,
-            10_000_000,
+            max_steps,
             Y1,
             M1,
             U1,
@@ -225,14 +240,14 @@ def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, ufn, res)
                 modes,
                 seg_t,
                 seg_u,
-                ufn,
+                _no_input,
                 False,
                 np.inf,
                 t_out,
                 rtol,
                 atol,
                 h,
-                10_000_000,
+                max_steps,
                 Y,
                 M,
                 U,
@@ -277,18 +292,17 @@ def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, ufn, res)
 _SETTLE = 150.0  # [s] open-loop run from rest before the classification window
 _WINDOW = 50.0  # [s] about a dozen periods of the torsional cycle
 _N_WINDOW = 5000
+_MAX_STEPS = 10_000_000  # passed as an argument: a literal would compile the kernel a second time
 _SUSTAINED_REL = 0.05  # a cycle on the stable side: range > 5 % of the mean speed ...
 _SUSTAINED_RATIO = 0.9  # ... and not decaying between the halves of the window
 
 
 def _classify(params: RigParams, volts: np.ndarray, d_crit: float) -> list[str]:
-    from drill_env.envs._core import zero_input
-
     volts = np.asarray(volts, dtype=float)
     p = params.as_array()
     res = np.zeros((volts.size, 5))
     _classify_runs(
-        np.tile(p, (volts.size, 1)), volts, _SETTLE, _WINDOW, _N_WINDOW, 1e-9, 1e-11, zero_input, res
+        np.tile(p, (volts.size, 1)), volts, _SETTLE, _WINDOW, _N_WINDOW, 1e-9, 1e-11, _MAX_STEPS, res
     )
     # A run that the kernel could not finish is repeated at a voltage a few parts per
     # million off (its trajectory then avoids the failing instant).
@@ -305,7 +319,7 @@ def _classify(params: RigParams, volts: np.ndarray, d_crit: float) -> list[str]:
             _N_WINDOW,
             1e-9,
             1e-11,
-            zero_input,
+            _MAX_STEPS,
             sub,
         )
         res[bad] = sub

@@ -16,6 +16,7 @@ returns the last observation and info in ``info["final_obs"]`` / ``info["final_i
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -31,9 +32,6 @@ from drill_env.envs.task import VOLTAGE_LIMIT
 from drill_env.kernel import STATUS_MESSAGES
 
 __all__ = ["DrillStringVectorEnv"]
-
-_STEP_KEYS = ("voltage_requested", "voltage_clipped", "rewards", "sim_status")
-_RESET_KEYS = ("target_speed", "nominal_voltage", "regime")
 
 
 class DrillStringVectorEnv(VectorEnv):
@@ -175,7 +173,7 @@ class DrillStringVectorEnv(VectorEnv):
             self._reset_rigs(resetting, {})
             self._elapsed[resetting] = 0
         active = ~resetting
-        C.step_many(
+        C.batch_step(
             self._P,
             self._Y,
             self._MODES,
@@ -201,8 +199,6 @@ class DrillStringVectorEnv(VectorEnv):
         if self.max_episode_steps is not None:
             truncated |= active & (self._elapsed >= self.max_episode_steps)
         if np.any(status != 0):
-            import warnings
-
             i = int(np.flatnonzero(status != 0)[0])
             warnings.warn(
                 f"DrillStringVectorEnv.step: rig {i}: the simulator stopped ({STATUS_MESSAGES[int(status[i])]}); "
@@ -246,7 +242,7 @@ class DrillStringVectorEnv(VectorEnv):
             setup = s.draw_episode(self._rngs[i], opts)
             setups[i] = setup
             self._load(i, setup)
-        C.reset_many(
+        C.batch_reset(
             self._P,
             self._Y,
             self._MODES,
@@ -273,10 +269,10 @@ class DrillStringVectorEnv(VectorEnv):
                 if self._EP[i, C.EP_STATUS] == 0:
                     break
                 self._WARM[i] = s.draw_warm_ticks(self._rngs[i])
-                self._load_rng(i, setups[i])
+                self._RNG[i] = setups[i].rng
                 one = np.zeros(self.num_envs, dtype=bool)
                 one[i] = True
-                C.reset_many(
+                C.batch_reset(
                     self._P,
                     self._Y,
                     self._MODES,
@@ -311,9 +307,6 @@ class DrillStringVectorEnv(VectorEnv):
         self._TARGET[i] = setup.point.target_speed
         self._UNOM[i] = setup.point.nominal_voltage
         self._points[i] = setup.point
-        self._load_rng(i, setup)
-
-    def _load_rng(self, i: int, setup) -> None:
         self._RNG[i] = setup.rng
 
     def _common(self, info: dict[str, Any], rows: np.ndarray) -> None:
