@@ -17,10 +17,6 @@ from drill_env import _layout as L
 from drill_env.dynamics import n_active, rhs
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
-# Functions that take the input function as an argument are not cached on disk: numba
-# keys such a cache on the function object of one process, so it never hits in the next,
-# grows with every process, and breaks once a key's function is gone (numba issue 2956).
-_JIT_FN = dict(nogil=True, fastmath=False, error_model="numpy")
 
 N_STAGES = _dop.N_STAGES  # 12
 A = np.ascontiguousarray(_dop.A[:N_STAGES, :N_STAGES])
@@ -43,7 +39,7 @@ ORDER_EXP = 1.0 / 8.0
 ERR_MASK = np.array([1.0, 1.0, 1.0, 0.0, 1.0, 1.0])
 
 
-@nb.njit(**_JIT_FN)
+@nb.njit(**_JIT)
 def input_at(t, u_seg, u_func, use_func, u_limit):
     """Voltage applied at time t: the segment's value or ``u_func(t)``, clipped to the limit."""
     u = u_func(t) if use_func else u_seg
@@ -54,7 +50,7 @@ def input_at(t, u_seg, u_func, use_func, u_limit):
     return u
 
 
-@nb.njit(**_JIT_FN)
+@nb.njit(**_JIT)
 def step(t, y, f0, h, us, u_func, use_func, u_limit, p, mu, ml, K, y_new, ytmp, rtol, atol):
     """One DOP853 step from (t, y) with derivative f0; fills K and y_new.
 
@@ -104,7 +100,7 @@ def step(t, y, f0, h, us, u_func, use_func, u_limit, p, mu, ml, K, y_new, ytmp, 
     return abs(h) * err5 / np.sqrt((err5 + 0.01 * err3) * m)
 
 
-@nb.njit(**_JIT_FN)
+@nb.njit(**_JIT)
 def prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp):
     """Three extra stages and the interpolation coefficients F (INTERP x NY)."""
     n = n_active(p)

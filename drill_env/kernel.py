@@ -50,7 +50,6 @@ from drill_env.integrator import (
 )
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
-_JIT_FN = dict(nogil=True, fastmath=False, error_model="numpy")  # takes u_func: see integrator
 
 STATUS_MESSAGES = {
     0: "The end of the integration interval was reached.",
@@ -71,8 +70,15 @@ H_MIN = 1e-12  # [s]
 H_MAX = 1.0  # [s]
 
 
-@nb.njit(cache=True, nogil=True)
+# The voltage as a function of time reaches the compiled code as a C function pointer of
+# signature float64(float64): one type for every such function, so the kernels compile
+# once and stay cached on disk, whatever function a user passes.
+INPUT_SIGNATURE = "float64(float64)"
+
+
+@nb.cfunc(INPUT_SIGNATURE, cache=True)
 def _no_input(t):
+    """Placeholder input function when the voltage is a zero-order hold."""
     return 0.0
 
 
@@ -152,7 +158,7 @@ def _speed_dip(j, mode, y, F, ytmp):
     return 2.0
 
 
-@nb.njit(**_JIT_FN)
+@nb.njit(**_JIT)
 def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp, b0):
     """Fraction of the step at which ``disk``'s violation first becomes >= 0 (Illinois).
 
@@ -214,7 +220,7 @@ def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp,
     return b
 
 
-@nb.njit(**_JIT_FN)
+@nb.njit(**_JIT)
 def _initial_step(t, y, f0, us, u_func, use_func, u_limit, p, mu, ml, rtol, atol, h_max, ytmp, f1):
     """Starting step after a restart, from the sizes of y, f and f' (Hairer's rule)."""
     d0 = 0.0
@@ -263,7 +269,7 @@ def _log_event(t, disk, old, new, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
     stats[ST_EVENTS] = i + 1
 
 
-@nb.njit(**_JIT_FN)
+@nb.njit(**_JIT)
 def run(
     p,
     y,

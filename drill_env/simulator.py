@@ -16,16 +16,28 @@ from typing import Any
 
 import numba as nb
 import numpy as np
+from numba.core.ccallback import CFunc
 
 from drill_env import _layout as L
-from drill_env.kernel import N_STATS, ST_EVENTS, ST_LOGGED, ST_STATUS, STATUS_MESSAGES, _no_input, run
+from drill_env.kernel import (
+    INPUT_SIGNATURE,
+    N_STATS,
+    ST_EVENTS,
+    ST_LOGGED,
+    ST_STATUS,
+    STATUS_MESSAGES,
+    _no_input,
+    run,
+)
 from drill_env.params import RigParams, resolve_params
 from drill_env.result import EventLog, SimulationResult
 
 __all__ = ["simulate", "simulate_batch", "initial_state", "DEFAULT_RTOL", "DEFAULT_ATOL"]
 
-DEFAULT_RTOL = 1e-10
-DEFAULT_ATOL = 1e-12
+# Default tolerances: 1e-9 keeps the state within ~1e-7 of a tight reference over 100 s
+# of stick-slip (benchmarks/bench_simulator.py), well inside the 1e-6 the analysis needs.
+DEFAULT_RTOL = 1e-9
+DEFAULT_ATOL = 1e-11
 _OPTIONS = {"rtol", "atol", "control_dt", "voltage_limit", "max_steps", "event_capacity", "t0"}
 
 
@@ -88,21 +100,30 @@ def _check_positive(name: str, value: Any) -> float:
     return v
 
 
+def _compile_input(u: Callable[[float], float]) -> Any:
+    """A user's u(t) as a compiled C function float64(float64) (see :mod:`drill_env.kernel`)."""
+    if isinstance(u, CFunc):
+        return u
+    py = u.py_func if isinstance(u, nb.core.registry.CPUDispatcher) else u
+    try:
+        fn = nb.cfunc(INPUT_SIGNATURE)(py)
+        fn.ctypes(0.0)
+    except Exception as exc:  # numba's typing errors are long; keep the cause
+        raise TypeError(
+            "u: a function of time must be compilable by numba (math/numpy functions of "
+            "t returning a float), or pass the voltage as a zero-order-hold sequence with "
+            f"control_dt; numba said: {str(exc).strip().splitlines()[0]}"
+        ) from exc
+    return fn
+
+
 def _input_program(
     u: Any, t0: float, t_final: float, control_dt: float | None, voltage_limit: float
 ) -> tuple[np.ndarray, np.ndarray, Any, bool, float]:
     """Segments (times, voltages) of the input, or a compiled function of time."""
     lim = math.inf if voltage_limit is None else float(voltage_limit)
     if callable(u):
-        fn = u if isinstance(u, nb.core.registry.CPUDispatcher) else nb.njit(u)
-        try:
-            fn(float(t0))
-        except Exception as exc:  # numba's typing errors are long; keep the cause
-            raise TypeError(
-                "u: a function of time must be compilable by numba (use math/numpy "
-                "functions of t only), or pass the voltage as a zero-order-hold sequence "
-                f"with control_dt; numba said: {str(exc).splitlines()[0]}"
-            ) from exc
+        fn = _compile_input(u)
         return np.array([t0, t_final]), np.array([0.0]), fn, True, lim
     arr = np.asarray(u, dtype=float)
     if arr.ndim == 0:
@@ -155,7 +176,7 @@ def simulate(
         dt: output sample period [s]; the solution is sampled from the dense output.
 
     Options:
-        rtol, atol: integration tolerances (default 1e-10, 1e-12).
+        rtol, atol: integration tolerances (default 1e-9, 1e-11).
         control_dt: hold period of a voltage sequence [s].
         voltage_limit: clip u to +-limit [V] as the rig's amplifier does (default: no
             limit; the clipped voltage is what ``result.u`` holds).
@@ -198,7 +219,7 @@ def simulate(
                 f"effects.friction_drift: {eff.friction_drift:g} 1/s makes the friction level "
                 f"negative before t = {t_final:g} s"
             )
-    u0 = float(fn(t0)) if use_func else float(seg_u[0])
+    u0 = float(fn.ctypes(t0)) if use_func else float(seg_u[0])
     if vlim is not None:
         u0 = max(-vlim, min(vlim, u0))
     y0 = initial_state(params, x0, u0)
@@ -237,7 +258,7 @@ def simulate(
     u_requested = None
     if vlim is not None:
         if use_func:
-            u_requested = np.array([fn(tt) for tt in t_out])
+            u_requested = np.array([fn.ctypes(float(tt)) for tt in t_out])
         else:
             idx = np.clip(np.searchsorted(seg_t, t_out, side="right") - 1, 0, seg_u.size - 1)
             u_requested = seg_u[idx]
@@ -256,8 +277,10 @@ def simulate(
     )
 
 
-@nb.njit(nogil=True)  # not cached on disk: it takes the input function (see integrator)
-def _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats_all, ev_count):
+@nb.njit(cache=True, nogil=True)
+def _run_batch(P, Y0, seg_t, SEG_U, u_func, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats_all, ev_count):
+    # u_func is an argument: a C function referenced as a global would keep this
+    # function out of numba's disk cache.
     n = P.shape[0]
     cap = 1
     ev_t = np.empty(cap)
@@ -269,7 +292,7 @@ def _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, st
     for i in range(n):
         y = Y0[i].copy()
         run(
-            P[i], y, modes, seg_t, SEG_U[i], _no_input, False, np.inf, t_out, rtol, atol, 0.0,
+            P[i], y, modes, seg_t, SEG_U[i], u_func, False, np.inf, t_out, rtol, atol, 0.0,
             max_steps, Yo[i], Mo[i], Uo[i], ev_t, ev_disk, ev_from, ev_to, ev_y, stats_all[i],
         )
         ev_count[i] = stats_all[i, ST_EVENTS]
@@ -341,7 +364,7 @@ def simulate_batch(
     stats = np.zeros((n_rigs, N_STATS))
     ev_count = np.zeros(n_rigs)
     max_steps = max(100_000, int(t_final * 2000))
-    _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
+    _run_batch(P, Y0, seg_t, SEG_U, _no_input, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
     bad = np.flatnonzero(stats[:, ST_STATUS] != 0)
     if bad.size:
         warnings.warn(

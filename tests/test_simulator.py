@@ -143,9 +143,10 @@ def test_initial_state_forms_agree(brake):
     a = drill_env.simulate(brake, 1.5, 20.0, x0=(0.3, 0.5, -0.2))
     b = drill_env.simulate(brake, 1.5, 20.0, x0=(1.3, 1.0, 0.5, -0.2))  # theta_u, theta_l, x2, x3
     c = drill_env.simulate(brake, 1.5, 20.0, x0={"theta_u": 1.3, "theta_l": 1.0, "x2": 0.5, "x3": -0.2})
+    # 1.3 - 1.0 differs from 0.3 by one rounding (5.6e-17); the flow may amplify that.
     for other in (b, c):
         for name in ("x1", "x2", "x3"):
-            np.testing.assert_allclose(getattr(other, name), getattr(a, name), rtol=0, atol=1e-12)
+            np.testing.assert_allclose(getattr(other, name), getattr(a, name), rtol=0, atol=1e-10)
         np.testing.assert_allclose(other.theta_l - a.theta_l, 1.0, rtol=0, atol=1e-12)
     assert b.theta_u[0] == 1.3 and b.theta_l[0] == 1.0
 
@@ -730,22 +731,36 @@ def test_bad_batch_input_names_the_field(brake):
 # -- compiled-code cache -------------------------------------------------------------------------
 
 
-def test_kernels_taking_the_input_function_are_not_disk_cached():
-    # numba keys a disk cache of such a function on the input function object of one
-    # process: it never hits in the next process, gains files with every process, and
-    # can fail to save once a key's function object is gone (numba issue 2956).
-    from numba.core.caching import NullCache
+def test_one_compiled_kernel_serves_every_input_function():
+    # The input function reaches the kernel as a C function pointer float64(float64),
+    # so different user functions share one specialisation of the kernel.
+    from drill_env import kernel
 
-    from drill_env import integrator, kernel, simulator
+    def sine(amp):
+        return lambda t: 2.0 + amp * math.sin(t)
 
-    for fn in (
-        integrator.input_at,
-        integrator.step,
-        integrator.prepare_dense,
-        kernel._locate,
-        kernel._initial_step,
-        kernel.run,
-        simulator._run_batch,
-    ):
-        assert isinstance(fn._cache, NullCache), fn.py_func.__name__
-    assert not isinstance(kernel._violation._cache, NullCache)  # the others still are
+    before = len(kernel.run.signatures)
+    for amp in (0.5, 1.0, 1.5):
+        res = drill_env.simulate("brake", sine(amp), 5.0)
+        assert res.success and np.allclose(res.u, 2.0 + amp * np.sin(res.t))
+    drill_env.simulate("brake", 2.0, 5.0)
+    assert len(kernel.run.signatures) - before <= 1
+
+
+def test_kernels_are_cached_on_disk_across_processes(tmp_path):
+    # A second process loads the compiled kernels from the cache instead of compiling:
+    # numba reports no new compilation of run() there.
+    import subprocess
+    import sys
+
+    code = (
+        "import math, drill_env, numba;"
+        "from drill_env import kernel;"
+        "drill_env.simulate('brake', lambda t: 1.0 + 0.5 * math.sin(t), 2.0);"
+        "drill_env.simulate('brake', 2.0, 2.0);"
+        "print(all(s for s in kernel.run.stats.cache_hits.values()), len(kernel.run.stats.cache_misses))"
+    )
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    hits, misses = out.stdout.split()
+    assert hits == "True" and misses == "0", out.stdout

@@ -186,7 +186,7 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
     qu0 = sst[S_QU]
     ql0 = sst[S_QL]
     target = ep[EP_TARGET]
-    sref = max(target, ecfg[EC_SPEED_REF])
+    inv_sref = 1.0 / max(target, ecfg[EC_SPEED_REF])
     noise = ws[1]
     dirty = ws[10]
     if scfg[C_ANGLE_NOISE] > 0.0 or scfg[C_SPEED_NOISE] > 0.0:
@@ -201,9 +201,9 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
     for k in range(n):
         thl = ybuf[k, L.THL]
         sensor_sample(scfg, sst, ybuf[k, L.X1] + thl, thl, noise, k)
-        e = (ybuf[k, L.X3] - target) / sref
+        e = (ybuf[k, L.X3] - target) * inv_sref
         track += e * e
-        r = (ybuf[k, L.X2] - ybuf[k, L.X3]) / sref
+        r = (ybuf[k, L.X2] - ybuf[k, L.X3]) * inv_sref
         osc += r * r
         if mbuf[k, 1] == 0:
             stick += 1.0
