@@ -398,7 +398,7 @@ def test_simulated_growth_rate_matches_the_linearisation(preset, branch, offset)
 @pytest.mark.parametrize("below", [0.0, 1e-9, 1e-3])
 def test_lower_disk_never_moves_at_or_below_uc1(brake, below):
     u = brake.uc1 * (1.0 - below)
-    res = drill_env.simulate(brake, u, 400.0, dt=0.1)
+    res = drill_env.simulate(brake, u, 400.0, dt=0.1, rtol=1e-11, atol=1e-13)
     assert res.status == 0
     assert np.all(res.x3 == 0.0) and res.stick_l.all() and len(res.events) == 0
     # Meanwhile the upper disk creeps forward exactly as the linear ODE says.
@@ -414,7 +414,7 @@ def test_lower_disk_never_moves_at_or_below_uc1(brake, below):
 @pytest.mark.parametrize("above", [1e-6, 1e-3])
 def test_lower_disk_breaks_away_just_above_uc1(brake, above):
     u = brake.uc1 + above
-    res = drill_env.simulate(brake, u, 400.0, dt=0.1)
+    res = drill_env.simulate(brake, u, 400.0, dt=0.1, rtol=1e-11, atol=1e-13)
     # Break-away when k_theta x1(t) reaches T_sl on the closed-form creep of the upper disk.
     t_star = brentq(
         lambda t: brake.string_stiffness * upper_creep(brake, u, t)[0] - brake.lower_static, 1.0, 1e3
@@ -444,7 +444,7 @@ def test_lyapunov_function_27_does_not_increase_in_region_30(brake, u, x0):
     # Start inside the estimate C of the region of attraction (34): V1 <= Jl 13^2 / 2.
     v1 = 0.5 * (p.string_stiffness * x0[0] ** 2 + p.upper_inertia * x0[1] ** 2 + p.lower_inertia * x0[2] ** 2)
     assert v1 <= 0.5 * p.lower_inertia * 13.0**2
-    res = drill_env.simulate(p, u, 200.0, x0=x0, dt=0.002)
+    res = drill_env.simulate(p, u, 200.0, x0=x0, dt=0.002, rtol=1e-11, atol=1e-13)
     assert res.status == 0
     assert np.max(np.abs(res.x3)) < 13.0  # the trajectory stays in region (30)
     for x1_eq in (lo, 0.5 * (lo + hi), hi):  # every point of the set (26)
