@@ -1,95 +1,219 @@
-"""What the controllers believe: the nominal rig, its slip equilibria and their linearisation.
+"""What the controllers believe: the nominal rig linearised about a slip equilibrium, sampled
+at the control period and seen through the rig's measurement chain.
 
-Controllers are designed on the nominal model (the preset's parameters), never on the
-plant the env simulates (which may be randomised or carry extra effects).
+The equilibria come from :mod:`drill_env.analysis` (eq. 20, with their friction slope d_l
+of eq. 24); controllers are designed on the nominal model (the preset's parameters),
+never on the plant the environment simulates.
 
-Linearisation of eq. (36) about the slip equilibrium (20) at lower-disk speed w > 0,
-states (x1, x2, x3), input u::
+Linearisation of eq. (36) about the slip equilibrium at lower-disk speed w > 0, states
+(x1, x2, x3), input u::
 
     x1' = x2 - x3
     Ju x2' = km u - k_theta x1 - b_up x2
     Jl x3' = k_theta x1 - d_l(w) x3
 
-with d_l the friction slope of eq. (24).
+:func:`sampled_rig` adds what a controller on the rig actually sees (the environment's
+observation entries 0-5): the speeds through the Butterworth low-pass of
+:class:`~drill_env.sensors.SensorConfig` (its continuous prototype; the 1 kHz
+difference quotient in front of it is exact to 0.2 % below 200 rad/s), the twist at the
+end of the control period, the encoder speeds averaged over the period, and the voltage
+applied during it. The action is held over the period (zero-order hold); the discrete
+model is exact for that (matrix exponential). Encoder quantisation is not modelled here
+(it is noise, see :data:`MEASUREMENT_NOISE`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
+from scipy.linalg import expm
 
-from drill_env.friction import lower_friction_curve, lower_friction_slope
+from drill_env.analysis import Equilibrium, slip_equilibrium
+from drill_env.envs.task import nominal_voltage
 from drill_env.params import RigParams
+from drill_env.sensors import SensorConfig
 
-__all__ = ["OperatingPoint", "operating_point", "nominal_voltage", "equilibrium_speed", "linearise"]
+__all__ = [
+    "MEASURED",
+    "MEASUREMENT_NOISE",
+    "SampledRig",
+    "decay_rate",
+    "design_point",
+    "equilibrium_observation",
+    "linearise",
+    "measurement_noise",
+    "sampled_rig",
+]
 
+# Observation entries a controller measures (the environment's first six), in order.
+MEASURED = ("lower_speed", "upper_speed", "twist", "lower_speed_mean", "upper_speed_mean", "voltage")
 
-def nominal_voltage(params: RigParams, speed: float) -> float:
-    """Voltage whose slip equilibrium (20) turns the lower disk at ``speed`` > 0 [V]."""
-    if not np.isfinite(speed) or speed <= 0.0:
-        raise ValueError(f"speed: the equilibrium speed must be finite and > 0, got {speed!r}")
-    w = float(speed)
-    torque = params.upper_static_pos + params.upper_viscous_pos * w + float(lower_friction_curve(params, w))
-    return torque / params.motor_constant
-
-
-def equilibrium_speed(params: RigParams, voltage: float) -> float:
-    """Lower-disk speed x3_eq of the slip equilibrium (20) at ``voltage``; 0 in the stick set."""
-    if not np.isfinite(voltage):
-        raise ValueError(f"voltage: must be finite, got {voltage!r}")
-    if voltage <= params.uc1:
-        return 0.0
-
-    def g(w: float) -> float:
-        return nominal_voltage(params, w) - voltage
-
-    hi = 1.0
-    while g(hi) < 0.0:
-        hi *= 2.0
-        if hi > 1e4:
-            raise ValueError(f"voltage: no slip equilibrium found below 1e4 rad/s at {voltage} V")
-    # Condition (21) makes g increasing, so the root is unique.
-    return float(brentq(g, 1e-14, hi, xtol=1e-14, rtol=1e-14))
-
-
-@dataclass(frozen=True)
-class OperatingPoint:
-    """A slip equilibrium of the nominal rig."""
-
-    voltage: float  # u [V]
-    speed: float  # x2 = x3 [rad/s]
-    twist: float  # x1 = T_l(w)/k_theta [rad]
-    friction_slope: float  # d_l(w) [N m s / rad]
+# Standard deviation of the encoder quantisation noise on each measured entry at the
+# defaults (2000 counts/rev, 1 kHz, 200 rad/s filter, 0.05 s control period), measured on
+# the environment at the slip equilibrium: the filtered 1 kHz difference quotient
+# (0.03-0.06 rad/s), the twist (one count 3.1 mrad: 1.3-1.6 mrad) and the count difference
+# over a period (one count in 0.05 s is 0.063 rad/s: 0.016-0.03 rad/s). The upper ends
+# are used; :func:`measurement_noise` rescales them to other encoders and periods.
+MEASUREMENT_NOISE = {
+    "lower_speed": 0.06,
+    "upper_speed": 0.06,
+    "twist": 1.6e-3,
+    "lower_speed_mean": 0.03,
+    "upper_speed_mean": 0.03,
+    "voltage": 0.0,
+}
 
 
-def operating_point(params: RigParams, *, speed: float | None = None, voltage: float | None = None) -> OperatingPoint:
-    """The slip equilibrium given either its lower-disk speed or its voltage."""
-    if (speed is None) == (voltage is None):
-        raise ValueError("operating_point: give exactly one of speed, voltage")
-    if speed is None:
-        speed = equilibrium_speed(params, float(voltage))
-        if speed == 0.0:
-            raise ValueError(f"voltage: {voltage} V is in the stick set (<= uc1 = {params.uc1:.4f} V)")
-    u = nominal_voltage(params, speed)
-    return OperatingPoint(
-        voltage=u,
-        speed=float(speed),
-        twist=float(lower_friction_curve(params, speed)) / params.string_stiffness,
-        friction_slope=float(lower_friction_slope(params, speed)),
+def measurement_noise(sensors: SensorConfig, control_dt: float) -> np.ndarray:
+    """Noise std of the measured entries (order of :data:`MEASURED`) for a measurement chain."""
+    ref = SensorConfig()
+    r = sensors.resolution / ref.resolution if sensors.counts_per_rev else 0.0
+    base = np.array([MEASUREMENT_NOISE[m] for m in MEASURED])
+    scale = np.array([r, r, r, r * 0.05 / control_dt, r * 0.05 / control_dt, 0.0])
+    extra = np.array(
+        [
+            sensors.speed_noise_std,
+            sensors.speed_noise_std,
+            math.sqrt(2.0) * sensors.angle_noise_std,
+            math.sqrt(2.0) * sensors.angle_noise_std / control_dt,
+            math.sqrt(2.0) * sensors.angle_noise_std / control_dt,
+            0.0,
+        ]
     )
+    return np.sqrt((base * scale) ** 2 + extra**2)
 
 
-def linearise(params: RigParams, op: OperatingPoint) -> tuple[np.ndarray, np.ndarray]:
-    """(A, B) of the linearisation about ``op`` in the states (x1, x2, x3)."""
+def design_point(params: RigParams, *, voltage: float | None = None, speed: float | None = None) -> Equilibrium:
+    """The slip equilibrium of the nominal model at a voltage [V] or a lower-disk speed [rad/s]."""
+    if (speed is None) == (voltage is None):
+        raise ValueError("design_point: give exactly one of voltage, speed")
+    if voltage is None:
+        w = float(speed)
+        if not (math.isfinite(w) and w > 0):
+            raise ValueError(f"speed: expected a finite speed > 0 rad/s, got {speed!r}")
+        voltage = nominal_voltage(params, w)
+    u = float(voltage)
+    if not (math.isfinite(u) and u > params.uc1):
+        raise ValueError(f"voltage: expected a finite voltage > uc1 = {params.uc1:.6g} V, got {voltage!r}")
+    eq = slip_equilibrium(params, u)
+    if eq is None:  # pragma: no cover - u > uc1 always has one (condition 21)
+        raise ValueError(f"voltage: no slip equilibrium at {u:g} V")
+    return eq
+
+
+def linearise(params: RigParams, eq: Equilibrium) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of the linearisation about ``eq`` in the states (x1, x2, x3)."""
     ju, jl, k = params.upper_inertia, params.lower_inertia, params.string_stiffness
     A = np.array(
         [
             [0.0, 1.0, -1.0],
             [-k / ju, -params.upper_viscous_pos / ju, 0.0],
-            [k / jl, 0.0, -op.friction_slope / jl],
+            [k / jl, 0.0, -eq.friction_slope / jl],
         ]
     )
     B = np.array([[0.0], [params.motor_constant / ju], [0.0]])
     return A, B
+
+
+@dataclass(frozen=True)
+class SampledRig:
+    """The linearised rig at the control clock: ``s(k+1) = F s(k) + G u(k)``, ``y(k) = H s(k)``.
+
+    ``s`` holds (x1, x2, x3), the speed-filter states, the two step-mean speeds and the
+    voltage of the last step; ``y`` are the deviations of the measured entries
+    :data:`MEASURED` from their equilibrium values. ``u`` is the voltage deviation.
+    """
+
+    eq: Equilibrium
+    dt: float  # [s] control period
+    F: np.ndarray
+    G: np.ndarray  # (n,)
+    H: np.ndarray  # (6, n)
+
+    @property
+    def n(self) -> int:
+        return self.F.shape[0]
+
+    @property
+    def speed(self) -> float:
+        return self.eq.x3
+
+    @property
+    def voltage(self) -> float:
+        return self.eq.u
+
+    def open_loop_decay_rate(self) -> float:
+        """-ln(spectral radius)/dt of the rig alone [1/s] (negative: unstable)."""
+        return decay_rate(self.F, self.dt)
+
+
+def decay_rate(M: np.ndarray, dt: float) -> float:
+    """-ln(spectral radius of M) / dt [1/s]; -inf for a zero matrix never occurs here."""
+    rho = float(np.max(np.abs(np.linalg.eigvals(M))))
+    return -math.log(max(rho, 1e-300)) / dt
+
+
+def sampled_rig(
+    params: RigParams, eq: Equilibrium, dt: float, sensors: SensorConfig | None = None
+) -> SampledRig:
+    """The discrete model of the rig, its sensors and the zero-order hold about ``eq``."""
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: expected a finite control period > 0 s, got {dt!r}")
+    sensors = sensors or SensorConfig()
+    A3, B3 = linearise(params, eq)
+    wc = sensors.cutoff_rad_s
+    order = sensors.filter_order
+    nf = order  # filter states per speed
+    n = 3 + 2 * nf
+    A = np.zeros((n, n))
+    B = np.zeros(n)
+    A[:3, :3] = A3
+    B[:3] = B3[:, 0]
+    outs = []
+    for j, src in enumerate((2, 1)):  # lower speed x3, upper speed x2
+        i0 = 3 + j * nf
+        if order == 1:
+            A[i0, i0] = -wc
+            A[i0, src] = wc
+        else:  # Butterworth: f'' + sqrt(2) wc f' + wc^2 f = wc^2 v
+            A[i0, i0 + 1] = 1.0
+            A[i0 + 1, i0] = -wc * wc
+            A[i0 + 1, i0 + 1] = -math.sqrt(2.0) * wc
+            A[i0 + 1, src] = wc * wc
+        outs.append(i0)
+    # Augmented exponential: the state, the held input and the integrals over the period
+    # of the lower and the upper speed.
+    m = n + 1 + 2
+    M = np.zeros((m, m))
+    M[:n, :n] = A
+    M[:n, n] = B
+    M[n + 1, 2] = 1.0
+    M[n + 2, 1] = 1.0
+    E = expm(M * dt)
+    Phi, Gam = E[:n, :n], E[:n, n]
+    Psi, Lam = E[n + 1 :, :n] / dt, E[n + 1 :, n] / dt
+    # s = [xi (n), mean_lower, mean_upper, u_prev]
+    ns = n + 3
+    F = np.zeros((ns, ns))
+    G = np.zeros(ns)
+    F[:n, :n] = Phi
+    G[:n] = Gam
+    F[n : n + 2, :n] = Psi
+    G[n : n + 2] = Lam
+    G[n + 2] = 1.0
+    H = np.zeros((6, ns))
+    H[0, outs[0]] = 1.0
+    H[1, outs[1]] = 1.0
+    H[2, 0] = 1.0
+    H[3, n] = 1.0
+    H[4, n + 1] = 1.0
+    H[5, n + 2] = 1.0
+    return SampledRig(eq=eq, dt=float(dt), F=F, G=G, H=H)
+
+
+def equilibrium_observation(params: RigParams, eq: Equilibrium) -> np.ndarray:
+    """The environment's observation (SI units, 8 entries) at the slip equilibrium ``eq``."""
+    w, u = eq.x3, eq.u
+    return np.array([w, w, eq.x1, w, w, u, w, u])

@@ -34,6 +34,7 @@ from drill_env.envs.task import (
 )
 from drill_env.params import ParameterError, RigParams, resolve_params
 from drill_env.sensors import SensorConfig, rng_state
+from drill_env.simulator import DEFAULT_ATOL, DEFAULT_RTOL
 
 __all__ = [
     "RewardWeights",
@@ -252,8 +253,8 @@ class EnvSettings:
         domain_randomization: DomainRandomization | Mapping[str, Any] | bool | None = None,
         action_mode: str = "normalized",
         normalize_observation: bool = True,
-        rtol: float = 1e-8,
-        atol: float = 1e-10,
+        rtol: float = DEFAULT_RTOL,
+        atol: float = DEFAULT_ATOL,
     ):
         if params_overrides is not None and not isinstance(params_overrides, Mapping):
             raise ValueError(

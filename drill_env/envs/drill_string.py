@@ -28,6 +28,7 @@ from drill_env.envs.task import VOLTAGE_LIMIT, TaskConfig
 from drill_env.kernel import STATUS_MESSAGES
 from drill_env.params import RigParams
 from drill_env.sensors import SensorConfig
+from drill_env.simulator import DEFAULT_ATOL, DEFAULT_RTOL
 
 __all__ = ["DrillStringEnv"]
 
@@ -165,7 +166,9 @@ class DrillStringEnv(gym.Env):
       to 0.05 rad/s), or a dict of its fields. Drawn per episode from ``self.np_random``.
     * ``action_mode``: ``"normalized"`` (default) or ``"voltage"``.
     * ``normalize_observation``: True (default) or False.
-    * ``rtol``, ``atol``: integration tolerances (1e-8, 1e-10).
+    * ``rtol``, ``atol``: integration tolerances, by default those of
+      :func:`drill_env.simulate` (1e-9, 1e-9); switching instants are located to 1e-12 s
+      whatever the tolerances.
     * ``render_mode``: None, ``"rgb_array"`` or ``"human"``.
 
     ``reset(options=...)`` may fix the operating point with ``target_speed`` [rad/s],
@@ -200,8 +203,8 @@ class DrillStringEnv(gym.Env):
         domain_randomization: DomainRandomization | Mapping[str, Any] | bool | None = None,
         action_mode: str = "normalized",
         normalize_observation: bool = True,
-        rtol: float = 1e-8,
-        atol: float = 1e-10,
+        rtol: float = DEFAULT_RTOL,
+        atol: float = DEFAULT_ATOL,
         render_mode: str | None = None,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

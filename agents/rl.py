@@ -1,0 +1,476 @@
+"""Reinforcement learning with stable-baselines3: training configs, training, and trained
+policies behind the same ``predict`` as the classical controllers.
+
+A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping::
+
+    algo: ppo                       # ppo or sac
+    env_id: DrillString-v0
+    env_kwargs: {}                  # DrillStringEnv arguments
+    n_envs: 8                       # parallel rigs (SB3 DummyVecEnv)
+    total_timesteps: 2000000
+    normalize_reward: true          # VecNormalize on the reward only (nothing needed at inference)
+    torch_threads: 1
+    hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...), incl. policy_kwargs
+    evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
+    convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
+
+Learning curve: every ``every_steps`` environment steps the deterministic policy is run
+by :func:`agents.evaluation.run_episode` (the one evaluation path) on a fixed set of
+episodes of the training environment: ``episodes_per_regime`` operating points drawn in
+each regime (equilibrium, limit cycle, stick-slip) from seeds ``seed, seed + 1, ...``.
+Their mean return is the learning curve (``eval.csv``, TensorBoard ``eval/mean_return``);
+the policy with the best mean return is kept (``policy.zip``). The same episodes are run
+with the open-loop and the LQI controller as references.
+
+Convergence (a plateau criterion): with R the evaluation returns in order, Q_last the
+mean of the last ``fraction`` of them and Q_prev the mean of the ``fraction`` before,
+training has converged if ``Q_last - Q_prev <= tolerance * (max R - R_first)``: the last
+stretch improved by less than ``tolerance`` of the total improvement (and at least
+``min_evaluations`` evaluations were made).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import platform
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from drill_env.envs import ENV_IDS
+from drill_env.envs.task import REGIMES
+
+__all__ = [
+    "ALGOS",
+    "TrainConfig",
+    "SB3Policy",
+    "load_config",
+    "load_policy",
+    "plateau",
+    "train",
+    "evaluation_episodes",
+]
+
+ALGOS = ("ppo", "sac")
+
+
+def _algo_class(algo: str):
+    from stable_baselines3 import PPO, SAC
+
+    classes = {"ppo": PPO, "sac": SAC}
+    if algo not in classes:
+        raise ValueError(f"algo: {algo!r} is not one of {list(ALGOS)}")
+    return classes[algo]
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    every_steps: int = 50_000
+    episodes_per_regime: int = 4
+    seed: int = 10_000
+
+
+@dataclass(frozen=True)
+class ConvergenceConfig:
+    fraction: float = 0.25
+    tolerance: float = 0.05
+    min_evaluations: int = 8
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A validated training config (see the module docstring)."""
+
+    algo: str
+    env_id: str = "DrillString-v0"
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    n_envs: int = 1
+    total_timesteps: int = 100_000
+    normalize_reward: bool = False
+    torch_threads: int = 1
+    hyperparameters: Mapping[str, Any] = field(default_factory=dict)
+    evaluation: EvalConfig = field(default_factory=EvalConfig)
+    convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise ValueError(f"algo: {self.algo!r} is not one of {list(ALGOS)}")
+        if self.env_id not in ENV_IDS:
+            raise ValueError(f"env_id: {self.env_id!r} is not one of {sorted(ENV_IDS)}")
+        for name, lo in (("n_envs", 1), ("total_timesteps", 1), ("torch_threads", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise ValueError(f"{name}: expected an integer >= {lo}, got {v!r}")
+        if not isinstance(self.normalize_reward, bool):
+            raise ValueError(f"normalize_reward: expected true or false, got {self.normalize_reward!r}")
+        if not isinstance(self.env_kwargs, Mapping):
+            raise ValueError(f"env_kwargs: expected a mapping, got {self.env_kwargs!r}")
+        if not isinstance(self.hyperparameters, Mapping):
+            raise ValueError(f"hyperparameters: expected a mapping, got {self.hyperparameters!r}")
+        for key in ("env", "seed", "tensorboard_log", "verbose", "device"):
+            if key in self.hyperparameters:
+                raise ValueError(f"hyperparameters: {key!r} is set by the training command")
+        e = self.evaluation
+        if isinstance(e, Mapping):
+            e = _sub(EvalConfig, e, "evaluation")
+            object.__setattr__(self, "evaluation", e)
+        for name in ("every_steps", "episodes_per_regime"):
+            v = getattr(e, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"evaluation.{name}: expected an integer >= 1, got {v!r}")
+        if isinstance(e.seed, bool) or not isinstance(e.seed, int) or e.seed < 0:
+            raise ValueError(f"evaluation.seed: expected an integer >= 0, got {e.seed!r}")
+        c = self.convergence
+        if isinstance(c, Mapping):
+            c = _sub(ConvergenceConfig, c, "convergence")
+            object.__setattr__(self, "convergence", c)
+        if not (isinstance(c.fraction, (int, float)) and 0 < c.fraction <= 0.5):
+            raise ValueError(f"convergence.fraction: {c.fraction!r} is outside the allowed range (0, 0.5]")
+        if not (isinstance(c.tolerance, (int, float)) and 0 <= c.tolerance < 1):
+            raise ValueError(f"convergence.tolerance: {c.tolerance!r} is outside the allowed range [0, 1)")
+        if isinstance(c.min_evaluations, bool) or not isinstance(c.min_evaluations, int) or c.min_evaluations < 2:
+            raise ValueError(f"convergence.min_evaluations: expected an integer >= 2, got {c.min_evaluations!r}")
+        object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
+        object.__setattr__(self, "hyperparameters", copy.deepcopy(dict(self.hyperparameters)))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "algo": self.algo,
+            "env_id": self.env_id,
+            "env_kwargs": dict(self.env_kwargs),
+            "n_envs": self.n_envs,
+            "total_timesteps": self.total_timesteps,
+            "normalize_reward": self.normalize_reward,
+            "torch_threads": self.torch_threads,
+            "hyperparameters": copy.deepcopy(dict(self.hyperparameters)),
+            "evaluation": vars(self.evaluation).copy(),
+            "convergence": vars(self.convergence).copy(),
+        }
+
+
+def _sub(cls, value: Mapping[str, Any], name: str):
+    allowed = set(cls.__dataclass_fields__)
+    unknown = sorted(set(value) - allowed)
+    if unknown:
+        raise ValueError(f"{name}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    return cls(**value)
+
+
+def load_config(path: str | Path, **overrides: Any) -> TrainConfig:
+    """Read a training config from YAML; ``overrides`` replace top-level keys."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"config: no such file {str(path)!r}")
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, Mapping):
+        raise ValueError(f"config: {path} must hold a YAML mapping")
+    data = dict(data)
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    allowed = set(TrainConfig.__dataclass_fields__)
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise ValueError(f"config: unknown key(s) {unknown} in {path}; allowed: {sorted(allowed)}")
+    if "algo" not in data:
+        raise ValueError(f"config: {path} has no 'algo' (one of {list(ALGOS)})")
+    return TrainConfig(**data)
+
+
+# -- trained policies behind predict ------------------------------------------------------------
+
+
+class SB3Policy:
+    """A trained SB3 model as a benchmark controller: ``predict`` is the model's own."""
+
+    def __init__(self, model: Any, name: str, path: str | None = None):
+        self.model = model
+        self.name = name
+        self.path = path
+
+    @property
+    def observation_space(self):
+        return self.model.observation_space
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        return self.model.predict(observation, state=state, episode_start=episode_start, deterministic=deterministic)
+
+    def check_env(self, env: Any) -> None:
+        """Raise ValueError unless the env's spaces are the ones the policy was trained on."""
+        obs, act = env.observation_space, env.action_space
+        mo, ma = self.model.observation_space, self.model.action_space
+        if obs.shape != mo.shape or not np.allclose(obs.low, mo.low) or not np.allclose(obs.high, mo.high):
+            raise ValueError(f"observation_space: {obs} differs from the policy's {mo} ({self.path})")
+        if act.shape != ma.shape or not np.allclose(act.low, ma.low) or not np.allclose(act.high, ma.high):
+            raise ValueError(f"action_space: {act} differs from the policy's {ma} ({self.path})")
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": self.name, "path": self.path}
+
+
+def load_policy(path: str | Path, algo: str | None = None, name: str | None = None) -> SB3Policy:
+    """Load a policy saved by :func:`train` (``policy.zip``); the algorithm is read from the
+    ``training_summary.json`` beside it unless given."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"policy: no such file {str(path)!r}")
+    if algo is None:
+        summary = path.parent / "training_summary.json"
+        if summary.is_file():
+            algo = json.loads(summary.read_text()).get("algo")
+    if algo is None:
+        raise ValueError(f"algo: unknown for {path}; pass one of {list(ALGOS)}")
+    import torch
+
+    torch.set_num_threads(1)
+    model = _algo_class(algo).load(str(path), device="cpu")
+    return SB3Policy(model, name or algo, str(path))
+
+
+# -- training -------------------------------------------------------------------------------------
+
+
+def evaluation_episodes(cfg: EvalConfig) -> list[tuple[int, dict[str, Any]]]:
+    """The fixed (seed, reset options) of the learning-curve evaluation."""
+    out = []
+    for j, regime in enumerate(REGIMES):
+        for i in range(cfg.episodes_per_regime):
+            out.append((cfg.seed + j * cfg.episodes_per_regime + i, {"regime": regime}))
+    return out
+
+
+def evaluate_on_episodes(env: Any, controller: Any, episodes: list[tuple[int, dict[str, Any]]]) -> np.ndarray:
+    """Returns of ``controller`` on each fixed evaluation episode (the env's own length)."""
+    from agents.evaluation import run_episode
+
+    n_steps = env.spec.max_episode_steps if env.spec is not None and env.spec.max_episode_steps else 400
+    out = []
+    for seed, options in episodes:
+        traj = run_episode(env, controller, seed=seed, n_steps=n_steps, options=options)
+        out.append(float(np.sum(traj.reward)))
+    return np.array(out)
+
+
+def plateau(returns: np.ndarray, fraction: float = 0.25, tolerance: float = 0.05, min_evaluations: int = 8) -> dict[str, Any]:
+    """The plateau criterion of the module docstring on a sequence of evaluation returns."""
+    r = np.asarray(returns, dtype=float)
+    n = r.size
+    out: dict[str, Any] = {"fraction": fraction, "tolerance": tolerance, "min_evaluations": min_evaluations}
+    if n < min_evaluations:
+        out.update(converged=False, reason=f"only {n} evaluations (< {min_evaluations})")
+        return out
+    k = max(1, int(math.floor(fraction * n)))
+    last, prev = float(np.mean(r[-k:])), float(np.mean(r[-2 * k : -k]))
+    total = float(np.max(r) - r[0])
+    gain = last - prev
+    converged = bool(gain <= tolerance * max(total, 1e-12))
+    out.update(
+        converged=converged,
+        last_mean=last,
+        previous_mean=prev,
+        last_gain=gain,
+        total_improvement=total,
+        reason=(
+            f"last {k} evaluations improved by {gain:.4g} on the {k} before, "
+            f"{'<=' if converged else '>'} {tolerance:g} x total improvement {total:.4g}"
+        ),
+    )
+    return out
+
+
+def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
+    """Open-loop and LQI returns on the evaluation episodes (context for the curve)."""
+    import gymnasium as gym
+
+    from agents.base import ControllerSpec
+    from agents.open_loop import OpenLoop
+    from agents.registry import classical_controller
+
+    env = gym.make(cfg.env_id, **cfg.env_kwargs)
+    spec = ControllerSpec.from_env(env)
+    preset = ENV_IDS[cfg.env_id]
+    refs = {"open_loop": OpenLoop(spec)}
+    try:
+        refs["lqi"] = classical_controller("lqi", spec, preset)
+    except ValueError:
+        pass
+    out = {name: float(np.mean(evaluate_on_episodes(env, c, episodes))) for name, c in refs.items()}
+    env.close()
+    return out
+
+
+def train(
+    cfg: TrainConfig,
+    seed: int,
+    out_dir: str | Path,
+    run_dir: str | Path,
+    *,
+    progress_bar: bool = True,
+    on_eval: Callable[[int, float], None] | None = None,
+) -> dict[str, Any]:
+    """Train ``cfg.algo`` on ``cfg.env_id`` with ``seed``; write the run (CSV, TensorBoard,
+    checkpoints) to ``run_dir`` and the policy, config, summary and learning curve to
+    ``out_dir``. Returns the summary."""
+    import gymnasium as gym
+    import stable_baselines3
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed: expected an integer >= 0, got {seed!r}")
+    out_dir, run_dir = Path(out_dir), Path(run_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(cfg.torch_threads)
+    venv = make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs))
+    if cfg.normalize_reward:
+        gamma = float(cfg.hyperparameters.get("gamma", 0.99))
+        venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=gamma)
+    hp = copy.deepcopy(dict(cfg.hyperparameters))
+    model = _algo_class(cfg.algo)("MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **hp)
+    model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
+
+    eval_env = gym.make(cfg.env_id, **cfg.env_kwargs)
+    episodes = evaluation_episodes(cfg.evaluation)
+    policy = SB3Policy(model, cfg.algo)
+    rows: list[dict[str, Any]] = []
+    best = {"return": -math.inf, "step": 0}
+    t_start = time.perf_counter()
+    eval_time = [0.0]
+
+    def run_eval(step: int) -> None:
+        t0 = time.perf_counter()
+        rets = evaluate_on_episodes(eval_env, policy, episodes)
+        eval_time[0] += time.perf_counter() - t0
+        k = cfg.evaluation.episodes_per_regime
+        row = {
+            "timesteps": step,
+            "wall_time": time.perf_counter() - t_start,
+            "mean_return": float(np.mean(rets)),
+            "std_return": float(np.std(rets)),
+        }
+        for j, regime in enumerate(REGIMES):
+            row[f"return_{regime}"] = float(np.mean(rets[j * k : (j + 1) * k]))
+        rows.append(row)
+        model.logger.record("eval/mean_return", row["mean_return"])
+        for regime in REGIMES:
+            model.logger.record(f"eval/return_{regime}", row[f"return_{regime}"])
+        if row["mean_return"] > best["return"]:
+            best.update({"return": row["mean_return"], "step": step})
+            model.save(str(out_dir / "policy.zip"))
+        if on_eval is not None:
+            on_eval(step, row["mean_return"])
+
+    class _Eval(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.next_eval = cfg.evaluation.every_steps
+
+        def _on_training_start(self) -> None:
+            run_eval(0)
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next_eval:
+                run_eval(self.num_timesteps)
+                self.next_eval += cfg.evaluation.every_steps
+            return True
+
+    model.learn(total_timesteps=cfg.total_timesteps, callback=_Eval(), progress_bar=progress_bar)
+    if not rows or rows[-1]["timesteps"] != model.num_timesteps:
+        run_eval(model.num_timesteps)
+    wall = time.perf_counter() - t_start
+    model.save(str(run_dir / "final_policy.zip"))
+    venv.close()
+
+    import pandas as pd
+
+    curve = pd.DataFrame(rows)
+    curve.to_csv(out_dir / "eval.csv", index=False, float_format="%.6g")
+    progress_csv = run_dir / "progress.csv"
+    if progress_csv.is_file():
+        prog = pd.read_csv(progress_csv)
+        keep = [c for c in prog.columns if c.startswith(("time/", "rollout/", "train/"))]
+        prog[keep].to_csv(out_dir / "progress.csv", index=False, float_format="%.6g")
+    refs = _reference_returns(cfg, episodes)
+    conv = plateau(curve["mean_return"].to_numpy(), **vars(cfg.convergence))
+    summary = {
+        "algo": cfg.algo,
+        "env_id": cfg.env_id,
+        "seed": seed,
+        "total_timesteps": int(model.num_timesteps),
+        "wall_time_s": round(wall, 1),
+        "evaluation_wall_time_s": round(eval_time[0], 1),
+        "n_evaluations": len(rows),
+        "final_eval_return": rows[-1]["mean_return"],
+        "best_eval_return": best["return"],
+        "best_at_timesteps": best["step"],
+        "policy": "policy.zip (the evaluation-best policy)",
+        "converged": conv["converged"],
+        "convergence": conv,
+        "reference_returns": refs,
+        "evaluation_episodes": [{"seed": s, **o} for s, o in episodes],
+        "config": cfg.to_dict(),
+        "versions": {
+            "python": platform.python_version(),
+            "stable_baselines3": stable_baselines3.__version__,
+            "torch": torch.__version__,
+            "gymnasium": gym.__version__,
+        },
+    }
+    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    with open(out_dir / "config.yaml", "w") as f:
+        yaml.safe_dump(cfg.to_dict(), f, sort_keys=False)
+    plot_learning_curve(out_dir, summary)
+    eval_env.close()
+    return summary
+
+
+def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None = None) -> Path:
+    """``learning_curve.png`` from ``eval.csv`` (and ``progress.csv``) in ``out_dir``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    out_dir = Path(out_dir)
+    if summary is None:
+        summary = json.loads((out_dir / "training_summary.json").read_text())
+    curve = pd.read_csv(out_dir / "eval.csv")
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    ax = axes[0]
+    ax.plot(curve["timesteps"], curve["mean_return"], "k.-", label="all regimes")
+    for regime in REGIMES:
+        col = f"return_{regime}"
+        if col in curve:
+            ax.plot(curve["timesteps"], curve[col], lw=0.8, label=regime)
+    for name, value in (summary.get("reference_returns") or {}).items():
+        ax.axhline(value, ls="--", lw=0.8, color="gray")
+        ax.annotate(name, (curve["timesteps"].iloc[0], value), fontsize=8, va="bottom", color="gray")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("evaluation return (deterministic)")
+    verdict = "converged" if summary.get("converged") else "not converged"
+    ax.set_title(f"{summary['algo'].upper()} seed {summary['seed']}: {verdict}")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    prog_path = out_dir / "progress.csv"
+    if prog_path.is_file():
+        prog = pd.read_csv(prog_path)
+        if "rollout/ep_rew_mean" in prog and "time/total_timesteps" in prog:
+            ax.plot(prog["time/total_timesteps"], prog["rollout/ep_rew_mean"], lw=0.8)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("training episode return (stochastic)")
+    ax.set_title("training episodes")
+    fig.tight_layout()
+    path = out_dir / "learning_curve.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
