@@ -7,8 +7,12 @@ Quick start::
     res.to_pandas()
 """
 
-import drill_env.envs  # noqa: F401  (registers DrillString-v0 and DrillStringNoBrake-v0)
-from drill_env.params import (
+from drill_env import _cache
+
+_cache.configure()  # before any compiled function is defined
+
+import drill_env.envs  # noqa: E402, F401  (registers DrillString-v0 and DrillStringNoBrake-v0)
+from drill_env.params import (  # noqa: E402
     ModelEffects,
     ParameterError,
     RigParams,
@@ -16,8 +20,8 @@ from drill_env.params import (
     load_params,
     resolve_params,
 )
-from drill_env.result import EventLog, SimulationResult
-from drill_env.simulator import simulate, simulate_batch
+from drill_env.result import EventLog, SimulationResult  # noqa: E402
+from drill_env.simulator import simulate, simulate_batch  # noqa: E402
 
 __version__ = "0.1.0"
 

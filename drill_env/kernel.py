@@ -269,6 +269,11 @@ def _log_event(t, disk, old, new, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
     stats[ST_EVENTS] = i + 1
 
 
+# Rows of the scratch array of :func:`run_ws`: RK stages, interpolation coefficients and
+# five state-sized vectors.
+WORK_ROWS = N_EXT + INTERP + 5
+
+
 @nb.njit(**_JIT)
 def run(
     p,
@@ -298,15 +303,50 @@ def run(
 
     ``modes`` (int64[2]) receives the final modes. ``t_out`` must be sorted within
     ``[seg_t[0], seg_t[-1]]``; row k of Y_out/M_out/U_out is the state, modes and
-    applied voltage at t_out[k].
+    applied voltage at t_out[k]. Allocates its scratch space; callers that integrate
+    many short intervals pass their own to :func:`run_ws`.
     """
-    K = np.empty((N_EXT, L.NY))
-    F = np.empty((INTERP, L.NY))
-    f0 = np.empty(L.NY)
-    y_new = np.empty(L.NY)
-    ytmp = np.empty(L.NY)
-    y_ev = np.empty(L.NY)
-    ytmp2 = np.empty(L.NY)
+    work = np.empty((WORK_ROWS, L.NY))
+    return run_ws(
+        p, y, modes, seg_t, seg_u, u_func, use_func, u_limit, t_out, rtol, atol, h_init, max_steps,
+        Y_out, M_out, U_out, ev_t, ev_disk, ev_from, ev_to, ev_y, stats, work,
+    )
+
+
+@nb.njit(**_JIT)
+def run_ws(
+    p,
+    y,
+    modes,
+    seg_t,
+    seg_u,
+    u_func,
+    use_func,
+    u_limit,
+    t_out,
+    rtol,
+    atol,
+    h_init,
+    max_steps,
+    Y_out,
+    M_out,
+    U_out,
+    ev_t,
+    ev_disk,
+    ev_from,
+    ev_to,
+    ev_y,
+    stats,
+    work,
+):
+    """:func:`run` with a caller-owned scratch array ``work`` of shape (WORK_ROWS, NY)."""
+    K = work[:N_EXT]
+    F = work[N_EXT : N_EXT + INTERP]
+    f0 = work[N_EXT + INTERP]
+    y_new = work[N_EXT + INTERP + 1]
+    ytmp = work[N_EXT + INTERP + 2]
+    y_ev = work[N_EXT + INTERP + 3]
+    ytmp2 = work[N_EXT + INTERP + 4]
     for j in range(N_STATS):
         stats[j] = 0.0
     n_out = t_out.shape[0]

@@ -18,7 +18,7 @@ import numba as nb
 import numpy as np
 
 from drill_env import _layout as L
-from drill_env.kernel import N_STATS, ST_H, _no_input, run
+from drill_env.kernel import N_STATS, ST_H, WORK_ROWS, run_ws
 from drill_env.sensors import (
     C_ANGLE_NOISE,
     C_SPEED_NOISE,
@@ -31,10 +31,9 @@ from drill_env.sensors import (
     sensor_sample,
 )
 
-# Not cached on disk, like the kernel's ``run`` that these functions compile in: a disk
-# cache would also keep a stale copy of the kernel after it changes (numba checks only the
-# caller's own file). They compile once per process, in a few seconds.
-_JIT = dict(nogil=True, fastmath=False, error_model="numpy")
+# Cached on disk in a directory keyed by the package's source (drill_env._cache), so a
+# change to the kernel cannot leave a stale copy compiled into these functions.
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # see drill_env._cache
 
 
 # -- per-rig episode scalars ------------------------------------------------------------------
@@ -83,8 +82,10 @@ START_REST, START_EQUILIBRIUM, START_OPEN_LOOP = 0, 1, 2
 
 
 @nb.njit(**_JIT)
-def workspace(n):
-    """Scratch arrays for one control period of ``n`` sensor samples: sample times, noise
+def workspace(n, ufn):
+    """Scratch arrays and the kernel's input function ``ufn`` (the C function
+    :data:`drill_env.kernel._no_input`, passed in from Python: referenced as a global it
+    would keep these functions out of numba's disk cache). Scratch arrays for one control period of ``n`` sensor samples: sample times, noise
     (zero unless a rig's chain is noisy; ws[10][0] = 1 while it holds noise), the kernel's
     segment, event and statistics arrays. A batch reuses one for all rigs."""
     return (
@@ -99,6 +100,8 @@ def workspace(n):
         np.empty((1, L.NY)),
         np.zeros(N_STATS),
         np.zeros(1),
+        np.empty((WORK_ROWS, L.NY)),
+        ufn,
     )
 
 
@@ -110,13 +113,13 @@ def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ws):
     seg_t[0] = t0
     seg_t[1] = t1
     seg_u[0] = u
-    status = run(
+    status = run_ws(
         p,
         y,
         modes,
         seg_t,
         seg_u,
-        _no_input,
+        ws[12],
         False,
         np.inf,
         t_out,
@@ -133,6 +136,7 @@ def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ws):
         ws[7],
         ws[8],
         stats,
+        ws[11],
     )
     ep[EP_H] = stats[ST_H]
     return status
@@ -162,7 +166,7 @@ def _write_true(y, modes, out):
 
 
 @nb.njit(**_JIT)
-def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf):
+def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, ufn):
     """Advance one rig by one control period at the (already limited) voltage ``u`` [V].
 
     Integrates exactly, samples the true state every ``Ts`` into ``ybuf/mbuf/ubuf``,
@@ -170,7 +174,7 @@ def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubu
     reward terms, status and true state into ``out``. Returns the kernel status.
     """
     return _rig_step(
-        p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, workspace(int(ecfg[EC_NSUB]))
+        p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, workspace(int(ecfg[EC_NSUB]), ufn)
     )
 
 
@@ -250,6 +254,7 @@ def rig_reset(
     ybuf,
     mbuf,
     ubuf,
+    ufn,
 ):
     """Put one rig at the start of an episode.
 
@@ -279,7 +284,7 @@ def rig_reset(
         settle = int(ecfg[EC_SETTLE])
         free = warm_ticks - settle * n
         ts = scfg[1]
-        ws = workspace(n)
+        ws = workspace(n, ufn)
         if free > 0:
             t_out = np.empty(1)
             t_out[0] = free * ts
@@ -311,9 +316,9 @@ def rig_reset(
 
 
 @nb.njit(**_JIT)
-def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF):
+def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF, ufn):
     """``rig_step`` for every rig i with ``active[i]``; one compiled call for N rigs."""
-    ws = workspace(int(ecfg[EC_NSUB]))
+    ws = workspace(int(ecfg[EC_NSUB]), ufn)
     for i in range(P.shape[0]):
         if active[i]:
             _rig_step(
@@ -356,6 +361,7 @@ def batch_reset(
     YBUF,
     MBUF,
     UBUF,
+    ufn,
 ):
     """``rig_reset`` for every rig i with ``which[i]``."""
     for i in range(P.shape[0]):
@@ -379,4 +385,5 @@ def batch_reset(
                 YBUF[i],
                 MBUF[i],
                 UBUF[i],
+                ufn,
             )

@@ -66,7 +66,7 @@ __all__ = [
 REGIMES = ("equilibrium", "limit_cycle", "stick_slip")
 VOLTAGE_LIMIT = 5.0  # [V] the amplifier input range of the rig is [-5, 5] V (Sec. 2.1)
 
-_JIT = dict(nogil=True, fastmath=False, error_model="numpy")  # calls the kernel: not disk-cached
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # see drill_env._cache
 
 
 def nominal_params(params: RigParams) -> RigParams:
@@ -175,7 +175,7 @@ def hopf_voltages(params: RigParams, u_max: float = VOLTAGE_LIMIT) -> tuple[floa
 
 
 @nb.njit(**_JIT)
-def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps, res):
+def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps, res, ufn):
     """From rest at each voltage: settle, then watch a window. res[i] = (lower stick events,
     x3 range first half, x3 range second half, mean x3, status)."""
     cap = 8192
@@ -212,7 +212,7 @@ def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps
             modes,
             seg_t,
             seg_u,
-            _no_input,
+            ufn,
             False,
             np.inf,
             t1,
@@ -240,7 +240,7 @@ def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps
                 modes,
                 seg_t,
                 seg_u,
-                _no_input,
+                ufn,
                 False,
                 np.inf,
                 t_out,
@@ -302,7 +302,7 @@ def _classify(params: RigParams, volts: np.ndarray, d_crit: float) -> list[str]:
     p = params.as_array()
     res = np.zeros((volts.size, 5))
     _classify_runs(
-        np.tile(p, (volts.size, 1)), volts, _SETTLE, _WINDOW, _N_WINDOW, 1e-9, 1e-11, _MAX_STEPS, res
+        np.tile(p, (volts.size, 1)), volts, _SETTLE, _WINDOW, _N_WINDOW, 1e-9, 1e-11, _MAX_STEPS, res, _no_input
     )
     # A run that the kernel could not finish is repeated at a voltage a few parts per
     # million off (its trajectory then avoids the failing instant).
@@ -321,6 +321,7 @@ def _classify(params: RigParams, volts: np.ndarray, d_crit: float) -> list[str]:
             1e-11,
             _MAX_STEPS,
             sub,
+            _no_input,
         )
         res[bad] = sub
     bad = np.flatnonzero(res[:, 4] != 0)

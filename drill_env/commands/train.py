@@ -1,0 +1,73 @@
+"""``drill-env train``: train a PPO or SAC policy on the drill-string environment."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+ALGOS = ("ppo", "sac")
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("train")
+    def train(
+        algo: str = typer.Option(..., help="Algorithm: ppo or sac."),
+        config: Path = typer.Option(..., help="Training config (YAML), e.g. configs/agents/ppo.yaml."),
+        seed: int = typer.Option(0, help="Random seed of the training run (>= 0)."),
+        out: Path | None = typer.Option(
+            None, help="Where the policy, config, summary and learning curve go [results/agents/ALGO]."
+        ),
+        run_dir: Path | None = typer.Option(
+            None, help="Where the CSV and TensorBoard logs and the final policy go [runs/train/ALGO_seedN]."
+        ),
+        total_timesteps: int | None = typer.Option(None, help="Override the config's total_timesteps."),
+        progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    ) -> None:
+        """Train ALGO on the config's environment; learning curve every evaluation.
+
+        Writes OUT/policy.zip (the evaluation-best policy), OUT/config.yaml,
+        OUT/training_summary.json (seed, steps, wall time, final/best evaluation return,
+        converged by the plateau criterion), OUT/eval.csv, OUT/progress.csv and
+        OUT/learning_curve.png; the run's progress.csv and TensorBoard events go to RUN_DIR.
+        """
+        if algo not in ALGOS:
+            _fail(f"--algo must be one of {list(ALGOS)}, got {algo!r}")
+        if seed < 0:
+            _fail(f"--seed must be >= 0, got {seed!r}")
+        if total_timesteps is not None and total_timesteps < 1:
+            _fail(f"--total-timesteps must be >= 1, got {total_timesteps!r}")
+        from agents.rl import load_config
+        from agents.rl import train as run_training
+
+        try:
+            cfg = load_config(config, total_timesteps=total_timesteps)
+        except ValueError as exc:
+            _fail(str(exc))
+        if cfg.algo != algo:
+            _fail(f"--algo {algo} does not match the config's algo {cfg.algo!r} ({config})")
+        out = out or Path("results") / "agents" / algo
+        run_dir = run_dir or Path("runs") / "train" / f"{algo}_seed{seed}"
+        typer.echo(
+            f"training {algo} on {cfg.env_id} for {cfg.total_timesteps} steps, seed {seed}; "
+            f"logs in {run_dir} (tensorboard --logdir {run_dir})"
+        )
+
+        def on_eval(step: int, ret: float) -> None:
+            typer.echo(f"  eval at {step:>9d} steps: mean return {ret:9.2f}", err=True)
+
+        summary = run_training(cfg, seed, out, run_dir, progress_bar=progress, on_eval=on_eval)
+        verdict = "converged" if summary["converged"] else "NOT converged"
+        typer.echo(
+            f"{algo}: {summary['total_timesteps']} steps in {summary['wall_time_s']:.0f} s; "
+            f"final eval return {summary['final_eval_return']:.2f}, best {summary['best_eval_return']:.2f} "
+            f"at {summary['best_at_timesteps']} steps; {verdict} ({summary['convergence']['reason']})"
+        )
+        refs = ", ".join(f"{k} {v:.2f}" for k, v in summary["reference_returns"].items())
+        typer.echo(f"references on the same episodes: {refs}")
+        typer.echo(f"wrote {out}/policy.zip, training_summary.json, learning_curve.png")
