@@ -41,8 +41,15 @@ ERR_MASK = np.array([1.0, 1.0, 1.0, 0.0, 1.0, 1.0])
 
 @nb.njit(**_JIT)
 def input_at(t, u_seg, u_func, use_func, u_limit):
-    """Voltage applied at time t: the segment's value or ``u_func(t)``, clipped to the limit."""
-    u = u_func(t) if use_func else u_seg
+    """Voltage applied at time t: the segment's value or ``u_func(t)``, clipped to the limit.
+
+    ``u_func`` is a C function float64(float64) or None (zero-order hold only); numba
+    prunes the call at compile time when it is None.
+    """
+    if u_func is None:
+        u = u_seg
+    else:
+        u = u_func(t) if use_func else u_seg
     if u > u_limit:
         return u_limit
     if u < -u_limit:

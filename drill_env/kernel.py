@@ -72,14 +72,9 @@ H_MAX = 1.0  # [s]
 
 # The voltage as a function of time reaches the compiled code as a C function pointer of
 # signature float64(float64): one type for every such function, so the kernels compile
-# once and stay cached on disk, whatever function a user passes.
+# once and stay cached on disk, whatever function a user passes. A zero-order hold
+# passes None instead (see integrator.input_at).
 INPUT_SIGNATURE = "float64(float64)"
-
-
-@nb.cfunc(INPUT_SIGNATURE, cache=True)
-def _no_input(t):
-    """Placeholder input function when the voltage is a zero-order hold."""
-    return 0.0
 
 
 @nb.njit(**_JIT)

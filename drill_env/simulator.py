@@ -26,7 +26,6 @@ from drill_env.kernel import (
     ST_LOGGED,
     ST_STATUS,
     STATUS_MESSAGES,
-    _no_input,
     run,
 )
 from drill_env.params import RigParams, resolve_params
@@ -129,7 +128,7 @@ def _input_program(
     if arr.ndim == 0:
         if not math.isfinite(float(arr)):
             raise ValueError(f"u: the voltage must be finite, got {float(arr)!r}")
-        return np.array([t0, t_final]), np.array([float(arr)]), _no_input, False, lim
+        return np.array([t0, t_final]), np.array([float(arr)]), None, False, lim
     if arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"u: expected a number, a 1-D sequence or a function of time, got shape {arr.shape}")
     if control_dt is None:
@@ -146,7 +145,7 @@ def _input_program(
         )
     seg_t = t0 + cdt * np.arange(n_needed + 1, dtype=float)
     seg_t[-1] = t_final
-    return seg_t, arr[:n_needed].copy(), _no_input, False, lim
+    return seg_t, arr[:n_needed].copy(), None, False, lim
 
 
 def _output_grid(t0: float, t_final: float, dt: float) -> np.ndarray:
@@ -278,9 +277,7 @@ def simulate(
 
 
 @nb.njit(cache=True, nogil=True)
-def _run_batch(P, Y0, seg_t, SEG_U, u_func, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats_all, ev_count):
-    # u_func is an argument: a C function referenced as a global would keep this
-    # function out of numba's disk cache.
+def _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats_all, ev_count):
     n = P.shape[0]
     cap = 1
     ev_t = np.empty(cap)
@@ -292,7 +289,7 @@ def _run_batch(P, Y0, seg_t, SEG_U, u_func, t_out, rtol, atol, max_steps, Yo, Mo
     for i in range(n):
         y = Y0[i].copy()
         run(
-            P[i], y, modes, seg_t, SEG_U[i], u_func, False, np.inf, t_out, rtol, atol, 0.0,
+            P[i], y, modes, seg_t, SEG_U[i], None, False, np.inf, t_out, rtol, atol, 0.0,
             max_steps, Yo[i], Mo[i], Uo[i], ev_t, ev_disk, ev_from, ev_to, ev_y, stats_all[i],
         )
         ev_count[i] = stats_all[i, ST_EVENTS]
@@ -364,7 +361,7 @@ def simulate_batch(
     stats = np.zeros((n_rigs, N_STATS))
     ev_count = np.zeros(n_rigs)
     max_steps = max(100_000, int(t_final * 2000))
-    _run_batch(P, Y0, seg_t, SEG_U, _no_input, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
+    _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
     bad = np.flatnonzero(stats[:, ST_STATUS] != 0)
     if bad.size:
         warnings.warn(

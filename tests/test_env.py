@@ -28,7 +28,7 @@ from drill_env.envs.task import (
     nominal_voltage,
     operating_regimes,
 )
-from drill_env.kernel import N_STATS, ST_LOGGED, _no_input, run
+from drill_env.kernel import N_STATS, ST_LOGGED, run
 
 IDS = list(ENV_IDS)
 OBS = {name: i for i, name in enumerate(OBSERVATION_NAMES)}
@@ -324,7 +324,7 @@ def _run_zoh(
         modes,
         seg_t,
         seg_u,
-        _no_input,
+        None,
         False,
         np.inf,
         t_out,

@@ -82,10 +82,8 @@ START_REST, START_EQUILIBRIUM, START_OPEN_LOOP = 0, 1, 2
 
 
 @nb.njit(**_JIT)
-def workspace(n, ufn):
-    """Scratch arrays and the kernel's input function ``ufn`` (the C function
-    :data:`drill_env.kernel._no_input`, passed in from Python: referenced as a global it
-    would keep these functions out of numba's disk cache). Scratch arrays for one control period of ``n`` sensor samples: sample times, noise
+def workspace(n):
+    """Scratch arrays for one control period of ``n`` sensor samples: sample times, noise
     (zero unless a rig's chain is noisy; ws[10][0] = 1 while it holds noise), the kernel's
     segment, event and statistics arrays. A batch reuses one for all rigs."""
     return (
@@ -101,7 +99,6 @@ def workspace(n, ufn):
         np.zeros(N_STATS),
         np.zeros(1),
         np.empty((WORK_ROWS, L.NY)),
-        ufn,
     )
 
 
@@ -119,7 +116,7 @@ def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ws):
         modes,
         seg_t,
         seg_u,
-        ws[12],
+        None,  # the voltage is a zero-order hold: no input function
         False,
         np.inf,
         t_out,
@@ -166,7 +163,7 @@ def _write_true(y, modes, out):
 
 
 @nb.njit(**_JIT)
-def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, ufn):
+def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf):
     """Advance one rig by one control period at the (already limited) voltage ``u`` [V].
 
     Integrates exactly, samples the true state every ``Ts`` into ``ybuf/mbuf/ubuf``,
@@ -174,7 +171,7 @@ def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubu
     reward terms, status and true state into ``out``. Returns the kernel status.
     """
     return _rig_step(
-        p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, workspace(int(ecfg[EC_NSUB]), ufn)
+        p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, workspace(int(ecfg[EC_NSUB]))
     )
 
 
@@ -254,7 +251,6 @@ def rig_reset(
     ybuf,
     mbuf,
     ubuf,
-    ufn,
 ):
     """Put one rig at the start of an episode.
 
@@ -284,7 +280,7 @@ def rig_reset(
         settle = int(ecfg[EC_SETTLE])
         free = warm_ticks - settle * n
         ts = scfg[1]
-        ws = workspace(n, ufn)
+        ws = workspace(n)
         if free > 0:
             t_out = np.empty(1)
             t_out[0] = free * ts
@@ -316,9 +312,9 @@ def rig_reset(
 
 
 @nb.njit(**_JIT)
-def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF, ufn):
+def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF):
     """``rig_step`` for every rig i with ``active[i]``; one compiled call for N rigs."""
-    ws = workspace(int(ecfg[EC_NSUB]), ufn)
+    ws = workspace(int(ecfg[EC_NSUB]))
     for i in range(P.shape[0]):
         if active[i]:
             _rig_step(
@@ -361,7 +357,6 @@ def batch_reset(
     YBUF,
     MBUF,
     UBUF,
-    ufn,
 ):
     """``rig_reset`` for every rig i with ``which[i]``."""
     for i in range(P.shape[0]):
@@ -385,5 +380,4 @@ def batch_reset(
                 YBUF[i],
                 MBUF[i],
                 UBUF[i],
-                ufn,
             )

@@ -14,7 +14,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from drill_env.kernel import _no_input
 from drill_env import _layout as L
 from drill_env.envs import _core as C
 from drill_env.envs.config import (
@@ -316,7 +315,6 @@ class DrillStringEnv(gym.Env):
             self._ybuf,
             self._mbuf,
             self._ubuf,
-            _no_input,
         )
         self._samples_valid = True
         terms = out[: C.O_REWARD + 1].tolist()
@@ -429,7 +427,6 @@ class DrillStringEnv(gym.Env):
                 self._ybuf,
                 self._mbuf,
                 self._ubuf,
-                _no_input,
             )
         )
 

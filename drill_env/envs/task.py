@@ -46,7 +46,7 @@ from scipy.optimize import brentq
 
 from drill_env import _layout as L
 from drill_env.friction import lower_friction_curve, lower_friction_slope
-from drill_env.kernel import N_STATS, ST_EVENTS, ST_LOGGED, STATUS_MESSAGES, _no_input, run
+from drill_env.kernel import N_STATS, ST_EVENTS, ST_LOGGED, STATUS_MESSAGES, run
 from drill_env.params import ModelEffects, RigParams
 
 __all__ = [
@@ -175,7 +175,7 @@ def hopf_voltages(params: RigParams, u_max: float = VOLTAGE_LIMIT) -> tuple[floa
 
 
 @nb.njit(**_JIT)
-def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps, res, ufn):
+def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps, res):
     """From rest at each voltage: settle, then watch a window. res[i] = (lower stick events,
     x3 range first half, x3 range second half, mean x3, status)."""
     cap = 8192
@@ -212,7 +212,7 @@ def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps
             modes,
             seg_t,
             seg_u,
-            ufn,
+            None,
             False,
             np.inf,
             t1,
@@ -240,7 +240,7 @@ def _classify_runs(P, volts, t_settle, t_window, n_window, rtol, atol, max_steps
                 modes,
                 seg_t,
                 seg_u,
-                ufn,
+                None,
                 False,
                 np.inf,
                 t_out,
@@ -302,7 +302,7 @@ def _classify(params: RigParams, volts: np.ndarray, d_crit: float) -> list[str]:
     p = params.as_array()
     res = np.zeros((volts.size, 5))
     _classify_runs(
-        np.tile(p, (volts.size, 1)), volts, _SETTLE, _WINDOW, _N_WINDOW, 1e-9, 1e-11, _MAX_STEPS, res, _no_input
+        np.tile(p, (volts.size, 1)), volts, _SETTLE, _WINDOW, _N_WINDOW, 1e-9, 1e-11, _MAX_STEPS, res
     )
     # A run that the kernel could not finish is repeated at a voltage a few parts per
     # million off (its trajectory then avoids the failing instant).
@@ -321,7 +321,6 @@ def _classify(params: RigParams, volts: np.ndarray, d_crit: float) -> list[str]:
             1e-11,
             _MAX_STEPS,
             sub,
-            _no_input,
         )
         res[bad] = sub
     bad = np.flatnonzero(res[:, 4] != 0)

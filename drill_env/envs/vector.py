@@ -25,7 +25,6 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drill_env.kernel import _no_input
 from drill_env import _layout as L
 from drill_env.envs import _core as C
 from drill_env.envs.config import MAX_WARMUP_RETRIES, REWARD_NAMES, EnvSettings
@@ -190,7 +189,6 @@ class DrillStringVectorEnv(VectorEnv):
             self._YBUF,
             self._MBUF,
             self._UBUF,
-            _no_input,
         )
         self._elapsed[active] += 1
         status = self._OUT[:, C.O_STATUS].astype(np.int64)
@@ -264,7 +262,6 @@ class DrillStringVectorEnv(VectorEnv):
             self._YBUF,
             self._MBUF,
             self._UBUF,
-            _no_input,
         )
         # Same retry rule as the single env: a failed warm-up is redrawn from the rig's generator.
         for i in idx:
@@ -295,7 +292,6 @@ class DrillStringVectorEnv(VectorEnv):
                     self._YBUF,
                     self._MBUF,
                     self._UBUF,
-                    _no_input,
                 )
             if self._EP[i, C.EP_STATUS] != 0:
                 raise RuntimeError(

@@ -1,0 +1,59 @@
+"""``drill-env tune``: tune the classical controllers' gains on the linearised nominal rig."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("tune")
+    def tune(
+        out: Path = typer.Option(
+            Path("configs/agents/controllers.yaml"), help="YAML file for the tuned gains and the tuning record."
+        ),
+        preset: list[str] = typer.Option(["brake", "no_brake"], help="Rig preset(s) to tune for."),
+        control_dt: float = typer.Option(0.05, help="Control period of the environment [s]."),
+    ) -> None:
+        """Tune PI (upper, lower), torque feedback and LQI by the procedure of agents.tuning.
+
+        Worst-case closed-loop decay rate over 12 slip equilibria spanning the envelope,
+        with a 0.05 V bound on the voltage noise from encoder quantisation; writes the
+        gains with each design point's decay rate and noise to OUT.
+        """
+        import yaml
+
+        from agents.tuning import tune_all
+        from drill_env.params import available_presets
+
+        for p in preset:
+            if p not in available_presets():
+                _fail(f"--preset {p!r} is not one of {available_presets()}")
+        if not (0 < control_dt <= 1.0):
+            _fail(f"--control-dt must lie in (0, 1] s, got {control_dt!r}")
+
+        def progress(p: str, kind: str) -> None:
+            typer.echo(f"tuning {kind} on {p} ...", err=True)
+
+        data = tune_all(presets=tuple(preset), control_dt=control_dt, progress=progress)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        header = (
+            "# Tuned gains of the classical controllers, written by `drill-env tune` (agents/tuning.py).\n"
+            "# Regenerate, never edit by hand: decay rates [1/s], noise [V], gains in SI units.\n"
+        )
+        out.write_text(header + yaml.safe_dump(data, sort_keys=False, width=100))
+        for p, kinds in data["presets"].items():
+            for kind, rec in kinds.items():
+                gains = ", ".join(f"{k}={v:.4g}" for k, v in rec["gains"].items())
+                typer.echo(
+                    f"{p:9s} {kind:16s} {gains:55s} design set {rec['design_set']:16s} "
+                    f"alpha {rec['worst_decay_rate']:+.3f} (envelope {rec['envelope_decay_rate']:+.3f}) 1/s, "
+                    f"noise {rec['max_noise_v']:.3f} V"
+                )
+        typer.echo(f"wrote {out}")
