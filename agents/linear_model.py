@@ -44,6 +44,7 @@ __all__ = [
     "equilibrium_observation",
     "linearise",
     "measurement_noise",
+    "sampled_drive",
     "sampled_rig",
 ]
 
@@ -210,6 +211,52 @@ def sampled_rig(
     H[3, n] = 1.0
     H[4, n + 1] = 1.0
     H[5, n + 2] = 1.0
+    return SampledRig(eq=eq, dt=float(dt), F=F, G=G, H=H)
+
+
+def sampled_drive(
+    params: RigParams, eq: Equilibrium, dt: float, sensors: SensorConfig | None = None
+) -> SampledRig:
+    """The top drive alone: the upper disk and motor with the string cut (its torque is a load
+    disturbance), as a drive's speed loop is commissioned. Same measured entries as
+    :func:`sampled_rig`; those of the lower disk and the twist are zero."""
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: expected a finite control period > 0 s, got {dt!r}")
+    sensors = sensors or SensorConfig()
+    nf = sensors.filter_order
+    # Upper disk without the string: x2' = (km u - b_up x2) / Ju, its filter, its step mean.
+    ju = params.upper_inertia
+    A = np.zeros((1 + nf, 1 + nf))
+    A[0, 0] = -params.upper_viscous_pos / ju
+    B = np.zeros(1 + nf)
+    B[0] = params.motor_constant / ju
+    wc = sensors.cutoff_rad_s
+    if nf == 1:
+        A[1, 1] = -wc
+        A[1, 0] = wc
+    else:
+        A[1, 2] = 1.0
+        A[2, 1] = -wc * wc
+        A[2, 2] = -math.sqrt(2.0) * wc
+        A[2, 0] = wc * wc
+    m = 1 + nf
+    M = np.zeros((m + 2, m + 2))
+    M[:m, :m] = A
+    M[:m, m] = B
+    M[m + 1, 0] = 1.0
+    E = expm(M * dt)
+    ns = m + 2  # xi, mean_upper, u_prev
+    F = np.zeros((ns, ns))
+    G = np.zeros(ns)
+    F[:m, :m] = E[:m, :m]
+    G[:m] = E[:m, m]
+    F[m, :m] = E[m + 1, :m] / dt
+    G[m] = E[m + 1, m] / dt
+    G[m + 1] = 1.0
+    H = np.zeros((6, ns))
+    H[1, 1] = 1.0  # filtered upper speed
+    H[4, m] = 1.0
+    H[5, m + 1] = 1.0
     return SampledRig(eq=eq, dt=float(dt), F=F, G=G, H=H)
 
 

@@ -18,14 +18,22 @@ Every classical controller is tuned the same way, never by hand for the test gri
    propagated through the closed loop by a discrete Lyapunov equation) at every point.
 4. *Search.* A log-spaced grid over the gains (7 values each) followed by Nelder-Mead
    from the best grid point, in log-gains; deterministic.
-5. *Structures that cannot damp the envelope.* If the best ``alpha`` is negative the
-   controller's structure cannot damp the torsional mode at every point (this is the
-   case for both speed PIs: the negative friction slope at the bit cannot be
-   compensated through the string by feedback of one speed alone). Such a controller is
-   re-tuned by steps 3-4 on the design points where the open-loop equilibrium is stable
-   (``d_l`` above the critical slope), as a practitioner tunes a speed loop where the rig
-   is well behaved; its envelope-wide ``alpha`` is reported, and the benchmark measures
-   what it does elsewhere.
+5. *Design model.* The torque feedback and the LQI are tuned on the linearised rig over
+   the whole envelope. The upper-speed PI, "what a real top drive does", is tuned as a
+   drive's speed loop is commissioned: on the top drive alone
+   (:func:`~agents.linear_model.sampled_drive`: the string cut, its torque a load
+   disturbance), which makes it as stiff as the noise bound allows. Its decay rate on
+   the rig over the envelope is recorded; it is negative for every PI gain (the
+   stiffer, the worse: a stiff drive reflects the torsional wave).
+6. *Structures that cannot damp the envelope.* If the best ``alpha`` of a controller
+   tuned on the rig is negative, its structure cannot damp the torsional mode at every
+   point (the lower-speed PI: the negative friction slope at the bit cannot be
+   compensated through the soft string by feedback of the bit speed alone). It is then
+   re-tuned by steps 3-4 on the design points where the rig is well behaved open loop
+   (decay rate at least ``MIN_OPEN_LOOP_DECAY`` = 0.1 1/s: a disturbance dies out within
+   10 s, 2.5 torsional periods), as a practitioner tunes a loop where it can work; next
+   to a Hopf point no gain of such a structure helps (its best there is no feedback at
+   all), and the benchmark measures what it does there.
 
 The linear criterion cannot see stick-slip (a nonsmooth, large-amplitude cycle) nor the
 voltage limit; the benchmark measures those. It does decide whether the torsional mode
@@ -57,9 +65,10 @@ from agents.linear_model import (
     design_point,
     equilibrium_observation,
     measurement_noise,
+    sampled_drive,
     sampled_rig,
 )
-from drill_env.analysis import Equilibrium, critical_friction_slope
+from drill_env.analysis import Equilibrium
 from drill_env.params import RigParams
 
 __all__ = [
@@ -77,6 +86,7 @@ __all__ = [
 
 VOLTAGE_LIMIT = 5.0  # [V] the rig's amplifier range
 MAX_NOISE_V = 0.05  # [V] bound on the voltage noise caused by encoder quantisation
+MIN_OPEN_LOOP_DECAY = 0.1  # [1/s] design points of step 6: the open loop decays at least this fast
 
 # Tuned gains of each controller and their search ranges (log-uniform) [SI units].
 TUNED_GAINS: dict[str, dict[str, tuple[float, float]]] = {
@@ -85,6 +95,8 @@ TUNED_GAINS: dict[str, dict[str, tuple[float, float]]] = {
     "torque_feedback": {"kp": (0.01, 20.0), "ki": (0.01, 50.0), "z_imp": (0.005, 1.0)},
     "lqi": {"voltage_scale": (0.05, 20.0)},
 }
+# The model each controller is tuned on (step 5 of the procedure).
+DESIGN_MODEL = {"pi_upper": "drive", "pi_lower": "rig", "torque_feedback": "rig", "lqi": "rig"}
 # Gains fixed by the design, not tuned.
 FIXED_GAINS: dict[str, dict[str, float]] = {
     "pi_upper": {},
@@ -220,7 +232,7 @@ class TuningResult:
 
     kind: str
     gains: dict[str, float]
-    design_set: str  # "envelope" or "open_loop_stable" (step 5)
+    design_set: str  # "envelope", "drive" (step 5) or "open_loop_stable" (step 6)
     worst_decay_rate: float  # [1/s] alpha over the design set used
     envelope_decay_rate: float  # [1/s] alpha over all design points
     max_noise_v: float  # [V] largest quantisation-noise std of u over the design set used
@@ -313,21 +325,25 @@ def tune(
 
         return objective
 
-    x, _ = _search(objective_on(rigs), bounds, grid)
-    design_set = "envelope"
-    used = rigs
-    envelope = evaluate_design(make_controller(kind, spec, gains_of(x)), rigs)
-    if min(p.decay_rate for p in envelope) < 0:
-        d_crit = critical_friction_slope(params)
-        stable = [r for r in rigs if r.eq.friction_slope > d_crit]
-        if stable:
-            x, _ = _search(objective_on(stable), bounds, grid)
-            design_set = "open_loop_stable"
-            used = stable
+    if DESIGN_MODEL[kind] == "drive":
+        used = [sampled_drive(params, eqs[0], spec.control_dt, spec.sensors)]
+        design_set = "drive"
+        x, _ = _search(objective_on(used), bounds, grid)
+    else:
+        used = rigs
+        design_set = "envelope"
+        x, _ = _search(objective_on(rigs), bounds, grid)
+        envelope = evaluate_design(make_controller(kind, spec, gains_of(x)), rigs)
+        if min(p.decay_rate for p in envelope) < 0:
+            calm = [r for r in rigs if r.open_loop_decay_rate() >= MIN_OPEN_LOOP_DECAY]
+            if calm:
+                x, _ = _search(objective_on(calm), bounds, grid)
+                design_set = "open_loop_stable"
+                used = calm
     gains = gains_of(x)
     ctrl = make_controller(kind, spec, gains)
     all_points = evaluate_design(ctrl, rigs)
-    used_points = [p for p, r in zip(all_points, rigs, strict=True) if r in used]
+    used_points = evaluate_design(ctrl, used)
     return TuningResult(
         kind=kind,
         gains=gains,
