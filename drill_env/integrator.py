@@ -17,6 +17,7 @@ from drill_env import _layout as L
 from drill_env.dynamics import n_active, rhs
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_INLINE = dict(_JIT, inline="always")
 
 N_STAGES = _dop.N_STAGES  # 12
 A = np.ascontiguousarray(_dop.A[:N_STAGES, :N_STAGES])
@@ -39,7 +40,7 @@ ORDER_EXP = 1.0 / 8.0
 ERR_MASK = np.array([1.0, 1.0, 1.0, 0.0, 1.0, 1.0])
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_INLINE)
 def input_at(t, u_seg, u_func, use_func, u_limit):
     """Voltage applied at time t: the segment's value or ``u_func(t)``, clipped to the limit.
 
@@ -135,20 +136,25 @@ def prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F
             F[3 + i, j] = h * acc
 
 
-@nb.njit(**_JIT)
-def dense_eval(theta, y, F, out):
-    """State at fraction ``theta`` of the step (0 = start, 1 = end).
+@nb.njit(**_INLINE)
+def dense_component(theta, y, F, j):
+    """Component j of the state at fraction ``theta`` of the step (0 = start, 1 = end).
 
     Horner's scheme in the alternating factors theta and (1 - theta) of Hairer's
     CONTD8; components that do not evolve have zero coefficients and stay exact.
     """
-    x = theta
     x1 = 1.0 - theta
+    acc = F[6, j] * theta + F[5, j]
+    acc = acc * x1 + F[4, j]
+    acc = acc * theta + F[3, j]
+    acc = acc * x1 + F[2, j]
+    acc = acc * theta + F[1, j]
+    acc = acc * x1 + F[0, j]
+    return y[j] + acc * theta
+
+
+@nb.njit(**_JIT)
+def dense_eval(theta, y, F, out):
+    """State at fraction ``theta`` of the step (0 = start, 1 = end)."""
     for j in range(L.NY):
-        acc = F[6, j] * x + F[5, j]
-        acc = acc * x1 + F[4, j]
-        acc = acc * x + F[3, j]
-        acc = acc * x1 + F[2, j]
-        acc = acc * x + F[1, j]
-        acc = acc * x1 + F[0, j]
-        out[j] = y[j] + acc * x
+        out[j] = dense_component(theta, y, F, j)

@@ -34,6 +34,7 @@ from drill_env.dynamics import (
     decide_upper,
     lower_band_half,
     lower_required,
+    n_active,
     rhs,
     upper_band,
     upper_required,
@@ -43,6 +44,7 @@ from drill_env.integrator import (
     INTERP,
     N_EXT,
     ORDER_EXP,
+    dense_component,
     dense_eval,
     input_at,
     prepare_dense,
@@ -50,6 +52,7 @@ from drill_env.integrator import (
 )
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_INLINE = dict(_JIT, inline="always")
 
 STATUS_MESSAGES = {
     0: "The end of the integration interval was reached.",
@@ -250,6 +253,18 @@ def _initial_step(t, y, f0, us, u_func, use_func, u_limit, p, mu, ml, rtol, atol
     return min(100.0 * h0, h1, h_max)
 
 
+@nb.njit(**_INLINE)
+def _emit(k, theta, y, F, n, mu, ml, u, Y_out, M_out, U_out):
+    """Write sample k from the dense output of the current step (n evolving components)."""
+    for j in range(n):
+        Y_out[k, j] = dense_component(theta, y, F, j)
+    for j in range(n, L.NY):
+        Y_out[k, j] = y[j]
+    M_out[k, 0] = mu
+    M_out[k, 1] = ml
+    U_out[k] = u
+
+
 @nb.njit(**_JIT)
 def _log_event(t, disk, old, new, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats):
     i = int(stats[ST_EVENTS])
@@ -344,6 +359,7 @@ def run_ws(
     ytmp2 = work[N_EXT + INTERP + 4]
     for j in range(N_STATS):
         stats[j] = 0.0
+    n_act = n_active(p)
     n_out = t_out.shape[0]
     k = 0
     h_prop = h_init if h_init > 0.0 else 1e-3  # proposed size before truncation to a segment end
@@ -364,6 +380,7 @@ def run_ws(
         us = seg_u[seg]
         t = ta
         u = input_at(t, us, u_func, use_func, u_limit)
+        u_hold = u  # the held voltage of this segment (a zero-order hold)
         if not math.isfinite(u):
             status = 4
             break
@@ -453,12 +470,8 @@ def run_ws(
                 th = min(th_u, th_l)
                 t_ev = t + th * h
                 while k < n_out and t_out[k] < t_ev:
-                    dense_eval((t_out[k] - t) / h, y, F, ytmp)
-                    for j in range(L.NY):
-                        Y_out[k, j] = ytmp[j]
-                    M_out[k, 0] = mu
-                    M_out[k, 1] = ml
-                    U_out[k] = input_at(t_out[k], us, u_func, use_func, u_limit)
+                    uk = input_at(t_out[k], us, u_func, use_func, u_limit) if use_func else u_hold
+                    _emit(k, (t_out[k] - t) / h, y, F, n_act, mu, ml, uk, Y_out, M_out, U_out)
                     k += 1
                 dense_eval(th, y, F, y_ev)
                 u_ev = input_at(t_ev, us, u_func, use_func, u_limit)
@@ -519,12 +532,8 @@ def run_ws(
                 # the zero-order hold switches at that instant (except at the very end).
                 held = last and seg < seg_t.shape[0] - 2
                 while k < n_out and (t_out[k] < t_new or (t_out[k] == t_new and not held)):
-                    dense_eval((t_out[k] - t) / h, y, F, ytmp)
-                    for j in range(L.NY):
-                        Y_out[k, j] = ytmp[j]
-                    M_out[k, 0] = mu
-                    M_out[k, 1] = ml
-                    U_out[k] = input_at(t_out[k], us, u_func, use_func, u_limit)
+                    uk = input_at(t_out[k], us, u_func, use_func, u_limit) if use_func else u_hold
+                    _emit(k, (t_out[k] - t) / h, y, F, n_act, mu, ml, uk, Y_out, M_out, U_out)
                     k += 1
                 for j in range(L.NY):
                     y[j] = y_new[j]

@@ -98,22 +98,26 @@ class SimulationResult:
     def from_kernel(
         cls, *, params, t, Y, M, U, events, stats, status, final_state, final_modes, u_requested
     ) -> SimulationResult:
-        x1 = Y[..., L.X1]
-        thl = Y[..., L.THL]
+        # Views when the kernel wrote column-major samples (simulate); copies otherwise.
+        col = np.ascontiguousarray
+        x1 = col(Y[..., L.X1])
+        thl = col(Y[..., L.THL])
+        mode_u = col(M[..., 0], dtype=np.int8)
+        mode_l = col(M[..., 1], dtype=np.int8)
         st = np.atleast_2d(stats)
         return cls(
             t=t,
             u=U,
             theta_u=x1 + thl,
-            theta_l=thl.copy(),
-            x1=x1.copy(),
-            x2=Y[..., L.X2].copy(),
-            x3=Y[..., L.X3].copy(),
-            stick_u=M[..., 0] == 0,
-            stick_l=M[..., 1] == 0,
-            mode_u=M[..., 0].astype(np.int8),
-            mode_l=M[..., 1].astype(np.int8),
-            motor_torque=Y[..., L.TM].copy(),
+            theta_l=thl,
+            x1=x1,
+            x2=col(Y[..., L.X2]),
+            x3=col(Y[..., L.X3]),
+            stick_u=mode_u == 0,
+            stick_l=mode_l == 0,
+            mode_u=mode_u,
+            mode_l=mode_l,
+            motor_torque=col(Y[..., L.TM]),
             events=events,
             params=params,
             status=status,

@@ -228,8 +228,9 @@ def simulate(
     while True:
         y = y0.copy()
         modes = np.zeros(2, dtype=np.int64)
-        Y = np.empty((t_out.size, L.NY))
-        M = np.empty((t_out.size, 2), dtype=np.int64)
+        # Column-major: each state component is one contiguous array of the result.
+        Y = np.empty((t_out.size, L.NY), order="F")
+        M = np.empty((t_out.size, 2), dtype=np.int8, order="F")
         U = np.empty(t_out.size)
         ev_t = np.empty(cap)
         ev_disk = np.empty(cap, dtype=np.int64)

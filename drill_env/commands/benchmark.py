@@ -1,0 +1,120 @@
+"""``drill-env benchmark``: every controller over a grid of operating points and seeds."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import typer
+
+PRESETS = ("all", "brake", "no_brake")
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        _fail(f"{name} must be a comma-separated list of numbers, got {text!r}")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("benchmark")
+    def benchmark(
+        out: Path = typer.Option(..., help="Directory for benchmark.csv, summary.md and the figures."),
+        preset: str = typer.Option("all", help="brake, no_brake or all (both)."),
+        quick: bool = typer.Option(False, "--quick", help="A handful of voltages per preset and one seed."),
+        controllers: str | None = typer.Option(
+            None, help="Comma-separated subset of open_loop,pi_upper,pi_lower,torque_feedback,lqi,ppo,sac."
+        ),
+        voltages: str | None = typer.Option(None, help="Comma-separated nominal voltages [V] (replace the grid)."),
+        seeds: int | None = typer.Option(None, help="Number of seeds per operating point (0, 1, ...)."),
+        duration: float = typer.Option(90.0, help="Closed-loop time per run [s]."),
+        window: float = typer.Option(20.0, help="Steady-state window at the end of each run [s]."),
+        warmup: float = typer.Option(60.0, help="Open-loop warm-up before the controller is switched on [s]."),
+        backend: str = typer.Option("process", help="process (local pool), sequential or ray."),
+        workers: int | None = typer.Option(None, help="Parallel workers [number of CPUs]."),
+        ray_address: str | None = typer.Option(None, help="Ray cluster address (default: a local Ray instance)."),
+        agents_dir: Path | None = typer.Option(None, help="Trained policies [results/agents]."),
+        fresh: bool = typer.Option(False, "--fresh", help="Discard results already in OUT instead of resuming."),
+    ) -> None:
+        """Run every controller at every operating point and seed; resume an interrupted run.
+
+        Writes OUT/benchmark.csv (one row per controller x operating point x seed),
+        OUT/summary.md (a table per regime), OUT/bifurcation_<preset>.png and
+        OUT/suppression_<preset>.png.
+        """
+        if preset not in PRESETS:
+            _fail(f"--preset must be one of {list(PRESETS)}, got {preset!r}")
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+        from agents.benchmark import BACKENDS, FULL_SEEDS, QUICK_SEEDS, BenchmarkConfig, run_benchmark
+        from agents.evaluation import EpisodeSettings
+        from agents.registry import CONTROLLERS
+
+        if backend not in BACKENDS:
+            _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
+        presets = ("brake", "no_brake") if preset == "all" else (preset,)
+        ctrls = CONTROLLERS
+        if controllers is not None:
+            ctrls = tuple(c.strip() for c in controllers.split(",") if c.strip())
+        if seeds is not None and seeds < 1:
+            _fail(f"--seeds must be >= 1, got {seeds!r}")
+        seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
+        vs = _floats(voltages, "--voltages")
+        try:
+            episode = EpisodeSettings(duration=duration, window=window, warmup_time=warmup)
+            if vs is not None:
+                cfg = BenchmarkConfig(
+                    presets=presets, controllers=ctrls, voltages={p: vs for p in presets}, seeds=seed_list,
+                    episode=episode, agents_dir=None if agents_dir is None else str(agents_dir),
+                )
+            else:
+                cfg = BenchmarkConfig.preset_grid(
+                    presets, quick=quick, controllers=ctrls, seeds=seed_list, episode=episode,
+                    agents_dir=None if agents_dir is None else str(agents_dir),
+                )
+        except ValueError as exc:
+            _fail(str(exc))
+        n = len(cfg.jobs())
+        console = Console(stderr=True)
+        console.print(
+            f"benchmark: {len(cfg.controllers)} controllers x "
+            + " + ".join(f"{len(cfg.voltages[p])} voltages ({p})" for p in cfg.presets)
+            + f" x {len(cfg.seeds)} seed(s) = {n} runs, backend {backend}; results in {out}"
+        )
+        columns = (
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+        )
+        t0 = time.perf_counter()
+        with Progress(*columns, console=console) as prog:
+            task = prog.add_task("runs", total=n)
+
+            def on_progress(done: int, total: int, row: dict) -> None:
+                desc = "runs"
+                if row:
+                    desc = f"{row['controller']:>15s} {row['preset']:>8s} {float(row['voltage']):4.2f} V"
+                prog.update(task, completed=done, description=desc)
+
+            try:
+                csv_path = run_benchmark(
+                    cfg, out, backend=backend, workers=workers, ray_address=ray_address, fresh=fresh,
+                    progress=on_progress,
+                )
+            except ValueError as exc:
+                _fail(str(exc))
+        typer.echo(f"{n} runs in {time.perf_counter() - t0:.0f} s")
+        summary = (out / "summary.md").read_text()
+        typer.echo(summary)
+        typer.echo(f"wrote {csv_path}, {out / 'summary.md'} and the figures in {out}")
