@@ -13,7 +13,8 @@ TAU_F = 24  # friction lag
 DRIFT = 25  # lower friction drift rate
 DIST_A, DIST_W, DIST_P = 26, 27, 28
 ANY_EFFECT = 29  # 1.0 when any effect is on: the paper's model takes a short path
-NP = 30
+INV_JU, INV_JL = 30, 31  # 1/J_u, 1/J_l (derived, for the hot path)
+NP = 32
 
 # -- state vector -----------------------------------------------------------------------
 # x1 = theta_u - theta_l is integrated directly (not as a difference of two large angles).

@@ -77,7 +77,11 @@ def hump(p, w):
     continuation of the branch instead of the kink of |x3|, so the error control of
     the integrator is not upset by it.
     """
-    return p[L.T1] * math.tanh(0.5 * p[L.BETA1] * w) + p[L.T2] * math.tanh(0.5 * p[L.BETA2] * w)
+    # The paper's own form 1 - 2/(1 + exp(beta w)) = tanh(beta w / 2), cheaper than tanh;
+    # exp overflows to inf for large beta*w, which gives exactly 1.
+    return p[L.T1] * (1.0 - 2.0 / (1.0 + math.exp(p[L.BETA1] * w))) + p[L.T2] * (
+        1.0 - 2.0 / (1.0 + math.exp(p[L.BETA2] * w))
+    )
 
 
 @nb.njit(**_INLINE)
@@ -159,14 +163,14 @@ def _rhs_paper(y, u, p, mode_u, mode_l, dy):
     if mode_u == 0:
         dy[L.X2] = 0.0
     elif mode_u > 0:
-        dy[L.X2] = (p[L.KM] * u - ts - p[L.TSUP] - p[L.BUP] * y[L.X2]) / p[L.JU]
+        dy[L.X2] = (p[L.KM] * u - ts - p[L.TSUP] - p[L.BUP] * y[L.X2]) * p[L.INV_JU]
     else:
-        dy[L.X2] = (p[L.KM] * u - ts + p[L.TSUN] - p[L.BUN] * y[L.X2]) / p[L.JU]
+        dy[L.X2] = (p[L.KM] * u - ts + p[L.TSUN] - p[L.BUN] * y[L.X2]) * p[L.INV_JU]
     if mode_l == 0:
         dy[L.X3] = 0.0
     else:
         w = mode_l * y[L.X3]
-        dy[L.X3] = (ts - mode_l * (p[L.TSL] + hump(p, w)) - p[L.BL] * y[L.X3]) / p[L.JL]
+        dy[L.X3] = (ts - mode_l * (p[L.TSL] + hump(p, w)) - p[L.BL] * y[L.X3]) * p[L.INV_JL]
     dy[L.THL] = y[L.X3]
     dy[L.TM] = 0.0
     dy[L.WL] = 0.0

@@ -248,6 +248,8 @@ class RigParams:
         p[L.DIST_W] = e.disturbance_freq
         p[L.DIST_P] = e.disturbance_phase
         p[L.ANY_EFFECT] = 1.0 if e.active else 0.0
+        p[L.INV_JU] = 1.0 / self.upper_inertia
+        p[L.INV_JL] = 1.0 / self.lower_inertia
         return p
 
 
