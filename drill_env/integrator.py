@@ -67,9 +67,8 @@ def step(t, y, f0, h, us, u_func, use_func, u_limit, p, mu, ml, K, y_new, ytmp, 
     """
     n = n_active(p)
     for j in range(n, L.NY):
-        y_new[j] = y[j]
         ytmp[j] = y[j]
-    for j in range(n):
+    for j in range(L.NY):
         K[0, j] = f0[j]
     for s in range(1, N_STAGES):
         for j in range(n):
@@ -78,13 +77,21 @@ def step(t, y, f0, h, us, u_func, use_func, u_limit, p, mu, ml, K, y_new, ytmp, 
                 acc += A[s, r] * K[r, j]
             ytmp[j] = y[j] + h * acc
         ts = t + C[s] * h
-        rhs(ts, ytmp, input_at(ts, us, u_func, use_func, u_limit), p, mu, ml, K[s])
+        # y_new serves as the derivative's scratch until the stages are done: writing
+        # straight into a row view K[s] would cost two atomic reference-count updates.
+        rhs(ts, ytmp, input_at(ts, us, u_func, use_func, u_limit), p, mu, ml, y_new)
+        for j in range(L.NY):
+            K[s, j] = y_new[j]
     for j in range(n):
         acc = 0.0
         for r in range(N_STAGES):
             acc += B[r] * K[r, j]
         y_new[j] = y[j] + h * acc
-    rhs(t + h, y_new, input_at(t + h, us, u_func, use_func, u_limit), p, mu, ml, K[N_STAGES])
+    for j in range(n, L.NY):
+        y_new[j] = y[j]
+    rhs(t + h, y_new, input_at(t + h, us, u_func, use_func, u_limit), p, mu, ml, ytmp)
+    for j in range(L.NY):
+        K[N_STAGES, j] = ytmp[j]
 
     err5 = 0.0
     err3 = 0.0
@@ -109,8 +116,9 @@ def step(t, y, f0, h, us, u_func, use_func, u_limit, p, mu, ml, K, y_new, ytmp, 
 
 
 @nb.njit(**_JIT)
-def prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp):
-    """Three extra stages and the interpolation coefficients F (INTERP x NY)."""
+def prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, kd):
+    """Three extra stages and the interpolation coefficients F (INTERP x NY); ``kd`` is
+    scratch for a stage derivative."""
     n = n_active(p)
     for j in range(n, L.NY):
         for i in range(INTERP):
@@ -123,7 +131,9 @@ def prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F
                 acc += A_EXTRA[k, r] * K[r, j]
             ytmp[j] = y[j] + h * acc
         ts = t + C_EXTRA[k] * h
-        rhs(ts, ytmp, input_at(ts, us, u_func, use_func, u_limit), p, mu, ml, K[s])
+        rhs(ts, ytmp, input_at(ts, us, u_func, use_func, u_limit), p, mu, ml, kd)
+        for j in range(L.NY):
+            K[s, j] = kd[j]
     for j in range(n):
         dyj = y_new[j] - y[j]
         F[0, j] = dyj

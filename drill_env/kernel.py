@@ -447,7 +447,7 @@ def run_ws(
             b_l = 1.0
             dense = False
             if dip_u or dip_l:
-                prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp)
+                prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
                 stats[ST_RHS] += 3
                 dense = True
                 if dip_u:
@@ -458,7 +458,7 @@ def run_ws(
                     ev_lo = b_l <= 1.0
             has_event = ev_up or ev_lo
             if not dense and (has_event or (k < n_out and t_out[k] <= t_new)):
-                prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp)
+                prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
                 stats[ST_RHS] += 3
             if has_event:
                 th_u = 2.0

@@ -33,16 +33,24 @@ def register(app: typer.Typer) -> None:
         controllers: str | None = typer.Option(
             None, help="Comma-separated subset of open_loop,pi_upper,pi_lower,torque_feedback,lqi,ppo,sac."
         ),
-        voltages: str | None = typer.Option(None, help="Comma-separated nominal voltages [V] (replace the grid)."),
+        voltages: str | None = typer.Option(
+            None, help="Comma-separated nominal voltages [V] (replace the grid)."
+        ),
         seeds: int | None = typer.Option(None, help="Number of seeds per operating point (0, 1, ...)."),
         duration: float = typer.Option(90.0, help="Closed-loop time per run [s]."),
         window: float = typer.Option(20.0, help="Steady-state window at the end of each run [s]."),
-        warmup: float = typer.Option(60.0, help="Open-loop warm-up before the controller is switched on [s]."),
+        warmup: float = typer.Option(
+            60.0, help="Open-loop warm-up before the controller is switched on [s]."
+        ),
         backend: str = typer.Option("process", help="process (local pool), sequential or ray."),
         workers: int | None = typer.Option(None, help="Parallel workers [number of CPUs]."),
-        ray_address: str | None = typer.Option(None, help="Ray cluster address (default: a local Ray instance)."),
+        ray_address: str | None = typer.Option(
+            None, help="Ray cluster address (default: a local Ray instance)."
+        ),
         agents_dir: Path | None = typer.Option(None, help="Trained policies [results/agents]."),
-        fresh: bool = typer.Option(False, "--fresh", help="Discard results already in OUT instead of resuming."),
+        fresh: bool = typer.Option(
+            False, "--fresh", help="Discard results already in OUT instead of resuming."
+        ),
     ) -> None:
         """Run every controller at every operating point and seed; resume an interrupted run.
 
@@ -53,7 +61,14 @@ def register(app: typer.Typer) -> None:
         if preset not in PRESETS:
             _fail(f"--preset must be one of {list(PRESETS)}, got {preset!r}")
         from rich.console import Console
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
 
         from agents.benchmark import BACKENDS, FULL_SEEDS, QUICK_SEEDS, BenchmarkConfig, run_benchmark
         from agents.evaluation import EpisodeSettings
@@ -73,12 +88,20 @@ def register(app: typer.Typer) -> None:
             episode = EpisodeSettings(duration=duration, window=window, warmup_time=warmup)
             if vs is not None:
                 cfg = BenchmarkConfig(
-                    presets=presets, controllers=ctrls, voltages={p: vs for p in presets}, seeds=seed_list,
-                    episode=episode, agents_dir=None if agents_dir is None else str(agents_dir),
+                    presets=presets,
+                    controllers=ctrls,
+                    voltages={p: vs for p in presets},
+                    seeds=seed_list,
+                    episode=episode,
+                    agents_dir=None if agents_dir is None else str(agents_dir),
                 )
             else:
                 cfg = BenchmarkConfig.preset_grid(
-                    presets, quick=quick, controllers=ctrls, seeds=seed_list, episode=episode,
+                    presets,
+                    quick=quick,
+                    controllers=ctrls,
+                    seeds=seed_list,
+                    episode=episode,
                     agents_dir=None if agents_dir is None else str(agents_dir),
                 )
         except ValueError as exc:
@@ -109,7 +132,12 @@ def register(app: typer.Typer) -> None:
 
             try:
                 csv_path = run_benchmark(
-                    cfg, out, backend=backend, workers=workers, ray_address=ray_address, fresh=fresh,
+                    cfg,
+                    out,
+                    backend=backend,
+                    workers=workers,
+                    ray_address=ray_address,
+                    fresh=fresh,
                     progress=on_progress,
                 )
             except ValueError as exc:

@@ -21,7 +21,9 @@ def register(app: typer.Typer) -> None:
         config: Path = typer.Option(..., help="Training config (YAML), e.g. configs/agents/ppo.yaml."),
         seed: int = typer.Option(0, help="Random seed of the training run (>= 0)."),
         out: Path | None = typer.Option(
-            None, help="Where the policy, config, summary and learning curve go [results/agents/ALGO]."
+            None,
+            help="Where the policy, config, summary and learning curve go "
+            "[results/agents/ALGO; results/agents/ALGO_no_brake for DrillStringNoBrake-v0].",
         ),
         run_dir: Path | None = typer.Option(
             None, help="Where the CSV and TensorBoard logs and the final policy go [runs/train/ALGO_seedN]."
@@ -51,8 +53,11 @@ def register(app: typer.Typer) -> None:
             _fail(str(exc))
         if cfg.algo != algo:
             _fail(f"--algo {algo} does not match the config's algo {cfg.algo!r} ({config})")
-        out = out or Path("results") / "agents" / algo
-        run_dir = run_dir or Path("runs") / "train" / f"{algo}_seed{seed}"
+        from drill_env.envs import ENV_IDS
+
+        suffix = "" if ENV_IDS[cfg.env_id] == "brake" else f"_{ENV_IDS[cfg.env_id]}"
+        out = out or Path("results") / "agents" / f"{algo}{suffix}"
+        run_dir = run_dir or Path("runs") / "train" / f"{algo}{suffix}_seed{seed}"
         typer.echo(
             f"training {algo} on {cfg.env_id} for {cfg.total_timesteps} steps, seed {seed}; "
             f"logs in {run_dir} (tensorboard --logdir {run_dir})"

@@ -16,7 +16,8 @@ def register(app: typer.Typer) -> None:
     @app.command("tune")
     def tune(
         out: Path = typer.Option(
-            Path("configs/agents/controllers.yaml"), help="YAML file for the tuned gains and the tuning record."
+            Path("configs/agents/controllers.yaml"),
+            help="YAML file for the tuned gains and the tuning record.",
         ),
         preset: list[str] = typer.Option(["brake", "no_brake"], help="Rig preset(s) to tune for."),
         control_dt: float = typer.Option(0.05, help="Control period of the environment [s]."),
