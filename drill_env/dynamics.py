@@ -28,7 +28,10 @@ import numba as nb
 
 from drill_env import _layout as L
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+# The compiled functions here never allocate, so they run without numba's reference
+# counting (_nrt=False): with it, every call that passes arrays pays atomic increments
+# and decrements, which cost as much as the arithmetic of a step.
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", _nrt=False)
 # Small helpers are inlined into the right-hand side: it is the innermost loop.
 _INLINE = dict(_JIT, inline="always")
 

@@ -16,7 +16,10 @@ from scipy.integrate._ivp import dop853_coefficients as _dop
 from drill_env import _layout as L
 from drill_env.dynamics import n_active, rhs
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+# The compiled functions here never allocate, so they run without numba's reference
+# counting (_nrt=False): with it, every call that passes arrays pays atomic increments
+# and decrements, which cost as much as the arithmetic of a step.
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", _nrt=False)
 _INLINE = dict(_JIT, inline="always")
 
 N_STAGES = _dop.N_STAGES  # 12

@@ -51,7 +51,11 @@ from drill_env.integrator import (
     step,
 )
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+# Everything but run() (which allocates its scratch space) runs without numba's reference
+# counting (_nrt=False): with it, every call that passes arrays pays atomic increments and
+# decrements, which cost as much as the arithmetic of a step.
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", _nrt=False)
+_JIT_ALLOC = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 _INLINE = dict(_JIT, inline="always")
 
 STATUS_MESSAGES = {
@@ -284,7 +288,7 @@ def _log_event(t, disk, old, new, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
 WORK_ROWS = N_EXT + INTERP + 5
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_JIT_ALLOC)
 def run(
     p,
     y,
