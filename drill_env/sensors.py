@@ -46,7 +46,9 @@ __all__ = [
     "MAX_DELAY_SAMPLES",
 ]
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_JIT_ALLOC = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+# Functions that allocate nothing run without reference counting (see drill_env.kernel).
+_JIT = dict(_JIT_ALLOC, _nrt=False)
 _INLINE = dict(_JIT, inline="always")
 
 MAX_DELAY_SAMPLES = 10_000  # [samples] bound of the delay line (10 s at 1 kHz)
@@ -378,7 +380,7 @@ def sensor_sample(cfg, st, theta_u, theta_l, noise, k):
     st[S_VL] = vl + noise[k, 3]
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_JIT_ALLOC)
 def _measure_loop(cfg, st, rng, theta_u, theta_l, qu, ql, du, dl, vu, vl):
     block = 1000
     noise = np.empty((block, 4))

@@ -34,6 +34,8 @@ from drill_env.sensors import (
 # Cached on disk in a directory keyed by the package's source (drill_env._cache), so a
 # change to the kernel cannot leave a stale copy compiled into these functions.
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # see drill_env._cache
+# Functions that allocate nothing run without reference counting (see drill_env.kernel).
+_NO_NRT = dict(_JIT, _nrt=False)
 
 
 # -- per-rig episode scalars ------------------------------------------------------------------
@@ -102,7 +104,7 @@ def workspace(n):
     )
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_NO_NRT)
 def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ws):
     seg_t = ws[2]
     seg_u = ws[3]
@@ -139,7 +141,7 @@ def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ws):
     return status
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_NO_NRT)
 def _write_obs(y, ep, ecfg, sst, obs):
     obs[OB_LOWER_SPEED] = sst[S_VL] / ecfg[EC_SCALE + OB_LOWER_SPEED]
     obs[OB_UPPER_SPEED] = sst[S_VU] / ecfg[EC_SCALE + OB_UPPER_SPEED]
@@ -151,7 +153,7 @@ def _write_obs(y, ep, ecfg, sst, obs):
     obs[OB_UNOM] = ep[EP_UNOM] / ecfg[EC_SCALE + OB_UNOM]
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_NO_NRT)
 def _write_true(y, modes, out):
     out[O_TRUE] = y[L.X1]
     out[O_TRUE + 1] = y[L.X2]
@@ -175,7 +177,7 @@ def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubu
     )
 
 
-@nb.njit(**_JIT)
+@nb.njit(**_NO_NRT)
 def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, ws):
     n = int(ecfg[EC_NSUB])
     ts = scfg[1]  # sensors.C_TS
