@@ -13,9 +13,12 @@ every 0.01 s.
 2. Speed at matched accuracy. For drill-env at its default tolerance and at the loosest
    tolerance that meets the 1e-6 accuracy target, solve_ivp runs at the tightest of its
    tolerances whose error is still no smaller than drill-env's (so the baseline is never
-   asked for more accuracy than drill-env delivers). Wall times of 300 s of the rig at
-   2.0 V (stick-slip) and 1.0 V (limit cycle without stick): medians of repeated runs,
-   measured in this run after warming up numba.
+   asked for more accuracy than drill-env delivers), and at the loosest tolerance whose
+   error is below it; log-log interpolation between the two gives solve_ivp's time at
+   exactly drill-env's error ("at equal error", the figure the target is judged on; the
+   ratio against the less accurate run is printed beside it). Wall times of 300 s of the
+   rig at 2.0 V (stick-slip) and 1.0 V (limit cycle without stick): medians of repeated
+   runs, measured in this run after warming up numba.
 3. Simulated seconds per wall second for one rig, and the throughput of
    ``simulate_batch`` for many rigs (voltages spread over 0.5-4.5 V) in one call.
 
@@ -167,11 +170,11 @@ def main() -> None:
         )
         header = (
             f"  {'case':<40}{'drill-env rtol':>15}{'error':>9}{'time':>10}{'sim s/s':>10}"
-            f"{'solve_ivp rtol':>16}{'error':>9}{'time':>10}{'ratio':>8}"
+            f"{'solve_ivp rtol':>16}{'error':>9}{'time':>10}{'ratio':>8}{'at equal error':>16}"
         )
         out.print(header)
         task = progress.add_task("timing", total=len(CASES) * len(points))
-        ratios, rates = [], {}
+        ratios, conservative, rates = [], [], {}
         for u, label in CASES:
             for name, rtol in points:
                 err = drill_err[u, rtol]
@@ -188,12 +191,31 @@ def main() -> None:
                     args.repeat_scipy,
                 )
                 ratio = t_scipy / t_drill
-                ratios.append(ratio)
+                conservative.append(ratio)
+                # solve_ivp's time at exactly drill-env's error: log-log interpolation
+                # between the run above (error >= drill-env's) and the loosest tolerance
+                # whose error is below it.
+                better = [r for r in SCIPY_RTOLS if scipy_err[u, r] < err]
+                equal = ratio
+                if better and scipy_err[u, s_rtol] > err:
+                    b_rtol = max(better)
+                    t_better = median_time(
+                        lambda u=u, b_rtol=b_rtol: oracle_simulate(
+                            params, u, T_RUN, t_eval=grid(T_RUN), **tolerances(b_rtol)
+                        ),
+                        args.repeat_scipy,
+                    )
+                    e_w, e_b = np.log(scipy_err[u, s_rtol]), np.log(scipy_err[u, b_rtol])
+                    frac = (np.log(err) - e_w) / (e_b - e_w)
+                    t_eq = float(np.exp(np.log(t_scipy) + frac * (np.log(t_better) - np.log(t_scipy))))
+                    t_eq = min(max(t_eq, min(t_scipy, t_better)), max(t_scipy, t_better))
+                    equal = t_eq / t_drill
+                ratios.append(equal)
                 rates[u, name] = T_RUN / t_drill
                 out.print(
                     f"  {f'{u:g} V {label} ({name})':<40}{rtol:>15.0e}{err:>9.1e}{t_drill * 1e3:>8.2f}ms"
                     f"{T_RUN / t_drill:>10.0f}{s_rtol:>16.0e}{scipy_err[u, s_rtol]:>9.1e}"
-                    f"{t_scipy * 1e3:>8.0f}ms{ratio:>7.0f}x"
+                    f"{t_scipy * 1e3:>8.0f}ms{ratio:>7.0f}x{equal:>15.0f}x"
                 )
                 progress.advance(task)
 
@@ -242,8 +264,9 @@ def main() -> None:
     out.print("\nTargets:")
     min_ratio = min(ratios)
     out.print(
-        f"  speed-up over solve_ivp at matched accuracy >= {TARGET_RATIO:g}x: smallest measured "
+        f"  speed-up over solve_ivp at equal accuracy >= {TARGET_RATIO:g}x: smallest measured "
         f"{min_ratio:.0f}x -> {verdict(min_ratio >= TARGET_RATIO)}"
+        f"  (against the less accurate solve_ivp run of each row: smallest {min(conservative):.0f}x)"
     )
     for name, rtol in points:
         rate = min(rates[u, name] for u, _ in CASES)
