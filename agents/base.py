@@ -112,7 +112,9 @@ class ControllerSpec:
         try:
             return self._index[name]
         except KeyError:
-            raise ValueError(f"observation: no entry {name!r}; entries: {list(self.observation_names)}") from None
+            raise ValueError(
+                f"observation: no entry {name!r}; entries: {list(self.observation_names)}"
+            ) from None
 
     def to_physical(self, obs: np.ndarray) -> np.ndarray:
         """Observations (n, 8) in SI units (float64)."""
@@ -120,7 +122,9 @@ class ControllerSpec:
 
     def to_observation(self, physical: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`to_physical` (float32, as the environment returns it)."""
-        return (np.asarray(physical, dtype=np.float64) / np.asarray(self.observation_scales)).astype(np.float32)
+        return (np.asarray(physical, dtype=np.float64) / np.asarray(self.observation_scales)).astype(
+            np.float32
+        )
 
     def to_action(self, volts: np.ndarray) -> np.ndarray:
         """Voltages (n,) -> actions (n, 1), float32, within the amplifier range."""
@@ -191,7 +195,9 @@ class Controller:
                 if start.size == 1 and n > 1:
                     start = np.repeat(start, n)
                 if start.shape != (n,):
-                    raise ValueError(f"episode_start: expected {n} flags, got shape {np.shape(episode_start)}")
+                    raise ValueError(
+                        f"episode_start: expected {n} flags, got shape {np.shape(episode_start)}"
+                    )
                 if start.any():
                     state[start] = self.initial_state(y[start])
         volts, state = self.control(y, state)

@@ -78,7 +78,9 @@ def _positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
         raise ValueError(f"{name}: expected a number, got {value!r}")
     v = float(value)
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        raise ValueError(f"{name}: {value!r} is outside the allowed range {'[0' if allow_zero else '(0'}, inf)")
+        raise ValueError(
+            f"{name}: {value!r} is outside the allowed range {'[0' if allow_zero else '(0'}, inf)"
+        )
     return v
 
 
@@ -100,8 +102,12 @@ class EpisodeSettings:
         if self.window > self.duration:
             raise ValueError(f"window: {self.window!r} s must not exceed duration ({self.duration!r} s)")
         if not isinstance(self.env_kwargs, Mapping):
-            raise ValueError(f"env_kwargs: expected a mapping of DrillStringEnv arguments, got {self.env_kwargs!r}")
-        reserved = {"params", "warmup_time", "warmup_jitter", "max_episode_steps", "task"} & set(self.env_kwargs)
+            raise ValueError(
+                f"env_kwargs: expected a mapping of DrillStringEnv arguments, got {self.env_kwargs!r}"
+            )
+        reserved = {"params", "warmup_time", "warmup_jitter", "max_episode_steps", "task"} & set(
+            self.env_kwargs
+        )
         if reserved:
             raise ValueError(f"env_kwargs: {sorted(reserved)} are set by the evaluation itself")
         object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
@@ -249,7 +255,9 @@ def suppression(amplitude: float, open_loop_amplitude: float) -> float:
     if not (math.isfinite(a) and a >= 0):
         raise ValueError(f"amplitude: expected a finite number >= 0 rad/s, got {amplitude!r}")
     if not (math.isfinite(a0) and a0 >= 0):
-        raise ValueError(f"open_loop_amplitude: expected a finite number >= 0 rad/s, got {open_loop_amplitude!r}")
+        raise ValueError(
+            f"open_loop_amplitude: expected a finite number >= 0 rad/s, got {open_loop_amplitude!r}"
+        )
     return 1.0 - a / a0 if a0 > 0 else math.nan
 
 
@@ -314,7 +322,9 @@ def evaluate(
         dt = env.unwrapped.control_dt
         n = settings.n_steps(dt)
         nw = max(1, int(round(settings.window / dt)))
-        traj = run_episode(env, controller, seed=seed, n_steps=n, options={"nominal_voltage": v}, window_steps=nw)
+        traj = run_episode(
+            env, controller, seed=seed, n_steps=n, options={"nominal_voltage": v}, window_steps=nw
+        )
     finally:
         if own:
             env.close()

@@ -86,7 +86,9 @@ def measurement_noise(sensors: SensorConfig, control_dt: float) -> np.ndarray:
     return np.sqrt((base * scale) ** 2 + extra**2)
 
 
-def design_point(params: RigParams, *, voltage: float | None = None, speed: float | None = None) -> Equilibrium:
+def design_point(
+    params: RigParams, *, voltage: float | None = None, speed: float | None = None
+) -> Equilibrium:
     """The slip equilibrium of the nominal model at a voltage [V] or a lower-disk speed [rad/s]."""
     if (speed is None) == (voltage is None):
         raise ValueError("design_point: give exactly one of voltage, speed")

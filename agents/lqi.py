@@ -120,7 +120,9 @@ class LQI(Controller):
         """(K, x1*) at a target speed [rad/s] (cached)."""
         w = float(speed)
         if not (math.isfinite(w) and w > 0):
-            raise ValueError(f"target_speed: the LQI needs a slip equilibrium, speed > 0 rad/s; got {speed!r}")
+            raise ValueError(
+                f"target_speed: the LQI needs a slip equilibrium, speed > 0 rad/s; got {speed!r}"
+            )
         if w not in self._cache:
             self._cache[w] = lqi_gain(
                 self.spec.params,

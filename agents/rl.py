@@ -24,8 +24,8 @@ with the open-loop and the LQI controller as references.
 
 Convergence (a plateau criterion): with R the evaluation returns in order, Q_last the
 mean of the last ``fraction`` of them and Q_prev the mean of the ``fraction`` before,
-training has converged if ``Q_last - Q_prev <= tolerance * (max R - R_first)``: the last
-stretch improved by less than ``tolerance`` of the total improvement (and at least
+training has converged if ``Q_last - Q_prev <= tolerance * |Q_last|``: the last stretch
+improved the return by less than ``tolerance`` (5 %) of the level it reached (and at least
 ``min_evaluations`` evaluations were made).
 """
 
@@ -135,8 +135,14 @@ class TrainConfig:
             raise ValueError(f"convergence.fraction: {c.fraction!r} is outside the allowed range (0, 0.5]")
         if not (isinstance(c.tolerance, (int, float)) and 0 <= c.tolerance < 1):
             raise ValueError(f"convergence.tolerance: {c.tolerance!r} is outside the allowed range [0, 1)")
-        if isinstance(c.min_evaluations, bool) or not isinstance(c.min_evaluations, int) or c.min_evaluations < 2:
-            raise ValueError(f"convergence.min_evaluations: expected an integer >= 2, got {c.min_evaluations!r}")
+        if (
+            isinstance(c.min_evaluations, bool)
+            or not isinstance(c.min_evaluations, int)
+            or c.min_evaluations < 2
+        ):
+            raise ValueError(
+                f"convergence.min_evaluations: expected an integer >= 2, got {c.min_evaluations!r}"
+            )
         object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
         object.__setattr__(self, "hyperparameters", copy.deepcopy(dict(self.hyperparameters)))
 
@@ -198,7 +204,9 @@ class SB3Policy:
         return self.model.observation_space
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        return self.model.predict(observation, state=state, episode_start=episode_start, deterministic=deterministic)
+        return self.model.predict(
+            observation, state=state, episode_start=episode_start, deterministic=deterministic
+        )
 
     def check_env(self, env: Any) -> None:
         """Raise ValueError unless the env's spaces are the ones the policy was trained on."""
@@ -235,6 +243,24 @@ def load_policy(path: str | Path, algo: str | None = None, name: str | None = No
 # -- training -------------------------------------------------------------------------------------
 
 
+def strip_machine_info(path: str | Path) -> None:
+    """Keep only the package versions in the ``system_info.txt`` SB3 writes into a saved model
+    (its OS line names the build machine's kernel); the model itself is untouched."""
+    import zipfile
+
+    path = Path(path)
+    with zipfile.ZipFile(path) as zf:
+        items = [(info, zf.read(info.filename)) for info in zf.infolist()]
+    tmp = path.with_suffix(".zip.tmp")
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for info, data in items:
+            if info.filename == "system_info.txt":
+                lines = data.decode().splitlines()
+                data = ("\n".join(ln for ln in lines if not ln.startswith("- OS:")) + "\n").encode()
+            zf.writestr(info, data)
+    tmp.replace(path)
+
+
 def evaluation_episodes(cfg: EvalConfig) -> list[tuple[int, dict[str, Any]]]:
     """The fixed (seed, reset options) of the learning-curve evaluation."""
     out = []
@@ -256,7 +282,9 @@ def evaluate_on_episodes(env: Any, controller: Any, episodes: list[tuple[int, di
     return np.array(out)
 
 
-def plateau(returns: np.ndarray, fraction: float = 0.25, tolerance: float = 0.05, min_evaluations: int = 8) -> dict[str, Any]:
+def plateau(
+    returns: np.ndarray, fraction: float = 0.25, tolerance: float = 0.05, min_evaluations: int = 8
+) -> dict[str, Any]:
     """The plateau criterion of the module docstring on a sequence of evaluation returns."""
     r = np.asarray(returns, dtype=float)
     n = r.size
@@ -266,21 +294,36 @@ def plateau(returns: np.ndarray, fraction: float = 0.25, tolerance: float = 0.05
         return out
     k = max(1, int(math.floor(fraction * n)))
     last, prev = float(np.mean(r[-k:])), float(np.mean(r[-2 * k : -k]))
-    total = float(np.max(r) - r[0])
     gain = last - prev
-    converged = bool(gain <= tolerance * max(total, 1e-12))
+    level = max(abs(last), 1e-12)
+    converged = bool(gain <= tolerance * level)
     out.update(
         converged=converged,
         last_mean=last,
         previous_mean=prev,
         last_gain=gain,
-        total_improvement=total,
+        total_improvement=float(np.max(r) - r[0]),
         reason=(
-            f"last {k} evaluations improved by {gain:.4g} on the {k} before, "
-            f"{'<=' if converged else '>'} {tolerance:g} x total improvement {total:.4g}"
+            f"last {k} evaluations improved the mean return by {gain:.4g} on the {k} before, "
+            f"{'<=' if converged else '>'} {tolerance:g} x its level {level:.4g}"
         ),
     )
     return out
+
+
+def update_convergence(out_dir: str | Path) -> dict[str, Any]:
+    """Recompute the plateau verdict of a finished run from its ``eval.csv`` (as :func:`train`
+    does at its end), rewrite ``training_summary.json`` and ``learning_curve.png``."""
+    import pandas as pd
+
+    out_dir = Path(out_dir)
+    summary = json.loads((out_dir / "training_summary.json").read_text())
+    curve = pd.read_csv(out_dir / "eval.csv")
+    conv = plateau(curve["mean_return"].to_numpy(), **summary["config"]["convergence"])
+    summary.update(converged=conv["converged"], convergence=conv)
+    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    plot_learning_curve(out_dir, summary)
+    return summary
 
 
 def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
@@ -363,9 +406,11 @@ def train(
         model.logger.record("eval/mean_return", row["mean_return"])
         for regime in REGIMES:
             model.logger.record(f"eval/return_{regime}", row[f"return_{regime}"])
+        model.logger.dump(step)
         if row["mean_return"] > best["return"]:
             best.update({"return": row["mean_return"], "step": step})
             model.save(str(out_dir / "policy.zip"))
+            strip_machine_info(out_dir / "policy.zip")
         if on_eval is not None:
             on_eval(step, row["mean_return"])
 
@@ -395,7 +440,7 @@ def train(
     curve = pd.DataFrame(rows)
     curve.to_csv(out_dir / "eval.csv", index=False, float_format="%.6g")
     progress_csv = run_dir / "progress.csv"
-    if progress_csv.is_file():
+    if progress_csv.is_file() and progress_csv.stat().st_size > 0:
         prog = pd.read_csv(progress_csv)
         keep = [c for c in prog.columns if c.startswith(("time/", "rollout/", "train/"))]
         prog[keep].to_csv(out_dir / "progress.csv", index=False, float_format="%.6g")
@@ -465,7 +510,8 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     if prog_path.is_file():
         prog = pd.read_csv(prog_path)
         if "rollout/ep_rew_mean" in prog and "time/total_timesteps" in prog:
-            ax.plot(prog["time/total_timesteps"], prog["rollout/ep_rew_mean"], lw=0.8)
+            rows = prog[["time/total_timesteps", "rollout/ep_rew_mean"]].dropna()
+            ax.plot(rows["time/total_timesteps"], rows["rollout/ep_rew_mean"], lw=0.8)
     ax.set_xlabel("environment steps")
     ax.set_ylabel("training episode return (stochastic)")
     ax.set_title("training episodes")

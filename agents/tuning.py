@@ -112,7 +112,12 @@ def make_controller(kind: str, spec: ControllerSpec, gains: dict[str, float]) ->
     from agents.pi import LowerSpeedPI, UpperSpeedPI
     from agents.torque_feedback import TorqueFeedback
 
-    classes = {"pi_upper": UpperSpeedPI, "pi_lower": LowerSpeedPI, "torque_feedback": TorqueFeedback, "lqi": LQI}
+    classes = {
+        "pi_upper": UpperSpeedPI,
+        "pi_lower": LowerSpeedPI,
+        "torque_feedback": TorqueFeedback,
+        "lqi": LQI,
+    }
     if kind not in classes:
         raise ValueError(f"kind: unknown controller {kind!r}; allowed: {sorted(classes)}")
     return classes[kind](spec, **gains)
@@ -172,7 +177,9 @@ def controller_matrices(ctrl: Controller, eq: Equilibrium) -> tuple[np.ndarray, 
     return Ac, Bc, Cc, Dc
 
 
-def closed_loop(rig: SampledRig, ctrl_mats: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def closed_loop(
+    rig: SampledRig, ctrl_mats: tuple[np.ndarray, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(A_cl, B_noise, C_u, D_u): the closed loop ``x(k+1) = A_cl x + B_noise v``,
     ``u = C_u x + D_u v`` with measurement noise ``v`` on the measured entries."""
     Ac, Bc, Cc, Dc = ctrl_mats

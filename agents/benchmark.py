@@ -1,0 +1,703 @@
+"""The controller benchmark: every controller over a grid of operating points and seeds.
+
+Each run is one call of :func:`agents.evaluation.evaluate` (the one evaluation path) with a
+key (controller, preset, voltage, seed); all controllers see the same initial states and
+sensor noise at the same key. Runs execute
+
+* ``backend="process"`` (default): in a local pool of worker processes;
+* ``backend="sequential"``: in this process;
+* ``backend="ray"``: as Ray tasks, on a local Ray instance or a cluster (``address``; the
+  package must be importable on every node), with ``pip install drill-env[ray]``;
+
+each finished run is appended to ``DIR/benchmark.csv`` at once, so an interrupted
+benchmark resumes where it stopped: runs whose key is already in the CSV (without an
+error) are skipped. ``DIR/benchmark_config.json`` records the episode settings; resuming
+with different ones is refused.
+
+At the end the CSV is rewritten in grid order and the report is made from it:
+``summary.md`` (a table per preset and regime, and the suppression at every voltage),
+``bifurcation_<preset>.png`` (the bifurcation diagram of the analysis with each
+controller's steady min/max of x3) and ``suppression_<preset>.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.evaluation import METRIC_COLUMNS, EpisodeSettings
+from agents.registry import CONTROLLERS
+
+__all__ = [
+    "BACKENDS",
+    "FULL_GRID",
+    "QUICK_GRID",
+    "BenchmarkConfig",
+    "Job",
+    "run_benchmark",
+    "write_report",
+    "load_results",
+]
+
+BACKENDS = ("process", "sequential", "ray")
+COLUMNS = METRIC_COLUMNS + ("error",)
+KEY = ("controller", "preset", "voltage", "seed")
+
+# Voltages [V] of the grid per preset. Brake: 0.2-5 V across the three regimes (A = 0.116,
+# Hopf B = 0.583, stick-slip from D = 1.781 V). No brake: every regime of Fig. 8(a)
+# (B = 0.489, D = 0.600, E = 1.294, C = 1.430, F = 1.661 V).
+FULL_GRID: dict[str, tuple[float, ...]] = {
+    "brake": (0.2, 0.3, 0.4, 0.5, 0.7, 0.85, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0),
+    "no_brake": (0.2, 0.3, 0.4, 0.55, 0.7, 0.85, 1.0, 1.15, 1.35, 1.5, 1.6, 1.8, 2.5, 3.5, 5.0),
+}
+QUICK_GRID: dict[str, tuple[float, ...]] = {
+    "brake": (0.4, 1.0, 2.0, 4.0),
+    "no_brake": (0.3, 0.55, 1.0, 1.5),
+}
+FULL_SEEDS = (0, 1, 2, 3, 4)
+QUICK_SEEDS = (0,)
+REGIME_TITLES = {
+    "equilibrium": "stable equilibrium",
+    "limit_cycle": "Hopf cycle without stick",
+    "stick_slip": "stick-slip",
+}
+
+
+@dataclass(frozen=True)
+class Job:
+    controller: str
+    preset: str
+    voltage: float
+    seed: int
+
+    @property
+    def key(self) -> tuple[str, str, float, int]:
+        return (self.controller, self.preset, round(self.voltage, 9), self.seed)
+
+
+@dataclass(frozen=True)
+class BenchmarkConfig:
+    """The grid and the episode settings of a benchmark."""
+
+    presets: tuple[str, ...] = ("brake", "no_brake")
+    controllers: tuple[str, ...] = CONTROLLERS
+    voltages: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(FULL_GRID))
+    seeds: tuple[int, ...] = FULL_SEEDS
+    episode: EpisodeSettings = field(default_factory=EpisodeSettings)
+    agents_dir: str | None = None  # where the trained policies are (default: results/agents)
+    gains_file: str | None = None  # tuned gains (default: configs/agents/controllers.yaml)
+
+    def __post_init__(self) -> None:
+        from drill_env.envs.task import VOLTAGE_LIMIT
+        from drill_env.params import load_params
+
+        if not self.presets:
+            raise ValueError("presets: expected at least one of ['brake', 'no_brake']")
+        for p in self.presets:
+            if p not in ("brake", "no_brake"):
+                raise ValueError(f"presets: {p!r} is not one of ['brake', 'no_brake']")
+        if not self.controllers:
+            raise ValueError(f"controllers: expected at least one of {list(CONTROLLERS)}")
+        for c in self.controllers:
+            if c not in CONTROLLERS:
+                raise ValueError(f"controllers: {c!r} is not one of {list(CONTROLLERS)}")
+        if not self.seeds:
+            raise ValueError("seeds: expected at least one seed")
+        for s in self.seeds:
+            if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
+                raise ValueError(f"seeds: {s!r} is not an integer >= 0")
+        volts = {}
+        for p in self.presets:
+            vs = tuple(float(v) for v in self.voltages.get(p, ()))
+            if not vs:
+                raise ValueError(f"voltages: no voltages for preset {p!r}")
+            uc1 = load_params(p).uc1
+            for v in vs:
+                if not (math.isfinite(v) and uc1 < v <= VOLTAGE_LIMIT):
+                    raise ValueError(
+                        f"voltages: {v!r} V for {p!r} is outside the allowed range ({uc1:.4g}, {VOLTAGE_LIMIT:g}] V"
+                    )
+            volts[p] = vs
+        object.__setattr__(self, "voltages", volts)
+        object.__setattr__(self, "presets", tuple(self.presets))
+        object.__setattr__(self, "controllers", tuple(self.controllers))
+        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+
+    @classmethod
+    def preset_grid(
+        cls, presets: Sequence[str] = ("brake", "no_brake"), *, quick: bool = False, **kwargs: Any
+    ) -> BenchmarkConfig:
+        grid = QUICK_GRID if quick else FULL_GRID
+        kwargs.setdefault("seeds", QUICK_SEEDS if quick else FULL_SEEDS)
+        return cls(presets=tuple(presets), voltages={p: grid[p] for p in presets}, **kwargs)
+
+    def jobs(self) -> list[Job]:
+        return [
+            Job(c, p, v, s)
+            for p in self.presets
+            for v in self.voltages[p]
+            for s in self.seeds
+            for c in self.controllers
+        ]
+
+    def settings_record(self) -> dict[str, Any]:
+        """What must match for a resumed benchmark (the grid may grow)."""
+        return {"episode": self.episode.to_dict()}
+
+
+# -- one run, in whichever process ---------------------------------------------------------------
+
+_ENVS: dict[tuple[str, str], Any] = {}
+_CONTROLLERS: dict[tuple[Any, ...], Any] = {}
+
+
+def _worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
+    """Evaluate one job; environments and controllers are cached per process. An exception
+    becomes a row with NaN metrics and the message in ``error``."""
+    from agents.evaluation import evaluate, make_env
+    from agents.registry import build_controller
+
+    t0 = time.perf_counter()
+    try:
+        # cached per process, keyed by everything they are built from
+        env_key = (job.preset, json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str))
+        env = _ENVS.get(env_key)
+        if env is None:
+            env = _ENVS[env_key] = make_env(job.preset, cfg.episode)
+        ctrl_key = (job.controller, *env_key, cfg.agents_dir, cfg.gains_file)
+        ctrl = _CONTROLLERS.get(ctrl_key)
+        if ctrl is None:
+            ctrl = _CONTROLLERS[ctrl_key] = build_controller(
+                job.controller, env, job.preset, agents_dir=cfg.agents_dir, gains_file=cfg.gains_file
+            )
+        row = evaluate(
+            ctrl, job.preset, job.voltage, job.seed, cfg.episode, name=job.controller, env=env
+        ).as_dict()
+        row["error"] = ""
+    except Exception as exc:  # recorded, the benchmark goes on
+        row = {c: math.nan for c in COLUMNS}
+        row.update(controller=job.controller, preset=job.preset, voltage=job.voltage, seed=job.seed)
+        row.update(regime="", sim_status=-1, wall_time=time.perf_counter() - t0)
+        row["error"] = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+    return row
+
+
+def _run_chunk(jobs: list[Job], cfg: BenchmarkConfig) -> list[dict[str, Any]]:
+    _worker_init()
+    return [run_job(j, cfg) for j in jobs]
+
+
+# -- results file ----------------------------------------------------------------------------------
+
+
+def _key_of_row(row: Mapping[str, Any]) -> tuple[str, str, float, int]:
+    return (
+        str(row["controller"]),
+        str(row["preset"]),
+        round(float(row["voltage"]), 9),
+        int(float(row["seed"])),
+    )
+
+
+def load_results(path: str | Path):
+    """The benchmark CSV as a pandas DataFrame."""
+    import pandas as pd
+
+    text = ("controller", "preset", "regime", "error")
+    df = pd.read_csv(path, dtype={c: object for c in text})
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing}; expected {list(COLUMNS)}")
+    for c in text:
+        df[c] = df[c].where(df[c].notna(), "").astype(str)
+    for c in COLUMNS:
+        if c not in text:
+            df[c] = df[c].astype(float)
+    df["seed"] = df["seed"].astype(int)
+    df["sim_status"] = df["sim_status"].astype(int)
+    return df
+
+
+def _done_keys(csv_path: Path) -> set[tuple[str, str, float, int]]:
+    if not csv_path.is_file():
+        return set()
+    df = load_results(csv_path)
+    ok = df[df["error"] == ""]
+    return {_key_of_row(r) for r in ok.to_dict("records")}
+
+
+class _Writer:
+    def __init__(self, path: Path):
+        new = not path.is_file() or path.stat().st_size == 0
+        self.f = open(path, "a", newline="")
+        self.w = csv.DictWriter(self.f, fieldnames=list(COLUMNS))
+        if new:
+            self.w.writeheader()
+            self.f.flush()
+
+    def write(self, row: Mapping[str, Any]) -> None:
+        self.w.writerow({c: _fmt(row.get(c)) for c in COLUMNS})
+        self.f.flush()
+        os.fsync(self.f.fileno())
+
+    def close(self) -> None:
+        self.f.close()
+
+
+def _fmt(v: Any) -> Any:
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.10g}"
+    return v
+
+
+# -- the benchmark ---------------------------------------------------------------------------------
+
+
+def _chunks(jobs: list[Job], size: int) -> list[list[Job]]:
+    return [jobs[i : i + size] for i in range(0, len(jobs), size)]
+
+
+def run_benchmark(
+    cfg: BenchmarkConfig,
+    out_dir: str | Path,
+    *,
+    backend: str = "process",
+    workers: int | None = None,
+    ray_address: str | None = None,
+    fresh: bool = False,
+    progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+    report: bool = True,
+) -> Path:
+    """Run (or resume) the benchmark into ``out_dir``; returns the CSV path.
+
+    ``progress(done, total, row)`` is called after every finished run.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: {backend!r} is not one of {list(BACKENDS)}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers: expected an integer >= 1, got {workers!r}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "benchmark.csv"
+    cfg_path = out / "benchmark_config.json"
+    record = cfg.settings_record()
+    if fresh:
+        for p in (csv_path, cfg_path):
+            if p.exists():
+                p.unlink()
+    if cfg_path.is_file() and csv_path.is_file():
+        old = json.loads(cfg_path.read_text())
+        if old.get("episode") != json.loads(json.dumps(record["episode"])):
+            raise ValueError(
+                f"out: {out} holds a benchmark with other episode settings ({old.get('episode')}); "
+                "use another directory or --fresh to start over"
+            )
+    full_record = dict(
+        record,
+        presets=list(cfg.presets),
+        controllers=list(cfg.controllers),
+        voltages={p: list(v) for p, v in cfg.voltages.items()},
+        seeds=list(cfg.seeds),
+        policies=_policies_used(cfg),
+    )
+    cfg_path.write_text(json.dumps(full_record, indent=2) + "\n")
+    done = _done_keys(csv_path)
+    all_jobs = cfg.jobs()
+    todo = [j for j in all_jobs if j.key not in done]
+    total = len(all_jobs)
+    n_done = total - len(todo)
+    writer = _Writer(csv_path)
+    try:
+        if progress is not None:
+            progress(n_done, total, {})
+
+        def finish(row: dict[str, Any]) -> None:
+            nonlocal n_done
+            writer.write(row)
+            n_done += 1
+            if progress is not None:
+                progress(n_done, total, row)
+
+        if todo:
+            if backend == "sequential":
+                _worker_init()
+                for j in todo:
+                    finish(run_job(j, cfg))
+            elif backend == "process":
+                _run_process_pool(todo, cfg, workers or max(1, os.cpu_count() or 1), finish)
+            else:
+                _run_ray(todo, cfg, workers, ray_address, finish)
+    finally:
+        writer.close()
+    _rewrite_sorted(csv_path, cfg)
+    if report:
+        write_report(csv_path, out)
+    return csv_path
+
+
+def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
+    """Which trained policy each learned controller runs per preset (for the report)."""
+    from agents.registry import LEARNED, default_agents_dir, policy_path
+
+    root = Path(cfg.agents_dir) if cfg.agents_dir is not None else default_agents_dir()
+    out = {}
+    for c in cfg.controllers:
+        if c not in LEARNED:
+            continue
+        for p in cfg.presets:
+            try:
+                path = policy_path(c, p, cfg.agents_dir)
+                out[f"{c}/{p}"] = (
+                    str(path.relative_to(root.parent.parent))
+                    if root.parent.parent in path.parents
+                    else str(path)
+                )
+            except ValueError as exc:
+                out[f"{c}/{p}"] = f"missing ({exc})"
+    return out
+
+
+def _run_process_pool(todo: list[Job], cfg: BenchmarkConfig, workers: int, finish) -> None:
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    # Small chunks: the pool stays busy and an interruption loses little.
+    size = max(1, min(8, len(todo) // (4 * workers) or 1))
+    ctx = mp.get_context("spawn")  # torch and numba threads do not survive fork safely
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
+    try:
+        pending = {pool.submit(_run_chunk, chunk, cfg) for chunk in _chunks(todo, size)}
+        while pending:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                for row in fut.result():
+                    finish(row)
+    except BaseException:
+        # interrupted: what is written stays written; do not wait for the queued runs
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _run_ray(todo: list[Job], cfg: BenchmarkConfig, workers: int | None, address: str | None, finish) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("backend: 'ray' needs Ray; install it with `pip install drill-env[ray]`") from None
+    started = False
+    if not ray.is_initialized():
+        if address:
+            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+        else:
+            ray.init(
+                num_cpus=workers or os.cpu_count() or 1,
+                ignore_reinit_error=True,
+                log_to_driver=False,
+                include_dashboard=False,
+            )
+        started = True
+    try:
+        remote = ray.remote(num_cpus=1)(_run_chunk)
+        size = max(1, min(8, len(todo) // (4 * (workers or 2)) or 1))
+        cfg_ref = ray.put(cfg)
+        pending = [remote.remote(chunk, cfg_ref) for chunk in _chunks(todo, size)]
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for row in ray.get(ready[0]):
+                finish(row)
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _rewrite_sorted(csv_path: Path, cfg: BenchmarkConfig) -> None:
+    """Rewrite the CSV in grid order, the last row of every key kept."""
+    df = load_results(csv_path)
+    df["_key"] = [_key_of_row(r) for r in df.to_dict("records")]
+    df = df.drop_duplicates("_key", keep="last")
+    order_c = {c: i for i, c in enumerate(CONTROLLERS)}
+    order_p = {p: i for i, p in enumerate(("brake", "no_brake"))}
+    df["_c"] = df["controller"].map(order_c)
+    df["_p"] = df["preset"].map(order_p)
+    df = df.sort_values(["_p", "voltage", "seed", "_c"]).drop(columns=["_key", "_c", "_p"])
+    tmp = csv_path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(COLUMNS))
+        w.writeheader()
+        for row in df.to_dict("records"):
+            w.writerow({c: _fmt(row[c]) for c in COLUMNS})
+    tmp.replace(csv_path)
+
+
+# -- report ----------------------------------------------------------------------------------------
+
+
+def _ordered(names: Iterable[str]) -> list[str]:
+    names = set(names)
+    return [c for c in CONTROLLERS if c in names] + sorted(names - set(CONTROLLERS))
+
+
+def _num(x: float, digits: int = 3) -> str:
+    """Fixed-point text without a minus sign on a rounded zero."""
+    t = f"{x:.{digits}f}"
+    return t[1:] if t.startswith("-") and float(t) == 0.0 else t
+
+
+def summary_tables(df, notes: Mapping[str, str] | None = None) -> str:
+    """The markdown of ``summary.md`` from the results DataFrame."""
+    lines = [
+        "# Controller benchmark",
+        "",
+        "Every controller at every operating point (nominal voltage u) and seed, switched on at a",
+        "random phase of the open-loop behaviour after an open-loop warm-up; metrics of the lower-disk",
+        "speed x3 over the last window of the episode, from the true state (see `agents/evaluation.py`).",
+        "Suppression = 1 - amplitude / open-loop amplitude predicted by the bifurcation analysis",
+        "(1: cycle removed, 0: as open loop, < 0: worse); it is defined only where the analysis",
+        "predicts a cycle. Means over the runs of a regime, worst case in brackets; peak |u| is the",
+        "largest over the runs. |u| and the time at the 5 V limit are over the whole closed-loop",
+        "episode. The brake's friction model was identified up to 12.6 rad/s only (Sec. 4 of the",
+        "paper): runs that leave that range are outside what the model vouches for.",
+        "",
+    ]
+    ok = df[df["error"] == ""]
+    failed = df[df["error"] != ""]
+    for preset in [p for p in ("brake", "no_brake") if p in set(df["preset"])]:
+        sub = ok[ok["preset"] == preset]
+        lines.append(f"## {preset}")
+        lines.append("")
+        used = {k.split("/")[0]: v for k, v in (notes or {}).items() if k.endswith(f"/{preset}")}
+        if used:
+            lines.append("Learned policies: " + "; ".join(f"{c}: `{v}`" for c, v in used.items()) + ".")
+            lines.append("")
+        for regime, title in REGIME_TITLES.items():
+            reg = sub[sub["regime"] == regime]
+            if reg.empty:
+                continue
+            volts = sorted(set(reg["voltage"]))
+            vtxt = ", ".join(f"{v:g}" for v in volts)
+            lines.append(f"### {title} ({vtxt} V; {reg['seed'].nunique()} seed(s))")
+            lines.append("")
+            lines.append(
+                "| controller | suppression | amplitude [rad/s] | open-loop amplitude [rad/s] | stuck [%] | "
+                "severity | RMS error [rad/s] | mean \\|u\\| [V] | peak \\|u\\| [V] | at 5 V limit [%] | runs |"
+            )
+            lines.append("|---|---|---|---|---|---|---|---|---|---|---|")
+            for c in _ordered(reg["controller"]):
+                r = reg[reg["controller"] == c]
+                sup = r["suppression"].dropna()
+                sup_txt = f"{_num(sup.mean())} ({_num(sup.min())})" if len(sup) else "-"
+                cells = [
+                    c,
+                    sup_txt,
+                    f"{_num(r['amplitude'].mean())} ({_num(r['amplitude'].max())})",
+                    _num(r["open_loop_amplitude"].mean()),
+                    f"{_num(100 * r['stick_fraction'].mean(), 1)} ({_num(100 * r['stick_fraction'].max(), 1)})",
+                    _num(r["severity"].mean()),
+                    f"{_num(r['rms_error'].mean())} ({_num(r['rms_error'].max())})",
+                    _num(r["u_mean_abs"].mean(), 2),
+                    _num(r["u_peak_abs"].max(), 2),
+                    _num(100 * r["u_limit_fraction"].mean(), 1),
+                    str(len(r)),
+                ]
+                lines.append("| " + " | ".join(cells) + " |")
+            lines.append("")
+        # suppression at every voltage
+        cyc = sub[sub["open_loop_amplitude"] > 0]
+        if not cyc.empty:
+            volts = sorted(set(cyc["voltage"]))
+            lines.append("### suppression at each voltage (mean over seeds)")
+            lines.append("")
+            lines.append("| controller | " + " | ".join(f"{v:g} V" for v in volts) + " |")
+            lines.append("|---|" + "---|" * len(volts))
+            for c in _ordered(cyc["controller"]):
+                r = cyc[cyc["controller"] == c]
+                cells = []
+                for v in volts:
+                    s = r[r["voltage"] == v]["suppression"]
+                    cells.append(_num(s.mean(), 2) if len(s) else "-")
+                lines.append(f"| {c} | " + " | ".join(cells) + " |")
+            lines.append("")
+    if not failed.empty:
+        lines.append("## runs that failed")
+        lines.append("")
+        for r in failed.to_dict("records"):
+            lines.append(
+                f"- {r['controller']} {r['preset']} {r['voltage']:g} V seed {int(r['seed'])}: {r['error']}"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
+    """``summary.md`` and the figures from a benchmark CSV."""
+    df = load_results(csv_path)
+    out = Path(out_dir)
+    notes = None
+    cfg_path = Path(csv_path).parent / "benchmark_config.json"
+    if cfg_path.is_file():
+        notes = json.loads(cfg_path.read_text()).get("policies")
+    paths = [out / "summary.md"]
+    paths[0].write_text(summary_tables(df, notes) + "\n")
+    for preset in [p for p in ("brake", "no_brake") if p in set(df["preset"])]:
+        paths += _figures(df[(df["preset"] == preset) & (df["error"] == "")], preset, out)
+    return paths
+
+
+_COLORS = {
+    "open_loop": "black",
+    "pi_upper": "tab:red",
+    "pi_lower": "tab:orange",
+    "torque_feedback": "tab:green",
+    "lqi": "tab:blue",
+    "ppo": "tab:purple",
+    "sac": "tab:brown",
+}
+Y_FLOOR = -2.0  # suppression below this is drawn at the floor with its value written
+_MARKERS = {
+    "open_loop": "o",
+    "pi_upper": "v",
+    "pi_lower": "^",
+    "torque_feedback": "s",
+    "lqi": "D",
+    "ppo": "P",
+    "sac": "X",
+}
+
+
+def _figures(df, preset: str, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from drill_env.analysis import bifurcation_diagram
+    from drill_env.analysis.plots import plot_bifurcation
+
+    paths = []
+    if df.empty:
+        return paths
+    ctrls = _ordered(df["controller"])
+    volts = np.array(sorted(set(df["voltage"])))
+    span = float(volts.max() - volts.min()) if volts.size > 1 else 1.0
+    offsets = {c: (i - (len(ctrls) - 1) / 2) * 0.008 * span for i, c in enumerate(ctrls)}
+
+    diagram = bifurcation_diagram(preset, u_max=5.0)
+    fig, ax = plt.subplots(figsize=(11, 6.5))
+    plot_bifurcation(diagram, ax)
+    tops = [float(np.max([c.x3_max for c in seg.cycles])) for seg in diagram.periodic_segments]
+    tops += [float(np.max(b.x3)) for b in diagram.equilibrium_branches]
+    y_hi = 1.15 * max(tops + [1.0])
+    y_lo = -0.08 * y_hi
+    off = 0
+    for c in ctrls:
+        r = df[df["controller"] == c]
+        u = r["voltage"].to_numpy() + offsets[c]
+        hi, lo = r["x3_max"].to_numpy(), r["x3_min"].to_numpy()
+        col, m = _COLORS.get(c, "gray"), _MARKERS.get(c, "o")
+        ax.plot(u, np.clip(hi, y_lo, y_hi), m, color=col, ms=4, mfc="none", label=c)
+        ax.plot(u, np.clip(lo, y_lo, y_hi), m, color=col, ms=4)
+        ax.vlines(u, np.clip(lo, y_lo, y_hi), np.clip(hi, y_lo, y_hi), color=col, lw=0.5, alpha=0.6)
+        outside = (hi > y_hi) | (lo < y_lo)
+        off += int(outside.sum())
+        for uu in sorted(set(np.round(u[outside], 6))):
+            at = np.isclose(u, uu) & outside
+            ax.annotate(
+                f"{lo[at].min():.0f}..{hi[at].max():.0f}",
+                (uu, y_hi),
+                fontsize=6,
+                color=col,
+                rotation=90,
+                va="top",
+                ha="right",
+            )
+    ax.set_ylim(y_lo, y_hi)
+    ax.set_xlim(0.0, 5.1)
+    ax.legend(fontsize=8, loc="upper left", title="closed loop: steady min/max of x3")
+    note = f" ({off} runs off scale, range written at the top)" if off else ""
+    ax.set_title(
+        f"{preset}: bifurcation diagram (lines) and each controller's steady min / max of x3{note}",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    p = out / f"bifurcation_{preset}.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+
+    cyc = df[df["open_loop_amplitude"] > 0]
+    fig, ax = plt.subplots(figsize=(11.5, 5))
+    for name, lo, hi in _regime_spans(preset):
+        if name != "equilibrium":
+            ax.axvspan(lo, hi, color="tab:red" if name == "stick_slip" else "tab:orange", alpha=0.07, lw=0)
+    for c in ctrls:
+        r = cyc[cyc["controller"] == c]
+        if r.empty:
+            continue
+        g = r.groupby("voltage")["suppression"]
+        v = np.array(sorted(g.groups))
+        mean, lo, hi = g.mean().loc[v].to_numpy(), g.min().loc[v].to_numpy(), g.max().loc[v].to_numpy()
+        shown = np.maximum(mean, Y_FLOOR)
+        ax.errorbar(
+            v + offsets[c],
+            shown,
+            yerr=[shown - np.maximum(lo, Y_FLOOR), np.maximum(hi, Y_FLOOR) - shown],
+            fmt=_MARKERS.get(c, "o") + "-",
+            color=_COLORS.get(c, "gray"),
+            ms=5,
+            lw=1,
+            capsize=2,
+            label=c,
+        )
+        for vv, mm in zip(v, mean, strict=True):
+            if mm < Y_FLOOR:
+                ax.annotate(
+                    f"{mm:.1f}",
+                    (vv + offsets[c], Y_FLOOR),
+                    fontsize=7,
+                    color=_COLORS.get(c, "gray"),
+                    xytext=(0, 4),
+                    textcoords="offset points",
+                    ha="center",
+                )
+    ax.axhline(0.0, color="gray", lw=0.8)
+    ax.axhline(1.0, color="gray", lw=0.8, ls=":")
+    ax.set_xlabel("nominal voltage u [V]")
+    ax.set_ylabel("suppression = 1 - amplitude / open-loop amplitude")
+    ax.set_title(
+        f"{preset}: suppression of the open-loop limit cycle (shaded: Hopf cycle / stick-slip; "
+        f"means below {Y_FLOOR:g} drawn at {Y_FLOOR:g} with their value)",
+        fontsize=10,
+    )
+    lo_y = min(-0.5, float(np.nanmin(cyc["suppression"])) - 0.05) if not cyc.empty else -0.5
+    ax.set_ylim(max(lo_y, Y_FLOOR - 0.1), 1.1)
+    ax.set_xlim(0.0, 5.1)
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    p = out / f"suppression_{preset}.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def _regime_spans(preset: str) -> list[tuple[str, float, float]]:
+    from drill_env.envs.task import operating_regimes
+    from drill_env.params import load_params
+
+    return list(operating_regimes(load_params(preset)).intervals)

@@ -1,0 +1,126 @@
+"""The benchmark's controllers by name: classical ones with their tuned gains, learned ones
+from their committed policies.
+
+* ``open_loop``, ``pi_upper``, ``pi_lower``, ``torque_feedback``, ``lqi``: built on an
+  environment's :class:`~agents.base.ControllerSpec` with the gains that
+  ``drill-env tune`` wrote to ``configs/agents/controllers.yaml`` for the preset;
+* ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
+  ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v0``, the braked rig;
+  a policy trained on the rig without brake, ``results/agents/<algo>_no_brake/``, is used
+  for that preset when present, else the braked rig's policy is run as it is).
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from agents.base import Controller, ControllerSpec
+
+__all__ = [
+    "CLASSICAL",
+    "LEARNED",
+    "CONTROLLERS",
+    "build_controller",
+    "classical_controller",
+    "default_agents_dir",
+    "gains_path",
+    "load_gains",
+    "policy_path",
+]
+
+CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi")
+LEARNED = ("ppo", "sac")
+CONTROLLERS = CLASSICAL + LEARNED
+
+_ROOT = Path(__file__).resolve().parent.parent
+
+
+def gains_path() -> Path:
+    """``configs/agents/controllers.yaml`` (in the source tree or the installed package)."""
+    for d in (_ROOT / "drill_env" / "_configs" / "agents", _ROOT / "configs" / "agents"):
+        p = d / "controllers.yaml"
+        if p.is_file():
+            return p
+    return _ROOT / "configs" / "agents" / "controllers.yaml"
+
+
+@functools.lru_cache(maxsize=8)
+def _load_gains_cached(path: str) -> dict[str, Any]:
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"gains: no such file {path!r}; run `drill-env tune --out {path}`")
+    data = yaml.safe_load(p.read_text()) or {}
+    if not isinstance(data, dict) or "presets" not in data:
+        raise ValueError(f"gains: {path} has no 'presets' mapping")
+    return data
+
+
+def load_gains(path: str | Path | None = None) -> dict[str, Any]:
+    """The tuned gains file (see :func:`agents.tuning.tune_all`)."""
+    return _load_gains_cached(str(Path(path) if path is not None else gains_path()))
+
+
+def classical_controller(
+    kind: str, spec: ControllerSpec, preset: str, gains_file: str | Path | None = None
+) -> Controller:
+    """A classical controller with the tuned gains of ``preset``."""
+    from agents.open_loop import OpenLoop
+    from agents.tuning import make_controller
+
+    if kind == "open_loop":
+        return OpenLoop(spec)
+    if kind not in CLASSICAL:
+        raise ValueError(f"controller: {kind!r} is not one of {list(CLASSICAL)}")
+    data = load_gains(gains_file)
+    presets = data["presets"]
+    if preset not in presets or kind not in presets[preset]:
+        raise ValueError(
+            f"gains: no tuned gains for {kind!r} on preset {preset!r} in {gains_file or gains_path()}; "
+            "run `drill-env tune`"
+        )
+    return make_controller(kind, spec, dict(presets[preset][kind]["gains"]))
+
+
+def default_agents_dir() -> Path:
+    return _ROOT / "results" / "agents"
+
+
+def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) -> Path:
+    """The committed policy of ``algo`` for ``preset`` (see the module docstring)."""
+    if algo not in LEARNED:
+        raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
+    root = Path(agents_dir) if agents_dir is not None else default_agents_dir()
+    own = root / f"{algo}_{preset}" / "policy.zip"
+    if own.is_file():
+        return own
+    path = root / algo / "policy.zip"
+    if not path.is_file():
+        raise ValueError(
+            f"policy: no trained {algo} policy at {path}; train one with "
+            f"`drill-env train --algo {algo} --config configs/agents/{algo}.yaml --seed 0`"
+        )
+    return path
+
+
+def build_controller(
+    name: str,
+    env: Any,
+    preset: str,
+    *,
+    agents_dir: str | Path | None = None,
+    gains_file: str | Path | None = None,
+):
+    """Any benchmark controller by name for environment ``env`` of ``preset``."""
+    if name in CLASSICAL:
+        return classical_controller(name, ControllerSpec.from_env(env), preset, gains_file)
+    if name in LEARNED:
+        from agents.rl import load_policy
+
+        policy = load_policy(policy_path(name, preset, agents_dir), algo=name, name=name)
+        policy.check_env(env)
+        return policy
+    raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")

@@ -1,0 +1,321 @@
+"""The controllers: SB3's predict protocol, every controller in both environments, the PI's
+anti-windup at the 5 V limit, the linear design model, the tuning and the evaluation path."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import drill_env  # noqa: F401  (registers the environments)
+from agents.base import Controller, ControllerSpec
+from agents.evaluation import EpisodeSettings, evaluate, make_env, run_episode, suppression
+from agents.linear_model import design_point, equilibrium_observation, linearise, sampled_rig
+from agents.lqi import LQI
+from agents.open_loop import OpenLoop
+from agents.pi import LowerSpeedPI, UpperSpeedPI
+from agents.registry import CLASSICAL, CONTROLLERS, build_controller, load_gains
+from agents.torque_feedback import TorqueFeedback
+from agents.tuning import (
+    TUNED_GAINS,
+    closed_loop,
+    controller_matrices,
+    design_points,
+    evaluate_design,
+    make_controller,
+    tune,
+)
+from drill_env.analysis import critical_friction_slope
+from drill_env.envs import ENV_IDS
+from drill_env.friction import lower_friction_curve
+
+PRESET_OF = {env_id: preset for env_id, preset in ENV_IDS.items()}
+SHORT = EpisodeSettings(duration=4.0, window=2.0, warmup_time=3.0, warmup_jitter=1.0)
+
+
+@pytest.fixture(scope="module")
+def spec_brake() -> ControllerSpec:
+    return ControllerSpec.default("brake")
+
+
+def obs_at(spec: ControllerSpec, voltage: float, **changes: float) -> np.ndarray:
+    """The observation (as the env returns it) at the nominal equilibrium, with changes in SI units."""
+    y = equilibrium_observation(spec.params, design_point(spec.params, voltage=voltage))
+    for name, value in changes.items():
+        y[spec.index(name)] = value
+    return spec.to_observation(y)
+
+
+# -- every controller in both environments ------------------------------------------------------
+
+
+@pytest.mark.parametrize("env_id", list(ENV_IDS))
+@pytest.mark.parametrize("name", CONTROLLERS)
+def test_every_controller_runs_in_both_envs(env_id, name):
+    env = gym.make(env_id)
+    ctrl = build_controller(name, env, PRESET_OF[env_id])
+    traj = run_episode(env, ctrl, seed=3, n_steps=60, options={"nominal_voltage": 1.0})
+    assert traj.t.size == 60 and traj.sim_status == 0
+    assert np.all(np.isfinite(traj.voltage)) and np.all(np.abs(traj.voltage) <= 5.0)
+    assert np.all(np.isfinite(traj.true_state))
+
+
+def test_controllers_follow_sb3_predict_protocol(spec_brake):
+    ctrl = make_controller(
+        "torque_feedback", spec_brake, load_gains()["presets"]["brake"]["torque_feedback"]["gains"]
+    )
+    obs = obs_at(spec_brake, 2.0, upper_speed_mean=3.0, twist=2.1)
+    a1, s1 = ctrl.predict(obs)
+    assert a1.shape == (1,) and a1.dtype == np.float32 and s1.shape == (1, ctrl.state_size)
+    batch = np.stack([obs, obs_at(spec_brake, 1.0), obs])
+    a, s = ctrl.predict(batch, state=None, episode_start=np.ones(3, bool), deterministic=True)
+    assert a.shape == (3, 1) and s.shape == (3, ctrl.state_size)
+    assert a[0, 0] == a1[0] and a[2, 0] == a1[0]
+    # rows evolve independently; episode_start restarts only its row
+    a2, s2 = ctrl.predict(batch, state=s, episode_start=np.array([False, False, True]))
+    assert np.array_equal(s2[2], s[2]) and not np.array_equal(s2[0], s[0])
+    with pytest.raises(ValueError, match="observation"):
+        ctrl.predict(np.zeros(5, np.float32))
+    with pytest.raises(ValueError, match="state"):
+        ctrl.predict(batch, state=np.zeros((2, ctrl.state_size)))
+
+
+def test_open_loop_applies_the_nominal_voltage(spec_brake):
+    a, _ = OpenLoop(spec_brake).predict(obs_at(spec_brake, 1.7, lower_speed=0.0, twist=5.0))
+    assert a[0] * 5.0 == pytest.approx(1.7, abs=1e-6)
+
+
+def test_spec_scaling_is_consistent_across_env_configurations():
+    """Physical units and volts actions: the controller applies the same voltages."""
+    volts = []
+    for kwargs in ({}, {"normalize_observation": False, "action_mode": "voltage"}):
+        env = gym.make("DrillString-v0", **kwargs)
+        spec = ControllerSpec.from_env(env)
+        ctrl = LQI(spec, voltage_scale=0.06)
+        traj = run_episode(env, ctrl, seed=1, n_steps=40, options={"nominal_voltage": 2.0})
+        volts.append(traj.voltage)
+    np.testing.assert_allclose(volts[0], volts[1], atol=2e-5)
+
+
+# -- PI anti-windup at the limit ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls", [UpperSpeedPI, LowerSpeedPI])
+def test_pi_anti_windup_at_the_voltage_limit(spec_brake, cls):
+    kp, ki = 0.5, 2.0
+    disk = "upper_speed_mean" if cls is UpperSpeedPI else "lower_speed_mean"
+    w = design_point(spec_brake.params, voltage=2.0).x3
+    stalled = obs_at(spec_brake, 2.0, **{disk: w - 3.0})  # far too slow: the PI saturates at +5 V
+    ahead = obs_at(spec_brake, 2.0, **{disk: w + 0.5})  # then too fast
+
+    def hold_then_release(ctrl):
+        state = None
+        for k in range(400):  # 20 s, at the limit after the integral has built up
+            a, state = ctrl.predict(stalled, state=state)
+            if k >= 100:
+                assert a[0] * 5.0 == pytest.approx(5.0)
+        z_held = state[0, 0]
+        a, state = ctrl.predict(ahead, state=state)
+        return z_held, a[0] * 5.0
+
+    z, u_after = hold_then_release(cls(spec_brake, kp, ki))
+    # Back-calculation holds the integrator where the integral part alone sits at the limit
+    # (Tt = Ti): u_nom + ki z -> 5 V, so one step of negative error leaves the limit.
+    assert 2.0 + ki * z == pytest.approx(5.0, abs=0.05)
+    assert u_after < 5.0 - 0.1
+    # Without anti-windup the integral winds up and the output stays stuck at the limit.
+    z_wound, u_wound = hold_then_release(cls(spec_brake, kp, ki, anti_windup=False))
+    assert z_wound > 5 * z and u_wound == pytest.approx(5.0)
+
+
+def test_pi_in_closed_loop_never_requests_beyond_the_limit():
+    env = gym.make("DrillString-v0")
+    ctrl = build_controller("pi_lower", env, "brake")
+    traj = run_episode(env, ctrl, seed=0, n_steps=400, options={"nominal_voltage": 4.5})
+    assert np.all(np.abs(traj.voltage_requested) <= 5.0 + 1e-6)
+
+
+def test_gain_validation_names_the_field(spec_brake):
+    with pytest.raises(ValueError, match="kp"):
+        UpperSpeedPI(spec_brake, -1.0, 1.0)
+    with pytest.raises(ValueError, match="z_imp"):
+        TorqueFeedback(spec_brake, 0.1, 1.0, 0.0)
+    with pytest.raises(ValueError, match="voltage_scale"):
+        LQI(spec_brake, voltage_scale=math.inf)
+    with pytest.raises(ValueError, match="kind"):
+        make_controller("pid", spec_brake, {})
+
+
+# -- controllers at rest at the equilibrium, and their linearisation ---------------------------
+
+
+@pytest.mark.parametrize("kind", list(TUNED_GAINS))
+def test_controllers_hold_the_nominal_equilibrium(spec_brake, kind):
+    ctrl = make_controller(kind, spec_brake, load_gains()["presets"]["brake"][kind]["gains"])
+    for u in (0.4, 2.0, 4.9):
+        obs = obs_at(spec_brake, u)
+        a, s = ctrl.predict(obs)
+        a2, s2 = ctrl.predict(obs, state=s)
+        assert a[0] * 5.0 == pytest.approx(u, abs=1e-5) and a2[0] * 5.0 == pytest.approx(u, abs=1e-5)
+        nd = getattr(ctrl, "n_dynamic_states", ctrl.state_size)
+        np.testing.assert_allclose(s2[:, :nd], s[:, :nd], atol=1e-9)
+
+
+def test_torque_feedback_starts_from_the_nominal_string_torque(spec_brake):
+    ctrl = TorqueFeedback(spec_brake, 0.1, 1.0, 0.05)
+    w = design_point(spec_brake.params, voltage=2.0).x3
+    _, s = ctrl.predict(obs_at(spec_brake, 2.0))
+    assert s[0, 1] == pytest.approx(float(lower_friction_curve(spec_brake.params, w)))
+    # a torque rise lowers the top drive's speed set point by dT / z_imp: less voltage
+    a0, _ = ctrl.predict(obs_at(spec_brake, 2.0))
+    a1, _ = ctrl.predict(obs_at(spec_brake, 2.0, twist=obs_at(spec_brake, 2.0)[2] * 2.0 + 0.1))
+    assert a1[0] < a0[0]
+
+
+def test_probed_pi_matrices_are_the_pi_law(spec_brake):
+    kp, ki = 0.7, 1.3
+    eq = design_point(spec_brake.params, voltage=1.0)
+    Ac, Bc, Cc, Dc = controller_matrices(UpperSpeedPI(spec_brake, kp, ki), eq)
+    dt = spec_brake.control_dt
+    np.testing.assert_allclose(Ac, [[1.0]], atol=1e-8)
+    np.testing.assert_allclose(Bc, [[0, 0, 0, 0, -dt, 0]], atol=1e-8)
+    np.testing.assert_allclose(Cc, [ki], atol=1e-7)
+    np.testing.assert_allclose(Dc, [0, 0, 0, 0, -kp, 0], atol=1e-7)
+
+
+def test_sampled_rig_has_the_continuous_eigenvalues(brake):
+    for u in (0.3, 1.0, 3.0):
+        eq = design_point(brake, voltage=u)
+        A, _ = linearise(brake, eq)
+        rig = sampled_rig(brake, eq, 0.05)
+        # sensor filter poles are fast and the step-mean / last-voltage states are 0 poles,
+        # so the slowest mode of the sampled model is the rig's
+        assert rig.open_loop_decay_rate() == pytest.approx(-np.max(np.linalg.eigvals(A).real), rel=1e-6)
+        assert (rig.open_loop_decay_rate() > 0) == eq.stable
+    with pytest.raises(ValueError, match="voltage"):
+        design_point(brake, voltage=0.05)
+
+
+def test_open_loop_closed_loop_is_the_rig(spec_brake):
+    eq = design_point(spec_brake.params, voltage=1.0)
+    rig = sampled_rig(spec_brake.params, eq, spec_brake.control_dt)
+    A, *_ = closed_loop(rig, controller_matrices(OpenLoop(spec_brake), eq))
+    np.testing.assert_allclose(A, rig.F, atol=1e-12)
+
+
+# -- the tuning's claims --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("preset", ["brake", "no_brake"])
+def test_speed_pis_cannot_damp_the_negative_slope_points(preset):
+    """Whatever the gains, a speed PI leaves the equilibrium at the steepest negative friction
+    slope unstable; torque feedback and the LQI, as tuned, damp every design point."""
+    spec = ControllerSpec.default(preset)
+    d_crit = critical_friction_slope(spec.params)
+    eqs = design_points(spec.params)
+    worst = min(eqs, key=lambda e: e.friction_slope)
+    assert worst.friction_slope < d_crit
+    rig = sampled_rig(spec.params, worst, spec.control_dt)
+    for kind in ("pi_upper", "pi_lower"):
+        for kp in np.geomspace(0.01, 10.0, 7):
+            for ki in np.geomspace(0.01, 30.0, 7):
+                res = evaluate_design(make_controller(kind, spec, {"kp": kp, "ki": ki}), [rig])
+                assert res[0].decay_rate < 0.0, (kind, kp, ki)
+    gains = load_gains()["presets"][preset]
+    for kind in ("torque_feedback", "lqi"):
+        rec = gains[kind]
+        assert rec["design_set"] == "envelope" and rec["envelope_decay_rate"] > 0.0
+        assert rec["max_noise_v"] <= 0.05 + 1e-6
+        res = evaluate_design(make_controller(kind, spec, rec["gains"]), [rig])
+        assert res[0].decay_rate > 0.0
+
+
+def test_committed_gains_are_reproduced_by_the_procedure(spec_brake):
+    committed = load_gains()["presets"]["brake"]
+    for kind in ("pi_upper", "lqi"):
+        fresh = tune(kind, spec_brake)
+        for name, value in committed[kind]["gains"].items():
+            assert fresh.gains[name] == pytest.approx(value, rel=1e-3), (kind, name)
+
+
+@pytest.mark.slow
+def test_all_committed_gains_are_reproduced():
+    from agents.tuning import tune_all
+
+    fresh = tune_all()
+    committed = load_gains()
+    for preset, kinds in committed["presets"].items():
+        for kind, rec in kinds.items():
+            for name, value in rec["gains"].items():
+                assert fresh["presets"][preset][kind]["gains"][name] == pytest.approx(value, rel=1e-3)
+
+
+# -- evaluation ----------------------------------------------------------------------------------
+
+
+def test_suppression_hand_computed():
+    assert suppression(1.0, 4.0) == pytest.approx(0.75)
+    assert suppression(0.0, 2.5) == 1.0
+    assert suppression(5.0, 2.5) == pytest.approx(-1.0)
+    assert math.isnan(suppression(0.3, 0.0))  # no predicted cycle: undefined
+    with pytest.raises(ValueError, match="amplitude"):
+        suppression(-1.0, 2.0)
+    with pytest.raises(ValueError, match="open_loop_amplitude"):
+        suppression(1.0, math.nan)
+
+
+def test_metrics_of_a_hand_computed_run(spec_brake):
+    """A constant voltage below uc1 keeps the rig stuck at rest: every metric is known."""
+
+    class Zero(Controller):
+        name = "zero"
+
+        def control(self, y, state):
+            return np.zeros(y.shape[0]), state
+
+    m = evaluate(Zero(spec_brake), "brake", 0.2, 0, SHORT)
+    w = design_point(spec_brake.params, voltage=0.2).x3
+    assert m.amplitude == 0.0 and m.mean_speed == 0.0 and m.stick_fraction == 1.0
+    assert m.rms_error == pytest.approx(w, rel=1e-9)
+    assert m.u_mean_abs == 0.0 and m.u_peak_abs == 0.0 and m.u_limit_fraction == 0.0
+    assert m.open_loop_amplitude == 0.0 and math.isnan(m.suppression)
+
+
+@pytest.mark.parametrize(
+    ("preset", "voltage"), [("brake", 1.0), ("brake", 2.0), ("no_brake", 1.0), ("no_brake", 1.5)]
+)
+def test_open_loop_suppression_is_zero_where_a_cycle_is_predicted(preset, voltage):
+    env = make_env(preset, EpisodeSettings())
+    m = evaluate(OpenLoop(ControllerSpec.from_env(env)), preset, voltage, 0, EpisodeSettings(), env=env)
+    assert m.open_loop_amplitude > 0.5
+    assert abs(m.suppression) < 0.01
+    assert m.x3_max == pytest.approx(m.open_loop_amplitude + m.x3_min, rel=0.01)
+
+
+def test_same_seed_same_start_for_every_controller():
+    env = make_env("brake", SHORT)
+    starts = []
+    for name in CLASSICAL:
+        ctrl = build_controller(name, env, "brake")
+        traj = run_episode(env, ctrl, seed=11, n_steps=1, options={"nominal_voltage": 2.0})
+        starts.append(traj.reset_info["true_state"])
+    for s in starts[1:]:
+        np.testing.assert_array_equal(s, starts[0])
+    a = evaluate(build_controller("lqi", env, "brake"), "brake", 2.0, 5, SHORT, env=env)
+    b = evaluate(build_controller("lqi", env, "brake"), "brake", 2.0, 5, SHORT)
+    assert a.amplitude == b.amplitude and a.episode_return == b.episode_return
+
+
+def test_episode_settings_validate():
+    with pytest.raises(ValueError, match="window"):
+        EpisodeSettings(duration=10.0, window=20.0)
+    with pytest.raises(ValueError, match="duration"):
+        EpisodeSettings(duration=-1.0)
+    with pytest.raises(ValueError, match="env_kwargs"):
+        EpisodeSettings(env_kwargs={"warmup_time": 3.0})
+    with pytest.raises(ValueError, match="voltage"):
+        evaluate(OpenLoop(ControllerSpec.default()), "brake", 7.0, 0, SHORT)
+    with pytest.raises(ValueError, match="preset"):
+        make_env("icy", SHORT)
