@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -39,7 +38,7 @@ def simulate(
     voltage: float = typer.Option(2.0, help="Constant amplifier input voltage u [V]."),
     duration: float = typer.Option(300.0, help="Simulated time [s]."),
     dt: float = typer.Option(0.01, help="Output sample period [s]."),
-    out: Optional[Path] = typer.Option(None, help="CSV file to write (t,u,theta_u,...)."),
+    out: Path | None = typer.Option(None, help="CSV file to write (t,u,theta_u,...)."),
     no_voltage_limit: bool = typer.Option(
         False, "--no-voltage-limit", help="Lift the rig's +-5 V amplifier limit (analysis only)."
     ),

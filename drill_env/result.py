@@ -19,7 +19,6 @@ from drill_env.kernel import (
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
 
-    from drill_env.params import RigParams
 
 __all__ = ["EventLog", "SimulationResult", "CSV_COLUMNS", "MODE_NAMES"]
 
@@ -44,7 +43,7 @@ class EventLog:
     def kinds(self) -> list[str]:
         return [
             f"{DISK_NAMES[int(d)]} {MODE_NAMES[int(a)]}->{MODE_NAMES[int(b)]}"
-            for d, a, b in zip(self.disk, self.mode_before, self.mode_after)
+            for d, a, b in zip(self.disk, self.mode_before, self.mode_after, strict=True)
         ]
 
     def to_pandas(self) -> pd.DataFrame:

@@ -72,7 +72,7 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
                 raise ValueError(
                     f"x0: expected 3 values (x1, x2, x3) or 4 (theta_u, theta_l, x2, x3), got {arr.size}"
                 )
-        for name, v in zip(("x1", "x2", "x3", "theta_l"), vals[:4]):
+        for name, v in zip(("x1", "x2", "x3", "theta_l"), vals[:4], strict=True):
             if not math.isfinite(v):
                 raise ValueError(f"x0.{name}: must be finite, got {v!r}")
         y[: len(vals)] = vals
