@@ -34,20 +34,20 @@ def register(app: typer.Typer) -> None:
             None, help="Comma-separated subset of open_loop,pi_upper,pi_lower,torque_feedback,lqi,ppo,sac."
         ),
         voltages: str | None = typer.Option(
-            None, help="Comma-separated nominal voltages [V] (replace the grid)."
+            None, help="Comma-separated nominal voltages in V (replace the grid)."
         ),
         seeds: int | None = typer.Option(None, help="Number of seeds per operating point (0, 1, ...)."),
-        duration: float = typer.Option(90.0, help="Closed-loop time per run [s]."),
-        window: float = typer.Option(20.0, help="Steady-state window at the end of each run [s]."),
+        duration: float = typer.Option(90.0, help="Closed-loop time per run (s)."),
+        window: float = typer.Option(20.0, help="Steady-state window at the end of each run (s)."),
         warmup: float = typer.Option(
-            60.0, help="Open-loop warm-up before the controller is switched on [s]."
+            60.0, help="Open-loop warm-up before the controller is switched on (s)."
         ),
         backend: str = typer.Option("process", help="process (local pool), sequential or ray."),
-        workers: int | None = typer.Option(None, help="Parallel workers [number of CPUs]."),
+        workers: int | None = typer.Option(None, help="Parallel workers (default: the number of CPUs)."),
         ray_address: str | None = typer.Option(
             None, help="Ray cluster address (default: a local Ray instance)."
         ),
-        agents_dir: Path | None = typer.Option(None, help="Trained policies [results/agents]."),
+        agents_dir: Path | None = typer.Option(None, help="Trained policies (default: results/agents)."),
         fresh: bool = typer.Option(
             False, "--fresh", help="Discard results already in OUT instead of resuming."
         ),

@@ -23,10 +23,11 @@ def register(app: typer.Typer) -> None:
         out: Path | None = typer.Option(
             None,
             help="Where the policy, config, summary and learning curve go "
-            "[results/agents/ALGO; results/agents/ALGO_no_brake for DrillStringNoBrake-v0].",
+            "(default: results/agents/ALGO, or results/agents/ALGO_no_brake for DrillStringNoBrake-v0).",
         ),
         run_dir: Path | None = typer.Option(
-            None, help="Where the CSV and TensorBoard logs and the final policy go [runs/train/ALGO_seedN]."
+            None,
+            help="Where the CSV and TensorBoard logs and the final policy go (default: runs/train/ALGO_seedN).",
         ),
         total_timesteps: int | None = typer.Option(None, help="Override the config's total_timesteps."),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),

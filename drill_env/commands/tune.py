@@ -20,7 +20,7 @@ def register(app: typer.Typer) -> None:
             help="YAML file for the tuned gains and the tuning record.",
         ),
         preset: list[str] = typer.Option(["brake", "no_brake"], help="Rig preset(s) to tune for."),
-        control_dt: float = typer.Option(0.05, help="Control period of the environment [s]."),
+        control_dt: float = typer.Option(0.05, help="Control period of the environment (s)."),
     ) -> None:
         """Tune PI (upper, lower), torque feedback and LQI by the procedure of agents.tuning.
 
