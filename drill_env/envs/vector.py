@@ -234,14 +234,8 @@ class DrillStringVectorEnv(VectorEnv):
         return list(self._points)
 
     # -- internals -------------------------------------------------------------------------------
-    def _reset_rigs(self, mask: np.ndarray, opts: Mapping[str, Any]) -> None:
-        s = self.settings
-        idx = np.flatnonzero(mask)
-        setups = {}
-        for i in idx:
-            setup = s.draw_episode(self._rngs[i], opts)
-            setups[i] = setup
-            self._load(i, setup)
+    def _batch_reset(self, mask: np.ndarray) -> None:
+        """Put the rigs with ``mask`` at the start of their (already drawn) episodes."""
         C.batch_reset(
             self._P,
             self._Y,
@@ -263,6 +257,16 @@ class DrillStringVectorEnv(VectorEnv):
             self._MBUF,
             self._UBUF,
         )
+
+    def _reset_rigs(self, mask: np.ndarray, opts: Mapping[str, Any]) -> None:
+        s = self.settings
+        idx = np.flatnonzero(mask)
+        setups = {}
+        for i in idx:
+            setup = s.draw_episode(self._rngs[i], opts)
+            setups[i] = setup
+            self._load(i, setup)
+        self._batch_reset(mask)
         # Same retry rule as the single env: a failed warm-up is redrawn from the rig's generator.
         for i in idx:
             for _ in range(MAX_WARMUP_RETRIES):
@@ -272,27 +276,7 @@ class DrillStringVectorEnv(VectorEnv):
                 self._RNG[i] = setups[i].rng
                 one = np.zeros(self.num_envs, dtype=bool)
                 one[i] = True
-                C.batch_reset(
-                    self._P,
-                    self._Y,
-                    self._MODES,
-                    self._EP,
-                    self._ecfg,
-                    self._SCFG,
-                    self._SST,
-                    self._RNG,
-                    self._Y0,
-                    self._START,
-                    self._WARM,
-                    self._TARGET,
-                    self._UNOM,
-                    one,
-                    self._OBS,
-                    self._OUT,
-                    self._YBUF,
-                    self._MBUF,
-                    self._UBUF,
-                )
+                self._batch_reset(one)
             if self._EP[i, C.EP_STATUS] != 0:
                 raise RuntimeError(
                     f"reset: rig {i}: the warm-up simulation failed: {STATUS_MESSAGES[int(self._EP[i, C.EP_STATUS])]}"
