@@ -30,6 +30,7 @@ whole arrays of angles, e.g. to turn a simulated trajectory into measured-like d
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -120,17 +121,7 @@ class SensorConfig:
     @classmethod
     def from_any(cls, value: SensorConfig | dict[str, Any] | None, *, name: str = "sensors") -> SensorConfig:
         """A config from an instance, a mapping of field overrides, or None (defaults)."""
-        if value is None:
-            return cls()
-        if isinstance(value, cls):
-            return value
-        if isinstance(value, dict):
-            allowed = {f.name for f in fields(cls)}
-            unknown = sorted(set(value) - allowed)
-            if unknown:
-                raise ValueError(f"{name}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-            return cls(**value)
-        raise ValueError(f"{name}: expected SensorConfig, a dict or None, got {type(value).__name__}")
+        return config_from_any(cls, value, name)
 
     @property
     def sample_period(self) -> float:
@@ -160,6 +151,22 @@ class SensorConfig:
         c[C_INV_RES] = 0.0 if self.counts_per_rev is None else self.counts_per_rev / (2.0 * math.pi)
         c[C_INV_TS] = self.sample_rate_hz
         return c
+
+
+def config_from_any(cls, value, name):
+    """A frozen config dataclass ``cls`` from an instance, a mapping of field overrides, or
+    None (defaults); an unknown key or another type is a ValueError naming ``name``."""
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        allowed = {f.name for f in fields(cls)}
+        unknown = sorted(set(value) - allowed)
+        if unknown:
+            raise ValueError(f"{name}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        return cls(**value)
+    raise ValueError(f"{name}: expected {cls.__name__}, a dict or None, got {type(value).__name__}")
 
 
 def _check_float(name, value, lo, hi, *, lo_incl=True, hi_incl=True, hint=""):

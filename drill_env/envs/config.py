@@ -33,7 +33,7 @@ from drill_env.envs.task import (
     equilibrium_state,
 )
 from drill_env.params import ParameterError, RigParams, resolve_params
-from drill_env.sensors import SensorConfig, rng_state
+from drill_env.sensors import SensorConfig, config_from_any, rng_state
 from drill_env.simulator import DEFAULT_ATOL, DEFAULT_RTOL
 
 __all__ = [
@@ -121,20 +121,6 @@ def _number(name: str, value: Any, lo: float, hi: float = math.inf, *, lo_incl: 
     return v
 
 
-def _from_mapping(cls, value, name):
-    if value is None:
-        return cls()
-    if isinstance(value, cls):
-        return value
-    if isinstance(value, Mapping):
-        allowed = {f.name for f in fields(cls)}
-        unknown = sorted(set(value) - allowed)
-        if unknown:
-            raise ValueError(f"{name}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-        return cls(**value)
-    raise ValueError(f"{name}: expected {cls.__name__}, a dict or None, got {type(value).__name__}")
-
-
 @dataclass(frozen=True)
 class RewardWeights:
     """Weights of the reward terms; reward = -(sum of weight * term), see the env docstring."""
@@ -218,7 +204,7 @@ class DomainRandomization:
             return None
         if value is True:
             return cls()
-        return _from_mapping(cls, value, "domain_randomization")
+        return config_from_any(cls, value, "domain_randomization")
 
 
 @dataclass(frozen=True)
@@ -277,7 +263,7 @@ class EnvSettings:
         self.start = start
         self.warmup_time = _number("warmup_time", warmup_time, 0.0, 3600.0)
         self.warmup_jitter = _number("warmup_jitter", warmup_jitter, 0.0, 3600.0)
-        self.reward_weights = _from_mapping(RewardWeights, reward_weights, "reward_weights")
+        self.reward_weights = config_from_any(RewardWeights, reward_weights, "reward_weights")
         self.randomization = DomainRandomization.from_any(domain_randomization)
         if action_mode not in ("normalized", "voltage"):
             raise ValueError(f"action_mode: {action_mode!r} is not one of ['normalized', 'voltage']")
