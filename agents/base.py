@@ -92,11 +92,14 @@ class ControllerSpec:
             )
         from drill_env.envs import _core as C
 
-        scales = settings.ecfg[C.EC_SCALE : C.EC_SCALE + C.NOBS]
+        n_obs = getattr(settings, "n_obs", C.NOBS_V0)
+        scales = settings.ecfg[C.EC_SCALE : C.EC_SCALE + n_obs]
+        names = getattr(settings, "observation_names", OBSERVATION_NAMES)
         spec = getattr(env, "spec", None)
         return cls(
             params=settings.params,
             control_dt=settings.control_dt,
+            observation_names=tuple(names),
             observation_scales=tuple(float(s) for s in scales),
             action_to_volts=float(settings.action_to_volts),
             sensors=settings.sensors,

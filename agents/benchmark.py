@@ -12,7 +12,9 @@ sensor noise at the same key. Runs execute
 each finished run is appended to ``DIR/benchmark.csv`` at once, so an interrupted
 benchmark resumes where it stopped: runs whose key is already in the CSV (without an
 error) are skipped. ``DIR/benchmark_config.json`` records the episode settings; resuming
-with different ones is refused.
+with different ones is refused. One benchmark at a time writes into ``DIR``: it holds
+``DIR/.drill-env.lock`` for the whole run (see :mod:`drill_env.outputs`), and a second one
+started on the same folder stops at once with an error naming the first.
 
 At the end the CSV is rewritten in grid order and the report is made from it:
 ``summary.md`` (a table per preset and regime, and the suppression at every voltage),
@@ -36,6 +38,7 @@ import numpy as np
 
 from agents.evaluation import METRIC_COLUMNS, EpisodeSettings
 from agents.registry import CONTROLLERS
+from drill_env.outputs import atomic_file, atomic_write_text, output_lock
 
 __all__ = [
     "BACKENDS",
@@ -170,15 +173,16 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
     """Evaluate one job; environments and controllers are cached per process. An exception
     becomes a row with NaN metrics and the message in ``error``."""
     from agents.evaluation import evaluate, make_env
-    from agents.registry import build_controller
+    from agents.registry import build_controller, observation_version
 
     t0 = time.perf_counter()
     try:
         # cached per process, keyed by everything they are built from
-        env_key = (job.preset, json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str))
+        version = observation_version(job.controller, job.preset, cfg.agents_dir)
+        env_key = (job.preset, version, json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str))
         env = _ENVS.get(env_key)
         if env is None:
-            env = _ENVS[env_key] = make_env(job.preset, cfg.episode)
+            env = _ENVS[env_key] = make_env(job.preset, cfg.episode, version)
         ctrl_key = (job.controller, *env_key, cfg.agents_dir, cfg.gains_file)
         ctrl = _CONTROLLERS.get(ctrl_key)
         if ctrl is None:
@@ -285,14 +289,29 @@ def run_benchmark(
 ) -> Path:
     """Run (or resume) the benchmark into ``out_dir``; returns the CSV path.
 
-    ``progress(done, total, row)`` is called after every finished run.
+    ``progress(done, total, row)`` is called after every finished run. The folder is held
+    for the whole run (:func:`drill_env.outputs.output_lock`): another benchmark on it raises
+    :class:`drill_env.outputs.OutputFolderBusy` (a ValueError) before touching anything.
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend: {backend!r} is not one of {list(BACKENDS)}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers: expected an integer >= 1, got {workers!r}")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    with output_lock(out, "benchmark"):
+        return _run_benchmark(cfg, out, backend, workers, ray_address, fresh, progress, report)
+
+
+def _run_benchmark(
+    cfg: BenchmarkConfig,
+    out: Path,
+    backend: str,
+    workers: int | None,
+    ray_address: str | None,
+    fresh: bool,
+    progress: Callable[[int, int, dict[str, Any]], None] | None,
+    report: bool,
+) -> Path:
     csv_path = out / "benchmark.csv"
     cfg_path = out / "benchmark_config.json"
     record = cfg.settings_record()
@@ -315,7 +334,7 @@ def run_benchmark(
         seeds=list(cfg.seeds),
         policies=_policies_used(cfg),
     )
-    cfg_path.write_text(json.dumps(full_record, indent=2) + "\n")
+    atomic_write_text(cfg_path, json.dumps(full_record, indent=2) + "\n")
     done = _done_keys(csv_path)
     all_jobs = cfg.jobs()
     todo = [j for j in all_jobs if j.key not in done]
@@ -344,7 +363,12 @@ def run_benchmark(
                 _run_ray(todo, cfg, workers, ray_address, finish)
     finally:
         writer.close()
-    _rewrite_sorted(csv_path, cfg)
+    missing = {j.key for j in all_jobs} - _rewrite_sorted(csv_path, cfg)
+    if missing:  # only if something bypassed the lock
+        raise RuntimeError(
+            f"{csv_path}: {len(missing)} of {total} runs are missing after the benchmark "
+            f"(e.g. {sorted(missing)[0]}); was the file changed by another process?"
+        )
     if report:
         write_report(csv_path, out)
     return csv_path
@@ -425,23 +449,23 @@ def _run_ray(todo: list[Job], cfg: BenchmarkConfig, workers: int | None, address
             ray.shutdown()
 
 
-def _rewrite_sorted(csv_path: Path, cfg: BenchmarkConfig) -> None:
-    """Rewrite the CSV in grid order, the last row of every key kept."""
+def _rewrite_sorted(csv_path: Path, cfg: BenchmarkConfig) -> set[tuple[str, str, float, int]]:
+    """Rewrite the CSV in grid order, the last row of every key kept; returns the keys."""
     df = load_results(csv_path)
     df["_key"] = [_key_of_row(r) for r in df.to_dict("records")]
     df = df.drop_duplicates("_key", keep="last")
+    df_keys = list(df["_key"])
     order_c = {c: i for i, c in enumerate(CONTROLLERS)}
     order_p = {p: i for i, p in enumerate(("brake", "no_brake"))}
     df["_c"] = df["controller"].map(order_c)
     df["_p"] = df["preset"].map(order_p)
     df = df.sort_values(["_p", "voltage", "seed", "_c"]).drop(columns=["_key", "_c", "_p"])
-    tmp = csv_path.with_suffix(".csv.tmp")
-    with open(tmp, "w", newline="") as f:
+    with atomic_file(csv_path, "w", newline="") as f:  # a temporary file of its own, then one replace
         w = csv.DictWriter(f, fieldnames=list(COLUMNS))
         w.writeheader()
         for row in df.to_dict("records"):
             w.writerow({c: _fmt(row[c]) for c in COLUMNS})
-    tmp.replace(csv_path)
+    return set(df_keys)
 
 
 # -- report ----------------------------------------------------------------------------------------
@@ -552,7 +576,7 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
     if cfg_path.is_file():
         notes = json.loads(cfg_path.read_text()).get("policies")
     paths = [out / "summary.md"]
-    paths[0].write_text(summary_tables(df, notes) + "\n")
+    atomic_write_text(paths[0], summary_tables(df, notes) + "\n")
     for preset in [p for p in ("brake", "no_brake") if p in set(df["preset"])]:
         paths += _figures(df[(df["preset"] == preset) & (df["error"] == "")], preset, out)
     return paths

@@ -46,7 +46,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.base import PolicyPredictor
-from drill_env.envs import ENV_IDS
+from drill_env.envs import ENV_IDS, ENV_VERSIONS
 from drill_env.envs.task import VOLTAGE_LIMIT
 from drill_env.metrics import stick_slip_metrics
 
@@ -62,15 +62,23 @@ __all__ = [
     "suppression",
 ]
 
-PRESET_ENV_IDS = {preset: env_id for env_id, preset in ENV_IDS.items()}
+# The registered id of each preset and observation version (classical controllers run on
+# version 0; a learned policy on the version it was trained on, see agents.registry).
+ENV_ID_OF = {(preset, ENV_VERSIONS[env_id]): env_id for env_id, preset in ENV_IDS.items()}
+PRESET_ENV_IDS = {preset: env_id for (preset, version), env_id in ENV_ID_OF.items() if version == 0}
 LIMIT_TOL = 1e-6  # [V] a voltage within this of +-5 V counts as at the limit
 
 
-def env_id_of(preset: str) -> str:
-    """The registered environment of a preset (``brake`` -> ``DrillString-v0``)."""
+def env_id_of(preset: str, observation_version: int = 0) -> str:
+    """The registered environment of a preset and observation version
+    (``brake`` -> ``DrillString-v0``, ``("brake", 1)`` -> ``DrillString-v1``)."""
     if preset not in PRESET_ENV_IDS:
         raise ValueError(f"preset: {preset!r} is not one of {sorted(PRESET_ENV_IDS)}")
-    return PRESET_ENV_IDS[preset]
+    key = (preset, observation_version)
+    if key not in ENV_ID_OF:
+        versions = sorted(v for p, v in ENV_ID_OF if p == preset)
+        raise ValueError(f"observation_version: {observation_version!r} is not one of {versions}")
+    return ENV_ID_OF[key]
 
 
 def _positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
@@ -119,10 +127,12 @@ class EpisodeSettings:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-def make_env(preset: str, settings: EpisodeSettings) -> gym.Env:
-    """The registered environment of ``preset`` configured for evaluation episodes."""
+def make_env(preset: str, settings: EpisodeSettings, observation_version: int = 0) -> gym.Env:
+    """The registered environment of ``preset`` (observation version ``observation_version``)
+    configured for evaluation episodes. The versions differ only in what is observed: the
+    same seed gives the same episode."""
     env = gym.make(
-        env_id_of(preset),
+        env_id_of(preset, observation_version),
         max_episode_steps=10**9,  # the evaluation decides the length
         warmup_time=settings.warmup_time,
         warmup_jitter=settings.warmup_jitter,

@@ -5,9 +5,12 @@ from their committed policies.
   environment's :class:`~agents.base.ControllerSpec` with the gains that
   ``drill-env tune`` wrote to ``configs/agents/controllers.yaml`` for the preset;
 * ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
-  ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v0``, the braked rig;
+  ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v1``, the braked rig;
   a policy trained on the rig without brake, ``results/agents/<algo>_no_brake/``, is used
-  for that preset when present, else the braked rig's policy is run as it is).
+  for that preset when present, else the braked rig's policy is run as it is). Each runs
+  on the observation version it was trained on (:func:`observation_version`), so the
+  version-0 policies of ``results/agents/v0/`` are evaluated with ``agents_dir`` pointing
+  there.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ __all__ = [
     "default_agents_dir",
     "gains_path",
     "load_gains",
+    "observation_version",
     "policy_path",
 ]
 
@@ -124,3 +128,16 @@ def build_controller(
         policy.check_env(env)
         return policy
     raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")
+
+
+def observation_version(name: str, preset: str, agents_dir: str | Path | None = None) -> int:
+    """The observation version of the environment controller ``name`` runs on: 0 for the
+    classical controllers (they read the version-0 entries, which every version starts with),
+    and for a learned policy the version it was trained on, from its observation space."""
+    if name in CLASSICAL:
+        return 0
+    if name not in LEARNED:
+        raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")
+    from agents.rl import policy_observation_version
+
+    return policy_observation_version(policy_path(name, preset, agents_dir))

@@ -6,7 +6,9 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     algo: ppo                       # ppo or sac
     env_id: DrillString-v0
     env_kwargs: {}                  # DrillStringEnv arguments
-    n_envs: 8                       # parallel rigs (SB3 DummyVecEnv)
+    n_envs: 64                      # parallel rigs
+    vec_env: native                 # native: all rigs in one compiled call (drill_env.sb3_vec_env);
+                                    # dummy: SB3's DummyVecEnv of single envs (same results, slower)
     total_timesteps: 2000000
     normalize_reward: true          # VecNormalize on the reward only (nothing needed at inference)
     torch_threads: 1
@@ -53,12 +55,15 @@ __all__ = [
     "SB3Policy",
     "load_config",
     "load_policy",
+    "policy_observation_version",
     "plateau",
     "train",
     "evaluation_episodes",
+    "make_train_vec_env",
 ]
 
 ALGOS = ("ppo", "sac")
+VEC_ENVS = ("native", "dummy")
 
 
 def _algo_class(algo: str):
@@ -92,6 +97,7 @@ class TrainConfig:
     env_id: str = "DrillString-v0"
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     n_envs: int = 1
+    vec_env: str = "native"
     total_timesteps: int = 100_000
     normalize_reward: bool = False
     torch_threads: int = 1
@@ -108,6 +114,8 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{name}: expected an integer >= {lo}, got {v!r}")
+        if self.vec_env not in VEC_ENVS:
+            raise ValueError(f"vec_env: {self.vec_env!r} is not one of {list(VEC_ENVS)}")
         if not isinstance(self.normalize_reward, bool):
             raise ValueError(f"normalize_reward: expected true or false, got {self.normalize_reward!r}")
         if not isinstance(self.env_kwargs, Mapping):
@@ -152,6 +160,7 @@ class TrainConfig:
             "env_id": self.env_id,
             "env_kwargs": dict(self.env_kwargs),
             "n_envs": self.n_envs,
+            "vec_env": self.vec_env,
             "total_timesteps": self.total_timesteps,
             "normalize_reward": self.normalize_reward,
             "torch_threads": self.torch_threads,
@@ -238,6 +247,33 @@ def load_policy(path: str | Path, algo: str | None = None, name: str | None = No
     torch.set_num_threads(1)
     model = _algo_class(algo).load(str(path), device="cpu")
     return SB3Policy(model, name or algo, str(path))
+
+
+def policy_observation_version(path: str | Path) -> int:
+    """The observation version (see ``drill_env.envs.config.OBSERVATION_VERSIONS``) a saved
+    policy was trained on, read from the observation space stored in its zip (the policy
+    itself is not loaded)."""
+    import zipfile
+
+    from drill_env.envs import _core as C
+    from drill_env.envs.config import OBSERVATION_VERSIONS
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"policy: no such file {str(path)!r}")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            data = json.loads(zf.read("data"))
+        shape = tuple(data["observation_space"]["_shape"])
+    except (zipfile.BadZipFile, KeyError, ValueError, TypeError) as exc:
+        raise ValueError(f"policy: {path} is not a stable-baselines3 model ({exc})") from None
+    for v in OBSERVATION_VERSIONS:
+        if shape == (C.n_obs(v),):
+            return v
+    sizes = {v: C.n_obs(v) for v in OBSERVATION_VERSIONS}
+    raise ValueError(
+        f"policy: {path} observes {shape}, not the observation of any env version (entries per version: {sizes})"
+    )
 
 
 # -- training -------------------------------------------------------------------------------------
@@ -347,6 +383,22 @@ def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
     return out
 
 
+def make_train_vec_env(cfg: TrainConfig, seed: int):
+    """The training rigs of ``cfg``: ``cfg.n_envs`` envs of ``cfg.env_id`` seeded ``seed, seed + 1, ...``
+    with episode statistics (``rollout/ep_rew_mean``), as SB3's native batched adapter
+    (``vec_env: native``) or a ``DummyVecEnv`` of Monitor-wrapped single envs (``dummy``).
+    Both give the same episodes for the same seed and actions."""
+    if cfg.vec_env == "native":
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        from drill_env.envs.sb3 import sb3_vec_env
+
+        return VecMonitor(sb3_vec_env(cfg.env_id, cfg.n_envs, seed=seed, **cfg.env_kwargs))
+    from stable_baselines3.common.env_util import make_vec_env
+
+    return make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs))
+
+
 def train(
     cfg: TrainConfig,
     seed: int,
@@ -363,7 +415,6 @@ def train(
     import stable_baselines3
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -373,7 +424,7 @@ def train(
     out_dir.mkdir(parents=True, exist_ok=True)
     run_dir.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(cfg.torch_threads)
-    venv = make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs))
+    venv = make_train_vec_env(cfg, seed)
     if cfg.normalize_reward:
         gamma = float(cfg.hyperparameters.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=gamma)

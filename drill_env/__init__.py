@@ -25,6 +25,17 @@ from drill_env.simulator import simulate, simulate_batch  # noqa: E402
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name: str):
+    # Lazy: drill_env.envs.sb3 imports Stable-Baselines3 and torch (about 1 s), not needed
+    # by `import drill_env`.
+    if name == "sb3_vec_env":
+        from drill_env.envs.sb3 import sb3_vec_env
+
+        return sb3_vec_env
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
     "ModelEffects",
     "ParameterError",
@@ -36,4 +47,5 @@ __all__ = [
     "resolve_params",
     "simulate",
     "simulate_batch",
+    "sb3_vec_env",
 ]

@@ -1,8 +1,8 @@
 """Dormand–Prince 8(5,3) steps with 7th-order dense output, compiled.
 
 The method and its coefficients are those of Hairer, Norsett & Wanner, *Solving
-Ordinary Differential Equations I* (DOP853), taken from SciPy's tables so that the
-two implementations can be compared one to one. Within one friction mode the rig's
+Ordinary Differential Equations I* (DOP853), tabulated in :mod:`drill_env._dop853` in
+SciPy's arrangement so that the two implementations can be compared one to one. Within one friction mode the rig's
 vector field is analytic, so a high-order method takes long steps; the dense output
 serves both the sampling of the solution and the location of switching events.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
-from scipy.integrate._ivp import dop853_coefficients as _dop
 
+from drill_env import _dop853 as _dop
 from drill_env import _layout as L
 from drill_env.dynamics import n_active, rhs
 

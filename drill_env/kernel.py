@@ -43,7 +43,9 @@ from drill_env.integrator import (
     ERR_MASK,
     INTERP,
     N_EXT,
+    N_STAGES,
     ORDER_EXP,
+    C,
     dense_component,
     dense_eval,
     input_at,
@@ -63,18 +65,25 @@ STATUS_MESSAGES = {
     1: "The maximum number of steps was reached before the end.",
     2: "The step size fell below its minimum (the vector field may be non-finite).",
     3: "Switching events repeated at one instant (chattering); integration stopped.",
-    4: "The input voltage function returned a non-finite value.",
+    4: "The input voltage was not a finite number (the input function failed or returned NaN/inf).",
 }
 
 # Slots of the stats vector returned by the kernels.
-ST_STEPS, ST_REJECTED, ST_RHS, ST_EVENTS, ST_STATUS, ST_H, ST_T, ST_LOGGED = range(8)
-N_STATS = 8
+ST_STEPS, ST_REJECTED, ST_RHS, ST_EVENTS, ST_STATUS, ST_H, ST_T, ST_LOGGED, ST_BAD_T = range(9)
+N_STATS = 9
 
 EVENT_TIME_TOL = 1e-12  # [s] width of the bracket that locates an event
 SIMULTANEOUS_TOL = 1e-10  # [s] events closer than this are handled at one instant
 MAX_EVENTS_AT_ONE_INSTANT = 12
 H_MIN = 1e-12  # [s]
 H_MAX = 1.0  # [s]
+# While a disk sticks under a time-varying input or torque (a function u(t), the external
+# torque effect, friction drift), the vector field can be zero and the error control
+# would let steps grow to H_MAX: steps are bounded by this, and the exit condition of
+# every stuck disk is sampled STUCK_SAMPLES times inside each step (and its largest value
+# refined), so a breakaway is found however briefly the load leaves the band.
+STUCK_H_MAX = 0.01  # [s]
+STUCK_SAMPLES = 8
 
 
 # The voltage as a function of time reaches the compiled code as a C function pointer of
@@ -161,6 +170,84 @@ def _speed_dip(j, mode, y, F, ytmp):
 
 
 @nb.njit(**_JIT)
+def _stuck_violation(disk, p, t, h, c, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp):
+    dense_eval(c, y, F, ytmp)
+    tc = t + c * h
+    return _violation(disk, p, tc, ytmp, input_at(tc, u_seg, u_func, use_func, u_limit), mu, ml)
+
+
+@nb.njit(**_JIT)
+def _stuck_exit(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp):
+    """Fraction of the step at which a stuck disk's load is outside its band, if anywhere
+    inside the step, else 2.0 (the step's end points are checked by the caller).
+
+    The exit condition is sampled at STUCK_SAMPLES - 1 interior points of the dense
+    output. If none is outside the band but the largest sample is interior and close
+    enough to the edge that the load may have left the band and come back between two
+    samples, that maximum is refined by golden-section search.
+    """
+    n = STUCK_SAMPLES
+    g_prev = _stuck_violation(disk, p, t, h, 0.0, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+    best = g_prev
+    i_best = 0
+    rise = 0.0  # largest change between neighbouring samples next to the maximum
+    for i in range(1, n + 1):
+        g = _stuck_violation(disk, p, t, h, i / n, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+        if g > 0.0 and i < n:
+            return i / n
+        if not math.isfinite(g):
+            return 2.0  # the step's own checks report non-finite values
+        if g > best:
+            best = g
+            i_best = i
+            rise = abs(g - g_prev)
+        elif i == i_best + 1:
+            rise = max(rise, abs(g - g_prev))
+        g_prev = g
+    if i_best == 0 or i_best == n or best + 2.0 * rise < 0.0:
+        return 2.0  # the largest value is at an end of the step, or far inside the band
+    gr = 0.6180339887498949
+    a = (i_best - 1) / n
+    b = (i_best + 1) / n
+    c = b - gr * (b - a)
+    d = a + gr * (b - a)
+    fc = _stuck_violation(disk, p, t, h, c, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+    fd = _stuck_violation(disk, p, t, h, d, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+    for _ in range(100):
+        if fc > 0.0:
+            return c
+        if fd > 0.0:
+            return d
+        if (b - a) * abs(h) < 1e3 * EVENT_TIME_TOL:
+            break
+        if fc > fd:
+            b = d
+            d = c
+            fd = fc
+            c = b - gr * (b - a)
+            fc = _stuck_violation(disk, p, t, h, c, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+        else:
+            a = c
+            c = d
+            fc = fd
+            d = a + gr * (b - a)
+            fd = _stuck_violation(disk, p, t, h, d, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+    return 2.0
+
+
+@nb.njit(**_JIT)
+def _bad_input_time(t, h, us, u_func, use_func, u_limit):
+    """First stage time of a step at which the input is not finite, else NaN."""
+    for s in range(N_STAGES):
+        ts = t + C[s] * h
+        if not math.isfinite(input_at(ts, us, u_func, use_func, u_limit)):
+            return ts
+    if not math.isfinite(input_at(t + h, us, u_func, use_func, u_limit)):
+        return t + h
+    return math.nan
+
+
+@nb.njit(**_JIT)
 def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp, b0):
     """Fraction of the step at which ``disk``'s violation first becomes >= 0 (Illinois).
 
@@ -202,7 +289,11 @@ def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp,
         if (b - a) * abs(h) <= EVENT_TIME_TOL:
             break
         c = (a * gb - b * ga) / (gb - ga)
-        if not (a < c < b) or (c - a) * abs(h) < 0.25 * EVENT_TIME_TOL or (b - c) * abs(h) < 0.25 * EVENT_TIME_TOL:
+        if (
+            not (a < c < b)
+            or (c - a) * abs(h) < 0.25 * EVENT_TIME_TOL
+            or (b - c) * abs(h) < 0.25 * EVENT_TIME_TOL
+        ):
             c = 0.5 * (a + b)
         dense_eval(c, y, F, ytmp)
         tc = t + c * h
@@ -322,8 +413,29 @@ def run(
     """
     work = np.empty((WORK_ROWS, L.NY))
     return run_ws(
-        p, y, modes, seg_t, seg_u, u_func, use_func, u_limit, t_out, rtol, atol, h_init, max_steps,
-        Y_out, M_out, U_out, ev_t, ev_disk, ev_from, ev_to, ev_y, stats, work,
+        p,
+        y,
+        modes,
+        seg_t,
+        seg_u,
+        u_func,
+        use_func,
+        u_limit,
+        t_out,
+        rtol,
+        atol,
+        h_init,
+        max_steps,
+        Y_out,
+        M_out,
+        U_out,
+        ev_t,
+        ev_disk,
+        ev_from,
+        ev_to,
+        ev_y,
+        stats,
+        work,
     )
 
 
@@ -377,6 +489,12 @@ def run_ws(
     last_event_t = -math.inf
     events_here = 0
     rejected = False
+    n_rejected = 0
+    bad_t = math.nan  # where the input was not finite (status 4)
+    # Inputs or torques that change with time while a disk sticks (see STUCK_H_MAX); with
+    # neither, two stuck disks (and no lag states) are an equilibrium until the next segment.
+    time_varying = use_func or p[L.DIST_A] != 0.0 or p[L.DRIFT] != 0.0
+    frozen_when_stuck = not time_varying and n_act == 4
 
     for seg in range(seg_t.shape[0] - 1):
         ta = seg_t[seg]
@@ -387,6 +505,7 @@ def run_ws(
         u_hold = u  # the held voltage of this segment (a zero-order hold)
         if not math.isfinite(u):
             status = 4
+            bad_t = t
             break
         # Modes follow from the state: a moving disk slips, a disk at rest is decided
         # by its torque balance (this is also where an input jump releases a stuck disk).
@@ -414,29 +533,43 @@ def run_ws(
         stats[ST_RHS] += 1
 
         while t < tb:
-            if n_steps >= max_steps:
+            if n_steps + n_rejected >= max_steps:  # rejected attempts count too
                 status = 1
                 break
             h = h_prop
+            if time_varying and (mu == 0 or ml == 0) and h > STUCK_H_MAX:
+                h = STUCK_H_MAX
             last = False
-            if t + h >= tb or (tb - t - h) < 1e-12 * max(1.0, abs(tb)):
+            # Snap to the segment end when the rest would be a sliver of this step (the
+            # window scales with the step, never with |t|, so that late start times work).
+            if t + h >= tb or (tb - t - h) < min(1e-12 * max(1.0, abs(tb)), 1e-3 * h):
                 h = tb - t
                 last = True
             err = step(t, y, f0, h, us, u_func, use_func, u_limit, p, mu, ml, K, y_new, ytmp, rtol, atol)
             stats[ST_RHS] += 12
             if not (err <= 1.0):  # also catches NaN
                 stats[ST_REJECTED] += 1
+                n_rejected += 1
                 rejected = True
+                if not math.isfinite(err) and use_func:
+                    tb_bad = _bad_input_time(t, h, us, u_func, use_func, u_limit)
+                    if math.isfinite(tb_bad):
+                        status = 4
+                        bad_t = tb_bad
+                        break
                 if math.isfinite(err):
                     h_prop = h * max(0.2, 0.9 * err ** (-ORDER_EXP))
                 else:
                     h_prop = h * 0.2
-                if h_prop < H_MIN:
+                if not (h_prop >= H_MIN):  # also catches NaN
                     status = 2
                     break
                 continue
-            n_steps += 1
             t_new = tb if last else t + h
+            if not (t_new > t):  # the step is below the resolution of t
+                status = 2
+                break
+            n_steps += 1
             u_end = input_at(t_new, us, u_func, use_func, u_limit)
             vu = _violation_upper(p, y_new, u_end, mu)
             vl = _violation_lower(p, t_new, y_new, ml)
@@ -460,6 +593,21 @@ def run_ws(
                 if dip_l:
                     b_l = _speed_dip(L.X3, ml, y, F, ytmp)
                     ev_lo = b_l <= 1.0
+            # A stuck disk's load may leave its band inside the step and come back before
+            # its end (the other disk swings, the input or a torque changes with time).
+            mon_u = mu == 0 and not ev_up
+            mon_l = ml == 0 and not ev_lo
+            if (mon_u or mon_l) and not (frozen_when_stuck and mu == 0 and ml == 0):
+                if not dense:
+                    prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
+                    stats[ST_RHS] += 3
+                    dense = True
+                if mon_u:
+                    b_u = _stuck_exit(0, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
+                    ev_up = b_u <= 1.0
+                if mon_l:
+                    b_l = _stuck_exit(1, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
+                    ev_lo = b_l <= 1.0
             has_event = ev_up or ev_lo
             if not dense and (has_event or (k < n_out and t_out[k] <= t_new)):
                 prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
@@ -475,10 +623,20 @@ def run_ws(
                 t_ev = t + th * h
                 while k < n_out and t_out[k] < t_ev:
                     uk = input_at(t_out[k], us, u_func, use_func, u_limit) if use_func else u_hold
+                    if not math.isfinite(uk):
+                        status = 4
+                        bad_t = t_out[k]
+                        break
                     _emit(k, (t_out[k] - t) / h, y, F, n_act, mu, ml, uk, Y_out, M_out, U_out)
                     k += 1
+                if status != 0:
+                    break
                 dense_eval(th, y, F, y_ev)
                 u_ev = input_at(t_ev, us, u_func, use_func, u_limit)
+                if not math.isfinite(u_ev):
+                    status = 4
+                    bad_t = t_ev
+                    break
                 do_u = th_u <= 1.0 and (th_u - th) * abs(h) <= SIMULTANEOUS_TOL
                 do_l = th_l <= 1.0 and (th_l - th) * abs(h) <= SIMULTANEOUS_TOL
                 # A slipping disk that reached zero speed is put exactly at rest first,
@@ -537,8 +695,14 @@ def run_ws(
                 held = last and seg < seg_t.shape[0] - 2
                 while k < n_out and (t_out[k] < t_new or (t_out[k] == t_new and not held)):
                     uk = input_at(t_out[k], us, u_func, use_func, u_limit) if use_func else u_hold
+                    if not math.isfinite(uk):
+                        status = 4
+                        bad_t = t_out[k]
+                        break
                     _emit(k, (t_out[k] - t) / h, y, F, n_act, mu, ml, uk, Y_out, M_out, U_out)
                     k += 1
+                if status != 0:
+                    break
                 for j in range(L.NY):
                     y[j] = y_new[j]
                     f0[j] = K[12, j]
@@ -570,4 +734,5 @@ def run_ws(
     stats[ST_STATUS] = status
     stats[ST_H] = h_prop
     stats[ST_T] = t
+    stats[ST_BAD_T] = bad_t
     return status

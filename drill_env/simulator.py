@@ -22,6 +22,7 @@ from drill_env import _layout as L
 from drill_env.kernel import (
     INPUT_SIGNATURE,
     N_STATS,
+    ST_BAD_T,
     ST_EVENTS,
     ST_LOGGED,
     ST_STATUS,
@@ -31,7 +32,14 @@ from drill_env.kernel import (
 from drill_env.params import RigParams, resolve_params
 from drill_env.result import EventLog, SimulationResult
 
-__all__ = ["simulate", "simulate_batch", "initial_state", "DEFAULT_RTOL", "DEFAULT_ATOL"]
+__all__ = [
+    "simulate",
+    "simulate_batch",
+    "initial_state",
+    "InputFunctionError",
+    "DEFAULT_RTOL",
+    "DEFAULT_ATOL",
+]
 
 # Default tolerances (relative and absolute): 1e-9 keeps the state within ~1e-7 of a tight reference over 100 s
 # of stick-slip (benchmarks/bench_simulator.py), well inside the 1e-6 the analysis needs.
@@ -44,11 +52,17 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
     """Full kernel state from a user's initial condition.
 
     ``x0`` may be None (rig at rest, no twist), a sequence ``(x1, x2, x3)`` (the paper's
-    state; angles start at theta_l = 0), a sequence ``(theta_u, theta_l, x2, x3)``, or a
-    mapping with keys among ``theta_u, theta_l, x1, x2, x3``. The motor torque starts at
-    its steady value km*u0 and the friction memory at |x3|.
+    state; angles start at theta_l = 0), a sequence ``(theta_u, theta_l, x2, x3)``, the
+    whole kernel state ``(x1, x2, x3, theta_l, motor_torque, memory_speed)``, or a
+    mapping with keys among ``theta_u, theta_l, x1, x2, x3, motor_torque,
+    memory_speed``. Unless given, the motor torque starts at its steady value km*u0 and
+    the friction memory at |x3|. A given motor torque or memory speed is used as given
+    where the rig has that state (effects ``motor_lag`` / ``friction_lag``); without the
+    effect, the state does not exist and a value other than its steady one is rejected.
+    Every value must be finite; the memory speed (a lagged |x3|) must be >= 0.
     """
     y = np.zeros(L.NY)
+    extra: dict[str, float] = {}
     if x0 is not None:
         if isinstance(x0, Mapping):
             allowed = {"theta_u", "theta_l", "x1", "x2", "x3", "motor_torque", "memory_speed"}
@@ -57,36 +71,64 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
                 raise ValueError(f"x0: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
             if "x1" in x0 and "theta_u" in x0:
                 raise ValueError("x0: give either x1 or theta_u, not both")
+            for key in x0:
+                _finite(f"x0.{key}", x0[key])
             thl = float(x0.get("theta_l", 0.0))
             x1 = float(x0["x1"]) if "x1" in x0 else float(x0.get("theta_u", 0.0)) - thl
             vals = [x1, float(x0.get("x2", 0.0)), float(x0.get("x3", 0.0)), thl]
+            extra = {k: float(x0[k]) for k in ("motor_torque", "memory_speed") if k in x0}
         else:
-            arr = np.asarray(x0, dtype=float).ravel()
+            try:
+                arr = np.asarray(x0, dtype=float).ravel()
+            except (TypeError, ValueError):
+                raise ValueError(f"x0: expected numbers, got {x0!r}") from None
             if arr.size == 3:
                 vals = [arr[0], arr[1], arr[2], 0.0]
             elif arr.size == 4:
                 vals = [arr[0] - arr[1], arr[2], arr[3], arr[1]]
             elif arr.size == L.NY:
-                vals = list(arr)
+                vals = [float(v) for v in arr[:4]]
+                extra = {"motor_torque": float(arr[L.TM]), "memory_speed": float(arr[L.WL])}
             else:
                 raise ValueError(
-                    f"x0: expected 3 values (x1, x2, x3) or 4 (theta_u, theta_l, x2, x3), got {arr.size}"
+                    f"x0: expected 3 values (x1, x2, x3), 4 (theta_u, theta_l, x2, x3) or 6 (x1, x2, "
+                    f"x3, theta_l, motor_torque, memory_speed), got {arr.size}"
                 )
-        for name, v in zip(("x1", "x2", "x3", "theta_l"), vals[:4], strict=True):
+        for name, v in zip(("x1", "x2", "x3", "theta_l"), vals, strict=True):
             if not math.isfinite(v):
                 raise ValueError(f"x0.{name}: must be finite, got {v!r}")
-        y[: len(vals)] = vals
-        if len(vals) == L.NY:
-            return y
-        if isinstance(x0, Mapping):
-            if "motor_torque" in x0:
-                y[L.TM] = float(x0["motor_torque"])
-                if "memory_speed" in x0:
-                    y[L.WL] = float(x0["memory_speed"])
-                    return y
+        y[:4] = vals
     y[L.TM] = params.motor_constant * u0
     y[L.WL] = abs(y[L.X3])
+    eff = params.effects
+    for key, slot, has_state, effect in (
+        ("motor_torque", L.TM, eff.motor_lag > 0.0, "motor_lag"),
+        ("memory_speed", L.WL, eff.friction_lag > 0.0, "friction_lag"),
+    ):
+        if key not in extra:
+            continue
+        v = extra[key]
+        if not math.isfinite(v):
+            raise ValueError(f"x0.{key}: must be finite, got {v!r}")
+        if key == "memory_speed" and v < 0.0:
+            raise ValueError(f"x0.memory_speed: a lagged |x3| must be >= 0 rad/s, got {v!r}")
+        if has_state:
+            y[slot] = v
+        elif abs(v - y[slot]) > 1e-12 * max(1.0, abs(y[slot])):
+            raise ValueError(
+                f"x0.{key}: the rig has no such state (effects.{effect} = 0), its value is "
+                f"{y[slot]:.12g}; got {v!r} (turn the effect on, or leave {key} out)"
+            )
     return y
+
+
+def _finite(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name}: expected a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{name}: must be finite, got {v!r}")
+    return v
 
 
 def _check_positive(name: str, value: Any) -> float:
@@ -99,21 +141,85 @@ def _check_positive(name: str, value: Any) -> float:
     return v
 
 
-def _compile_input(u: Callable[[float], float]) -> Any:
-    """A user's u(t) as a compiled C function float64(float64) (see :mod:`drill_env.kernel`)."""
+class InputFunctionError(ValueError):
+    """The input function u(t) raised or returned a value that is not a finite number."""
+
+
+def _compile_input(u: Callable[[float], float], t0: float) -> Any:
+    """A user's u(t) as a compiled C function float64(float64) (see :mod:`drill_env.kernel`).
+
+    The function is first called once in Python at ``t0`` so that its own errors (a
+    NameError, say) reach the user as they are. The compiled version checks indexing
+    and division, and any exception it raises comes out as NaN: the kernel stops with
+    status 4 there, and :func:`_input_failure` reports the real error.
+    """
     if isinstance(u, CFunc):
         return u
     py = u.py_func if isinstance(u, nb.core.registry.CPUDispatcher) else u
     try:
-        fn = nb.cfunc(INPUT_SIGNATURE)(py)
-        fn.ctypes(0.0)
+        v0 = py(t0)
+    except Exception as exc:
+        raise InputFunctionError(
+            f"u: the input function raised {type(exc).__name__}: {exc} at t = {t0:g} s"
+        ) from exc
+    _check_input_value(v0, t0)
+    try:
+        inner = nb.njit(boundscheck=True, error_model="python")(py)
+
+        def guarded(t):
+            try:
+                v = float(inner(t))
+            except Exception:  # numba catches all exceptions alike; the Python call names it
+                v = math.nan
+            return v
+
+        fn = nb.cfunc(INPUT_SIGNATURE, error_model="python")(guarded)
+        fn.ctypes(t0)
     except Exception as exc:  # numba's typing errors are long; keep the cause
         raise TypeError(
             "u: a function of time must be compilable by numba (math/numpy functions of "
             "t returning a float), or pass the voltage as a zero-order-hold sequence with "
             f"control_dt; numba said: {str(exc).strip().splitlines()[0]}"
         ) from exc
+    fn.drill_env_py_func = py  # for the error report
     return fn
+
+
+def _check_input_value(v: Any, t: float) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise InputFunctionError(
+            f"u: the input function returned {v!r} at t = {t:g} s; expected a number [V]"
+        )
+    if not math.isfinite(float(v)):
+        raise InputFunctionError(
+            f"u: the input function returned {float(v)!r} at t = {t:g} s; the voltage must be finite"
+        )
+    return float(v)
+
+
+def _input_failure(fn: Any, t_bad: float) -> InputFunctionError:
+    """The error to raise when the kernel stopped on a non-finite input at ``t_bad``."""
+    py = getattr(fn, "drill_env_py_func", None)
+    if py is not None:
+        try:
+            v = py(t_bad)
+        except Exception as exc:
+            err = InputFunctionError(
+                f"u: the input function raised {type(exc).__name__}: {exc} at t = {t_bad!r} s; simulation stopped"
+            )
+            err.__cause__ = exc
+            return err
+        try:
+            _check_input_value(v, t_bad)
+        except InputFunctionError as exc:
+            return InputFunctionError(f"{exc}; simulation stopped")
+        return InputFunctionError(
+            f"u: the compiled input function failed at t = {t_bad!r} s (an index out of range or a "
+            f"division by zero, say; in Python it returned {v!r}); simulation stopped"
+        )
+    return InputFunctionError(
+        f"u: the input function returned a non-finite value at t = {t_bad!r} s; simulation stopped"
+    )
 
 
 def _input_program(
@@ -122,7 +228,7 @@ def _input_program(
     """Segments (times, voltages) of the input, or a compiled function of time."""
     lim = math.inf if voltage_limit is None else float(voltage_limit)
     if callable(u):
-        fn = _compile_input(u)
+        fn = _compile_input(u, t0)
         return np.array([t0, t_final]), np.array([0.0]), fn, True, lim
     arr = np.asarray(u, dtype=float)
     if arr.ndim == 0:
@@ -170,6 +276,14 @@ def simulate(
             or a YAML file.
         u: amplifier input voltage [V]: a constant, a zero-order-hold sequence (one value
             per ``control_dt``), or a function of time ``u(t)`` that numba can compile.
+            A function is called once in Python at t0 (its own errors surface as they
+            are), then compiled with bounds and division checks; if it raises or returns
+            a non-finite value during the run, the run stops and
+            :class:`InputFunctionError` (a ValueError) names the error and its time.
+            While a disk sticks under a function input (or a time-varying effect), steps
+            are at most ``kernel.STUCK_H_MAX`` (10 ms) and the breakaway condition is
+            sampled 8 times per step and refined, so a pulse is never stepped over unless
+            it is shorter than ~1 ms; pass brief pulses as a zero-order hold (exact).
         t_final: end time [s].
         x0: initial condition, see :func:`initial_state`; default the rig at rest.
         dt: output sample period [s]; the solution is sampled from the dense output.
@@ -180,17 +294,22 @@ def simulate(
         voltage_limit: clip u to +-limit [V] as the rig's amplifier does (default: no
             limit; the clipped voltage is what ``result.u`` holds).
         t0: start time [s] (default 0).
-        max_steps: cap on integration steps (default: generous).
+        max_steps: cap on integration attempts, accepted and rejected steps alike
+            (default: generous); reaching it ends the run with status 1 and a warning.
         event_capacity: initial size of the event log (grown automatically).
 
     Returns:
         :class:`SimulationResult`.
+
+    Raises:
+        ValueError: a bad argument (naming it and its allowed range), including every
+            component of ``x0``; :class:`InputFunctionError` for a failing ``u(t)``.
     """
     unknown = sorted(set(options) - _OPTIONS)
     if unknown:
         raise TypeError(f"simulate: unknown option(s) {unknown}; allowed: {sorted(_OPTIONS)}")
     params = resolve_params(params_or_preset)
-    t0 = float(options.get("t0", 0.0))
+    t0 = _finite("t0", options.get("t0", 0.0))
     if not math.isfinite(t0):
         raise ValueError(f"t0: must be finite, got {t0!r}")
     try:
@@ -206,7 +325,10 @@ def simulate(
     vlim = options.get("voltage_limit")
     if vlim is not None:
         vlim = _check_positive("voltage_limit", vlim)
-    max_steps = int(options.get("max_steps", max(100_000, int(duration * 2000))))
+    max_steps = options.get("max_steps", max(100_000, int(duration * 2000)))
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps: expected an integer >= 1, got {max_steps!r}")
+    max_steps = int(max_steps)
     seg_t, seg_u, fn, use_func, lim = _input_program(
         u, t0, t_final, options.get("control_dt"), vlim if vlim is not None else math.inf
     )
@@ -239,13 +361,35 @@ def simulate(
         ev_y = np.empty((cap, L.NY))
         stats = np.zeros(N_STATS)
         status = run(
-            p, y, modes, seg_t, seg_u, fn, use_func, lim, t_out, rtol, atol, 0.0, max_steps,
-            Y, M, U, ev_t, ev_disk, ev_from, ev_to, ev_y, stats,
+            p,
+            y,
+            modes,
+            seg_t,
+            seg_u,
+            fn,
+            use_func,
+            lim,
+            t_out,
+            rtol,
+            atol,
+            0.0,
+            max_steps,
+            Y,
+            M,
+            U,
+            ev_t,
+            ev_disk,
+            ev_from,
+            ev_to,
+            ev_y,
+            stats,
         )
         if stats[ST_EVENTS] <= cap:
             break
         cap = int(stats[ST_EVENTS]) + 16
     n_ev = int(stats[ST_LOGGED])
+    if status == 4:
+        raise _input_failure(fn, float(stats[ST_BAD_T]))
     if status != 0:
         warnings.warn(f"simulate: {STATUS_MESSAGES[int(status)]}", RuntimeWarning, stacklevel=2)
     events = EventLog(
@@ -290,8 +434,28 @@ def _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, st
     for i in range(n):
         y = Y0[i].copy()
         run(
-            P[i], y, modes, seg_t, SEG_U[i], None, False, np.inf, t_out, rtol, atol, 0.0,
-            max_steps, Yo[i], Mo[i], Uo[i], ev_t, ev_disk, ev_from, ev_to, ev_y, stats_all[i],
+            P[i],
+            y,
+            modes,
+            seg_t,
+            SEG_U[i],
+            None,
+            False,
+            np.inf,
+            t_out,
+            rtol,
+            atol,
+            0.0,
+            max_steps,
+            Yo[i],
+            Mo[i],
+            Uo[i],
+            ev_t,
+            ev_disk,
+            ev_from,
+            ev_to,
+            ev_y,
+            stats_all[i],
         )
         ev_count[i] = stats_all[i, ST_EVENTS]
 
@@ -327,7 +491,11 @@ def simulate_batch(
     n_rigs = n or (len(plist) if plist is not None else (u_arr.shape[0] if u_arr.ndim >= 1 else 1))
     if plist is not None and len(plist) != n_rigs:
         raise ValueError(f"params: {len(plist)} parameter sets for {n_rigs} rigs")
-    P = np.stack([q.as_array() for q in plist]) if plist is not None else np.tile(base.as_array(), (n_rigs, 1))
+    P = (
+        np.stack([q.as_array() for q in plist])
+        if plist is not None
+        else np.tile(base.as_array(), (n_rigs, 1))
+    )
     t_final = _check_positive("t_final", t_final)
     dt = _check_positive("dt", dt)
     if u_arr.ndim == 0:

@@ -17,6 +17,13 @@ Switching rules (the set-valued friction laws):
 * a stuck disk starts to slip, towards that side, when the holding torque crosses an
   edge of its band.
 
+One effect of the package's model extensions is supported, the external torque on the
+lower disk ``A sin(w t + phi)`` (``effects.disturbance_*``): it adds to the lower disk's
+torque balance and to the torque that holds it at rest. While both disks stick under a
+time-varying input or torque the vector field is zero, and ``solve_ivp`` looks at its
+event functions only at step ends: pass ``max_step`` (below the input's own time scale)
+so that no band exit falls between two steps.
+
 The friction of eq. (14) is written with the paper's ``1 - 2/(1 + exp(beta w))``, and
 each slip branch with ``w = mode * x3`` (which is |x3| on the branch) so that the
 vector field of a branch stays smooth a little past its zero crossing, where the
@@ -98,6 +105,13 @@ class _Rig:
         c = rig_constants(params)
         self.c = c
         self.u = u
+        e = params.effects
+        self.dist = (float(e.disturbance_amp), float(e.disturbance_freq), float(e.disturbance_phase))
+
+    def disturbance(self, t: float) -> float:
+        """External torque on the lower disk [N m]."""
+        a, w, phi = self.dist
+        return a * math.sin(w * t + phi) if a != 0.0 else 0.0
 
     def lower_slip_friction(self, x3: float, mode: int) -> float:
         c = self.c
@@ -117,9 +131,9 @@ class _Rig:
         """Friction torque that keeps the upper disk at rest: km u - k_theta x1."""
         return self.c["km"] * self.u(t) - self.c["kth"] * y[0]
 
-    def lower_holding(self, y: np.ndarray) -> float:
-        """Friction torque that keeps the lower disk at rest: k_theta x1."""
-        return self.c["kth"] * y[0]
+    def lower_holding(self, t: float, y: np.ndarray) -> float:
+        """Friction torque that keeps the lower disk at rest: k_theta x1 + disturbance."""
+        return self.c["kth"] * y[0] + self.disturbance(t)
 
     def rhs(self, modes: tuple[int, int]) -> Callable[[float, np.ndarray], np.ndarray]:
         c = self.c
@@ -132,7 +146,7 @@ class _Rig:
                 dx2 = (c["km"] * self.u(t) - c["kth"] * x1 - self.upper_slip_friction(x2, mu)) / c["Ju"]
             dx3 = 0.0
             if ml != 0:
-                dx3 = (c["kth"] * x1 - self.lower_slip_friction(x3, ml)) / c["Jl"]
+                dx3 = (c["kth"] * x1 + self.disturbance(t) - self.lower_slip_friction(x3, ml)) / c["Jl"]
             return np.array([x2 - x3, dx2, dx3, x3])
 
         return f
@@ -145,8 +159,8 @@ class _Rig:
             return -1
         return 0
 
-    def decide_lower(self, y: np.ndarray) -> int:
-        need = self.lower_holding(y)
+    def decide_lower(self, t: float, y: np.ndarray) -> int:
+        need = self.lower_holding(t, y)
         if need > self.c["Tsl"]:
             return 1
         if need < -self.c["Tsl"]:
@@ -169,8 +183,8 @@ class _Rig:
         if ml != 0:
             out.append((_event(lambda t, y: y[2], -ml), 1, None))
         else:
-            out.append((_event(lambda t, y: self.lower_holding(y) - c["Tsl"], 1), 1, 1))
-            out.append((_event(lambda t, y: self.lower_holding(y) + c["Tsl"], -1), 1, -1))
+            out.append((_event(lambda t, y: self.lower_holding(t, y) - c["Tsl"], 1), 1, 1))
+            out.append((_event(lambda t, y: self.lower_holding(t, y) + c["Tsl"], -1), 1, -1))
         return out
 
 
@@ -210,13 +224,15 @@ def oracle_simulate(
     control_dt: float | None = None,
     t0: float = 0.0,
     max_pieces: int = 1_000_000,
+    max_step: float = math.inf,
 ) -> OracleResult:
     """Integrate the rig from ``t0`` to ``t_final`` piece by piece between switching events.
 
     ``u`` is a constant voltage, a zero-order-hold sequence (one value per
     ``control_dt``) or a Python function of time. ``x0`` is ``(x1, x2, x3)`` or
     ``(x1, x2, x3, theta_l)``; default the rig at rest. ``t_eval``: sample times
-    (default: every 0.01 s).
+    (default: every 0.01 s). ``max_step`` bounds every solver step (see the module
+    docstring: needed while both disks stick under a time-varying input or torque).
     """
     u_of_t, breaks, held = _input(u, control_dt, t0)
     rig = _Rig(params, u_of_t if u_of_t is not None else (lambda t: float(held[0])))
@@ -246,7 +262,7 @@ def oracle_simulate(
                 rig.u = lambda t, value=value: value
             # Modes follow from the state at the start of each input segment.
             mu = int(np.sign(y[1])) or rig.decide_upper(t, y)
-            ml = int(np.sign(y[2])) or rig.decide_lower(y)
+            ml = int(np.sign(y[2])) or rig.decide_lower(t, y)
             if t > t0:  # a jump of the input may release a stuck disk: log it as an event
                 for disk, (old, new) in enumerate(zip(modes, (mu, ml), strict=True)):
                     if old != new:
@@ -260,7 +276,7 @@ def oracle_simulate(
         t_end = next(b for b in bounds if b > t)
         while k < t_eval.size and t_eval[k] < t:
             k += 1
-        if modes == (0, 0) and u_of_t is None:
+        if modes == (0, 0) and u_of_t is None and rig.dist[0] == 0.0:
             # Both disks stuck under a held voltage: an equilibrium, nothing changes until
             # the voltage does (and an event function resting at exactly zero on a band
             # edge must not be taken for a crossing).
@@ -289,6 +305,7 @@ def oracle_simulate(
             events=[e[0] for e in evs],
             dense_output=True,
             first_step=min(1e-9, t_end - t) if on_surface else None,
+            max_step=max_step,
         )
         if sol.status < 0:
             raise RuntimeError(f"solve_ivp failed at t = {t}: {sol.message}")
@@ -328,7 +345,7 @@ def oracle_simulate(
         else:
             if after is None:
                 y[2] = 0.0
-                after = rig.decide_lower(y)
+                after = rig.decide_lower(t, y)
             new = (mu, after)
         if result.event_t and t - result.event_t[-1] <= 1e-14 * max(1.0, abs(t)):
             repeats += 1

@@ -11,12 +11,20 @@ import pytest
 
 import drill_env  # noqa: F401  (registers the environments)
 from agents.base import Controller, ControllerSpec
-from agents.evaluation import EpisodeSettings, evaluate, make_env, run_episode, suppression
+from agents.evaluation import EpisodeSettings, env_id_of, evaluate, make_env, run_episode, suppression
 from agents.linear_model import design_point, equilibrium_observation, linearise, sampled_rig
 from agents.lqi import LQI
 from agents.open_loop import OpenLoop
 from agents.pi import LowerSpeedPI, UpperSpeedPI
-from agents.registry import CLASSICAL, CONTROLLERS, build_controller, load_gains
+from agents.registry import (
+    CLASSICAL,
+    CONTROLLERS,
+    LEARNED,
+    build_controller,
+    default_agents_dir,
+    load_gains,
+    observation_version,
+)
 from agents.torque_feedback import TorqueFeedback
 from agents.tuning import (
     TUNED_GAINS,
@@ -28,10 +36,9 @@ from agents.tuning import (
     tune,
 )
 from drill_env.analysis import critical_friction_slope
-from drill_env.envs import ENV_IDS
 from drill_env.friction import lower_friction_curve
 
-PRESET_OF = {env_id: preset for env_id, preset in ENV_IDS.items()}
+PRESETS = ("brake", "no_brake")
 SHORT = EpisodeSettings(duration=4.0, window=2.0, warmup_time=3.0, warmup_jitter=1.0)
 
 
@@ -51,15 +58,44 @@ def obs_at(spec: ControllerSpec, voltage: float, **changes: float) -> np.ndarray
 # -- every controller in both environments ------------------------------------------------------
 
 
-@pytest.mark.parametrize("env_id", list(ENV_IDS))
+@pytest.mark.parametrize("preset", PRESETS)
 @pytest.mark.parametrize("name", CONTROLLERS)
-def test_every_controller_runs_in_both_envs(env_id, name):
-    env = gym.make(env_id)
-    ctrl = build_controller(name, env, PRESET_OF[env_id])
+def test_every_controller_runs_in_both_envs(preset, name):
+    # each on the observation version it reads (a learned policy: the one it was trained on)
+    env = gym.make(env_id_of(preset, observation_version(name, preset)))
+    ctrl = build_controller(name, env, preset)
     traj = run_episode(env, ctrl, seed=3, n_steps=60, options={"nominal_voltage": 1.0})
     assert traj.t.size == 60 and traj.sim_status == 0
     assert np.all(np.isfinite(traj.voltage)) and np.all(np.abs(traj.voltage) <= 5.0)
     assert np.all(np.isfinite(traj.true_state))
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_observation_versions_run_the_same_episode(preset):
+    # v1 only observes more: a classical controller (reading the v0 entries every version
+    # starts with) drives the same rig through the same episode on v0 and v1
+    runs = []
+    for version in (0, 1):
+        env = gym.make(env_id_of(preset, version))
+        ctrl = build_controller("lqi", env, preset)
+        runs.append(run_episode(env, ctrl, seed=5, n_steps=80, options={"nominal_voltage": 2.0}))
+    np.testing.assert_array_equal(runs[0].voltage, runs[1].voltage)
+    np.testing.assert_array_equal(runs[0].true_state, runs[1].true_state)
+    np.testing.assert_array_equal(runs[0].reward, runs[1].reward)
+
+
+def test_v0_policies_stay_evaluable():
+    # the version-0 policies (results/agents/v0) run on the v0 envs, chosen from the policy
+    v0_dir = default_agents_dir() / "v0"
+    for algo in LEARNED:
+        for preset in PRESETS:
+            assert observation_version(algo, preset, v0_dir) == 0
+            env = gym.make(env_id_of(preset, 0))
+            ctrl = build_controller(algo, env, preset, agents_dir=v0_dir)
+            traj = run_episode(env, ctrl, seed=1, n_steps=20, options={"nominal_voltage": 2.0})
+            assert traj.sim_status == 0 and np.all(np.isfinite(traj.voltage))
+            with pytest.raises(ValueError, match="observation_space"):
+                build_controller(algo, gym.make(env_id_of(preset, 1)), preset, agents_dir=v0_dir)
 
 
 def test_controllers_follow_sb3_predict_protocol(spec_brake):

@@ -162,3 +162,41 @@ def test_pickled_vector_env_continues_identically():
         r1, r2 = env.step(a), twin.step(a)
         for x, y in zip(r1, r2, strict=True):
             assert_same(x, y)
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_explicit_reset_mid_episode_restarts_the_step_count(mode):
+    # An explicit reset() (full or masked) starts new episodes: their truncation comes after
+    # max_episode_steps steps counted from that reset, as in SyncVectorEnv of single envs.
+    max_steps = 12
+    native, sync = make_pair("DrillString-v0", mode, max_steps=max_steps, warmup_time=5.0)
+    assert_same(native.reset(seed=3)[0], sync.reset(seed=3)[0])
+    rng = np.random.default_rng(1)
+
+    def step_both():
+        a = rng.uniform(-1.0, 1.0, size=(N, 1)).astype(np.float32)
+        r1, r2 = native.step(a), sync.step(a)
+        for x, y in zip(r1, r2, strict=True):
+            assert_same(x, y)
+        return r1[3]
+
+    for _ in range(5):
+        assert not step_both().any()
+    assert_same(native.reset()[0], sync.reset()[0])  # explicit reset mid-episode
+    for k in range(1, max_steps + 1):
+        np.testing.assert_array_equal(step_both(), np.full(N, k == max_steps))
+    # masked reset mid-episode: only rig 1 restarts its count
+    if mode == AutoresetMode.NEXT_STEP:
+        step_both()  # the autoreset step
+    for _ in range(4):
+        assert not step_both().any()
+    mask = np.array([False, True, False, False])
+    o1, i1 = native.reset(options={"reset_mask": mask.copy()})
+    o2, i2 = sync.reset(options={"reset_mask": mask.copy()})
+    assert_same(o1, o2)
+    assert_same(i1, i2)
+    for k in range(5, max_steps + 5):
+        trunc = step_both()
+        np.testing.assert_array_equal(
+            trunc, [k == max_steps, k == max_steps + 4, k == max_steps, k == max_steps]
+        )

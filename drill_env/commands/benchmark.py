@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import typer
@@ -106,42 +107,50 @@ def register(app: typer.Typer) -> None:
                 )
         except ValueError as exc:
             _fail(str(exc))
-        n = len(cfg.jobs())
-        console = Console(stderr=True)
-        console.print(
-            f"benchmark: {len(cfg.controllers)} controllers x "
-            + " + ".join(f"{len(cfg.voltages[p])} voltages ({p})" for p in cfg.presets)
-            + f" x {len(cfg.seeds)} seed(s) = {n} runs, backend {backend}; results in {out}"
-        )
-        columns = (
-            TextColumn("{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-        )
-        t0 = time.perf_counter()
-        with Progress(*columns, console=console) as prog:
-            task = prog.add_task("runs", total=n)
+        from drill_env.outputs import OutputFolderError, output_lock
 
-            def on_progress(done: int, total: int, row: dict) -> None:
-                desc = "runs"
-                if row:
-                    desc = f"{row['controller']:>15s} {row['preset']:>8s} {float(row['voltage']):4.2f} V"
-                prog.update(task, completed=done, description=desc)
+        held = ExitStack()
+        try:
+            held.enter_context(output_lock(out, "benchmark"))  # OUT is this run's alone, resume included
+        except OutputFolderError as exc:
+            _fail(str(exc))
+        with held:
+            n = len(cfg.jobs())
+            console = Console(stderr=True)
+            console.print(
+                f"benchmark: {len(cfg.controllers)} controllers x "
+                + " + ".join(f"{len(cfg.voltages[p])} voltages ({p})" for p in cfg.presets)
+                + f" x {len(cfg.seeds)} seed(s) = {n} runs, backend {backend}; results in {out}"
+            )
+            columns = (
+                TextColumn("{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeElapsedColumn(),
+                TimeRemainingColumn(),
+            )
+            t0 = time.perf_counter()
+            with Progress(*columns, console=console) as prog:
+                task = prog.add_task("runs", total=n)
 
-            try:
-                csv_path = run_benchmark(
-                    cfg,
-                    out,
-                    backend=backend,
-                    workers=workers,
-                    ray_address=ray_address,
-                    fresh=fresh,
-                    progress=on_progress,
-                )
-            except ValueError as exc:
-                _fail(str(exc))
+                def on_progress(done: int, total: int, row: dict) -> None:
+                    desc = "runs"
+                    if row:
+                        desc = f"{row['controller']:>15s} {row['preset']:>8s} {float(row['voltage']):4.2f} V"
+                    prog.update(task, completed=done, description=desc)
+
+                try:
+                    csv_path = run_benchmark(
+                        cfg,
+                        out,
+                        backend=backend,
+                        workers=workers,
+                        ray_address=ray_address,
+                        fresh=fresh,
+                        progress=on_progress,
+                    )
+                except ValueError as exc:
+                    _fail(str(exc))
         typer.echo(f"{n} runs in {time.perf_counter() - t0:.0f} s")
         summary = (out / "summary.md").read_text()
         typer.echo(summary)

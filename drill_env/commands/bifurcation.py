@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from contextlib import ExitStack
 from pathlib import Path
 
 import typer
@@ -39,6 +40,7 @@ def register(app: typer.Typer) -> None:
 
         from drill_env.analysis import bifurcation_diagram, brute_force_check
         from drill_env.analysis.plots import save_figures
+        from drill_env.outputs import OutputFolderError, output_lock
         from drill_env.params import ParameterError, resolve_params
 
         try:
@@ -55,33 +57,38 @@ def register(app: typer.Typer) -> None:
                 f"[yellow]note: the range exceeds the rig's +-{RIG_VOLTAGE_LIMIT:g} V amplifier input; "
                 "the model is analysed there all the same[/yellow]"
             )
-        out.mkdir(parents=True, exist_ok=True)
-        columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn())
-        with Progress(*columns, console=console, transient=False) as prog:
-            task = prog.add_task("continuation", total=umax - umin)
+        held = ExitStack()
+        try:
+            held.enter_context(output_lock(out, "bifurcation"))  # OUT is this run's alone until it ends
+        except OutputFolderError as exc:
+            _fail(str(exc))
+        with held:
+            columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn())
+            with Progress(*columns, console=console, transient=False) as prog:
+                task = prog.add_task("continuation", total=umax - umin)
 
-            def on_point(c) -> None:
-                prog.update(
-                    task,
-                    completed=min(max(c.u - umin, 0.0), umax - umin),
-                    description=f"continuation: u = {c.u:7.4f} V, amplitude {c.amplitude:7.4f} rad/s",
-                )
+                def on_point(c) -> None:
+                    prog.update(
+                        task,
+                        completed=min(max(c.u - umin, 0.0), umax - umin),
+                        description=f"continuation: u = {c.u:7.4f} V, amplitude {c.amplitude:7.4f} rad/s",
+                    )
 
-            diagram = bifurcation_diagram(params, u_max=umax, u_min=umin, on_point=on_point)
-            prog.update(task, completed=umax - umin, description="continuation: done")
-            result = None
-            if check:
-                ctask = prog.add_task("brute-force check", total=1.0)
+                diagram = bifurcation_diagram(params, u_max=umax, u_min=umin, on_point=on_point)
+                prog.update(task, completed=umax - umin, description="continuation: done")
+                result = None
+                if check:
+                    ctask = prog.add_task("brute-force check", total=1.0)
 
-                def on_stage(stage: str, frac: float) -> None:
-                    prog.update(ctask, completed=frac, description=f"brute-force check: {stage}")
+                    def on_stage(stage: str, frac: float) -> None:
+                        prog.update(ctask, completed=frac, description=f"brute-force check: {stage}")
 
-                result = brute_force_check(diagram, progress=on_stage)
-                prog.update(ctask, completed=1.0, description="brute-force check: done")
-        diagram.save_json(out / "bifurcation.json")
-        if result is not None:
-            result.save_json(out / "brute_force_check.json")
-        paths = save_figures(diagram, out, check=result)
+                    result = brute_force_check(diagram, progress=on_stage)
+                    prog.update(ctask, completed=1.0, description="brute-force check: done")
+            diagram.save_json(out / "bifurcation.json")
+            if result is not None:
+                result.save_json(out / "brute_force_check.json")
+            paths = save_figures(diagram, out, check=result)
 
         table = Table(title=f"{diagram.preset}, {umin:g} to {umax:g} V")
         for col in ("point", "u [V]", "type"):

@@ -16,7 +16,10 @@ def _progress():
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     return Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
         transient=True,
     )
 
@@ -25,8 +28,9 @@ def synth(
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
     effect: str = typer.Option(..., help="Hidden effect: none, a library effect, or external_torque."),
     magnitude: float | None = typer.Option(
-        None, help="Magnitude of the effect (its meaning per effect is in the README); default: "
-        "drawn log-uniformly from the documented detectable range."
+        None,
+        help="Magnitude of the effect (its meaning per effect is in the README); default: "
+        "drawn log-uniformly from the documented detectable range.",
     ),
     seed: int = typer.Option(0, help="Seed of everything random (effect phases, runs, noise)."),
     out: Path = typer.Option(..., help="Dataset folder to write (runs + dataset.json)."),
@@ -42,6 +46,7 @@ def synth(
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect."""
     from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
+    from drill_env.outputs import output_lock
     from drill_env.params import ParameterError
 
     try:
@@ -50,16 +55,25 @@ def synth(
         _fail(f"--voltages: expected comma-separated numbers, got {voltages!r}")
     try:
         cfg = SynthConfig(
-            preset=preset, voltages=volts, random_runs=random_runs, duration_s=duration,
-            sample_rate_hz=rate, encoder_counts_per_rev=counts, angle_noise_std=noise,
+            preset=preset,
+            voltages=volts,
+            random_runs=random_runs,
+            duration_s=duration,
+            sample_rate_hz=rate,
+            encoder_counts_per_rev=counts,
+            angle_noise_std=noise,
         )
-        with _progress() as prog:
-            task = prog.add_task("simulating runs", total=len(volts) + random_runs)
-            res = make_dataset(
-                effect, seed=seed, magnitude=magnitude, config=cfg,
-                progress=lambda i, n: prog.update(task, completed=i),
-            )
-        write_synthetic(res, out, answer, preset=preset)
+        with output_lock(out, "synth"):  # the dataset folder is this run's alone
+            with _progress() as prog:
+                task = prog.add_task("simulating runs", total=len(volts) + random_runs)
+                res = make_dataset(
+                    effect,
+                    seed=seed,
+                    magnitude=magnitude,
+                    config=cfg,
+                    progress=lambda i, n: prog.update(task, completed=i),
+                )
+            write_synthetic(res, out, answer, preset=preset)
     except (ValueError, ParameterError) as exc:
         _fail(str(exc))
     typer.echo(f"wrote {len(res.runs)} runs to {out}; the answer is in {answer}")
@@ -88,12 +102,12 @@ def discrepancy(
                     tasks[stage] = prog.add_task(stage, total=n)
                 prog.update(tasks[stage], completed=i)
 
-            res = run_discrepancy(data_dir, out, heldout=held, figures=not no_figures, seed=seed, progress=progress)
+            res = run_discrepancy(
+                data_dir, out, heldout=held, figures=not no_figures, seed=seed, progress=progress
+            )
     except (DatasetError, ValueError) as exc:
         _fail(str(exc))
     typer.echo(res.verdict_line())
-
-
 
 
 def discrepancy_study(
@@ -104,20 +118,39 @@ def discrepancy_study(
     skip_paper_case: bool = typer.Option(False, "--skip-paper-case", help="Skip the paper's case."),
 ) -> None:
     """Hidden-effect study (confusion matrix, detection vs magnitude and noise) and the paper's case."""
-    from drill_env.discrepancy.study import paper_case, run_study
+    from drill_env.discrepancy.study import MAX_SEEDS, paper_case, run_study
+    from drill_env.outputs import OutputFolderError, output_lock
 
-    if not paper_case_only:
-        with _progress() as prog:
-            task = prog.add_task("hidden-effect study", total=None)
-            summary = run_study(
-                out, seeds=seeds, sweep_seeds=sweep_seeds,
-                progress=lambda i, n: prog.update(task, completed=i, total=n),
-            )
-        typer.echo(f"confusion-matrix accuracy {summary['confusion_accuracy']:.1%}; see {out / 'confusion.md'}")
-    if not skip_paper_case:
-        case = paper_case(out / "paper_case")
-        typer.echo(f"paper's case: {case['verdict']} (confidence {case['confidence']:.2f}); see "
-                   f"{out / 'paper_case' / 'paper_case.md'}")
+    # every argument is checked before anything is written: OUT may hold committed results
+    for name, value in (("--seeds", seeds), ("--sweep-seeds", sweep_seeds)):
+        if not 1 <= value <= MAX_SEEDS:
+            _fail(f"{name} must be an integer from 1 to {MAX_SEEDS}, got {value!r}")
+    if paper_case_only and skip_paper_case:
+        _fail("--paper-case-only and --skip-paper-case together leave nothing to do; give at most one")
+    if out.exists() and not out.is_dir():
+        _fail(f"--out {out} exists and is not a folder")
+    try:
+        with output_lock(out, "discrepancy-study"):  # for the whole command, both parts
+            if not paper_case_only:
+                with _progress() as prog:
+                    task = prog.add_task("hidden-effect study", total=None)
+                    summary = run_study(
+                        out,
+                        seeds=seeds,
+                        sweep_seeds=sweep_seeds,
+                        progress=lambda i, n: prog.update(task, completed=i, total=n),
+                    )
+                typer.echo(
+                    f"confusion-matrix accuracy {summary['confusion_accuracy']:.1%}; see {out / 'confusion.md'}"
+                )
+            if not skip_paper_case:
+                case = paper_case(out / "paper_case")
+                typer.echo(
+                    f"paper's case: {case['verdict']} (confidence {case['confidence']:.2f}); see "
+                    f"{out / 'paper_case' / 'paper_case.md'}"
+                )
+    except OutputFolderError as exc:
+        _fail(str(exc))
 
 
 def register(app: typer.Typer) -> None:

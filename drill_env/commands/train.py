@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from pathlib import Path
 
 import typer
@@ -23,7 +24,8 @@ def register(app: typer.Typer) -> None:
         out: Path | None = typer.Option(
             None,
             help="Where the policy, config, summary and learning curve go "
-            "(default: results/agents/ALGO, or results/agents/ALGO_no_brake for DrillStringNoBrake-v0).",
+            "(default: results/agents/ALGO, or results/agents/ALGO_no_brake for DrillStringNoBrake-v1; "
+            "results/agents/v0/... for a -v0 id).",
         ),
         run_dir: Path | None = typer.Option(
             None,
@@ -54,11 +56,18 @@ def register(app: typer.Typer) -> None:
             _fail(str(exc))
         if cfg.algo != algo:
             _fail(f"--algo {algo} does not match the config's algo {cfg.algo!r} ({config})")
-        from drill_env.envs import ENV_IDS
+        from drill_env.envs import ENV_IDS, ENV_VERSIONS
 
-        suffix = "" if ENV_IDS[cfg.env_id] == "brake" else f"_{ENV_IDS[cfg.env_id]}"
-        out = out or Path("results") / "agents" / f"{algo}{suffix}"
-        run_dir = run_dir or Path("runs") / "train" / f"{algo}{suffix}_seed{seed}"
+        # the current version's policies in results/agents, older versions' in results/agents/vN
+        name = algo if ENV_IDS[cfg.env_id] == "brake" else f"{algo}_{ENV_IDS[cfg.env_id]}"
+        version = ENV_VERSIONS[cfg.env_id]
+        agents = Path("results") / "agents"
+        run_name = name
+        if version != max(ENV_VERSIONS.values()):
+            agents = agents / f"v{version}"
+            run_name = f"{name}_v{version}"
+        out = out or agents / name
+        run_dir = run_dir or Path("runs") / "train" / f"{run_name}_seed{seed}"
         typer.echo(
             f"training {algo} on {cfg.env_id} for {cfg.total_timesteps} steps, seed {seed}; "
             f"logs in {run_dir} (tensorboard --logdir {run_dir})"
@@ -67,7 +76,15 @@ def register(app: typer.Typer) -> None:
         def on_eval(step: int, ret: float) -> None:
             typer.echo(f"  eval at {step:>9d} steps: mean return {ret:9.2f}", err=True)
 
-        summary = run_training(cfg, seed, out, run_dir, progress_bar=progress, on_eval=on_eval)
+        from drill_env.outputs import OutputFolderError, output_lock
+
+        held = ExitStack()
+        try:
+            held.enter_context(output_lock(out, "train"))  # OUT is this training's alone until it ends
+        except OutputFolderError as exc:
+            _fail(str(exc))
+        with held:
+            summary = run_training(cfg, seed, out, run_dir, progress_bar=progress, on_eval=on_eval)
         verdict = "converged" if summary["converged"] else "NOT converged"
         typer.echo(
             f"{algo}: {summary['total_timesteps']} steps in {summary['wall_time_s']:.0f} s; "

@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from drill_env.outputs import atomic_file, atomic_write_text, output_lock
+
 __all__ = [
     "COLUMNS",
     "DatasetError",
@@ -131,12 +133,15 @@ def _load_meta(folder: Path) -> dict[str, Any]:
 
     path = folder / "dataset.json"
     if not path.is_file():
-        raise DatasetError(f"{path}: missing; a dataset folder needs dataset.json with 'preset' and "
-                           "'encoder_counts_per_rev'")
+        raise DatasetError(
+            f"{path}: missing; a dataset folder needs dataset.json with 'preset' and 'encoder_counts_per_rev'"
+        )
     try:
         meta = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}") from None
+        raise DatasetError(
+            f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}"
+        ) from None
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: expected a JSON object, got {type(meta).__name__}")
     for key in ("preset", "encoder_counts_per_rev"):
@@ -152,8 +157,10 @@ def _load_meta(folder: Path) -> dict[str, Any]:
         )
     rate = meta.get("sample_rate_hz")
     if rate is not None:
-        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (
-            MIN_RATE_HZ <= rate <= MAX_RATE_HZ
+        if (
+            isinstance(rate, bool)
+            or not isinstance(rate, (int, float))
+            or not (MIN_RATE_HZ <= rate <= MAX_RATE_HZ)
         ):
             raise DatasetError(
                 f"{path}: field 'sample_rate_hz' = {rate!r}; expected a number in "
@@ -198,7 +205,10 @@ def _load_csv(path: Path, expected_rate: float | None) -> MeasuredRun:
         s = df[col]
         if not (pd.api.types.is_numeric_dtype(s.dtype) and not pd.api.types.is_bool_dtype(s.dtype)):
             num = pd.to_numeric(s, errors="coerce")
-            bad = num.isna().to_numpy() & ~s.astype(str).str.strip().str.lower().isin(["nan", "+nan", "-nan"]).to_numpy()
+            bad = (
+                num.isna().to_numpy()
+                & ~s.astype(str).str.strip().str.lower().isin(["nan", "+nan", "-nan"]).to_numpy()
+            )
             if bad.any():
                 i = _first(bad)
                 raise DatasetError(
@@ -265,9 +275,7 @@ def _load_csv(path: Path, expected_rate: float | None) -> MeasuredRun:
                 f"{data[col][i] - data[col][i - 1]:.6g} rad in one sample (> {MAX_SPEED_RAD_S:g} rad/s); "
                 "angles must be unwrapped (cumulative)"
             )
-    return MeasuredRun(
-        name=path.stem, t=t, u=u, theta_u=data["theta_u"], theta_l=data["theta_l"], path=path
-    )
+    return MeasuredRun(name=path.stem, t=t, u=u, theta_u=data["theta_u"], theta_l=data["theta_l"], path=path)
 
 
 def load_dataset(folder: str | Path) -> MeasuredDataset:
@@ -301,19 +309,27 @@ def write_dataset(
     encoder_counts_per_rev: int,
     description: str = "",
 ) -> Path:
-    """Write runs and ``dataset.json`` in the measured-data format."""
+    """Write runs and ``dataset.json`` in the measured-data format (the folder held meanwhile,
+    see :func:`drill_env.outputs.output_lock`)."""
+    folder = Path(folder)
+    with output_lock(folder, "dataset"):
+        return _write_dataset(folder, runs, preset, encoder_counts_per_rev, description)
+
+
+def _write_dataset(
+    folder: Path, runs: list[MeasuredRun], preset: str, encoder_counts_per_rev: int, description: str
+) -> Path:
     import pandas as pd
 
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     rates = sorted({round(1.0 / r.dt, 6) for r in runs})
     meta: dict[str, Any] = {"preset": preset, "encoder_counts_per_rev": int(encoder_counts_per_rev)}
     if len(rates) == 1:
         meta["sample_rate_hz"] = rates[0]
     if description:
         meta["description"] = description
-    (folder / "dataset.json").write_text(json.dumps(meta, indent=2) + "\n")
+    atomic_write_text(folder / "dataset.json", json.dumps(meta, indent=2) + "\n")
     for r in runs:
         df = pd.DataFrame({"t": r.t, "u": r.u, "theta_u": r.theta_u, "theta_l": r.theta_l})
-        df.to_csv(folder / f"{r.name}.csv", index=False, float_format="%.12g")
+        with atomic_file(folder / f"{r.name}.csv", "w", newline="") as f:
+            df.to_csv(f, index=False, float_format="%.12g")
     return folder

@@ -86,8 +86,13 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     fig.tight_layout()
     fig.savefig(out / "equation_error.png", dpi=110)
     plt.close(fig)
-    figs.append(("equation_error.png", "Nominal equation error per window, in units of its noise floor "
-                 "(dotted: +-3); each run's windows in time order."))
+    figs.append(
+        (
+            "equation_error.png",
+            "Nominal equation error per window, in units of its noise floor "
+            "(dotted: +-3); each run's windows in time order.",
+        )
+    )
 
     if held:
         # spectra of the held-out runs
@@ -99,8 +104,13 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         fig.tight_layout()
         fig.savefig(out / "spectra.png", dpi=110)
         plt.close(fig)
-        figs.append(("spectra.png", "Power spectra of the lower-disk speed on the held-out runs: measured, "
-                     "free-running nominal model and model with the effect."))
+        figs.append(
+            (
+                "spectra.png",
+                "Power spectra of the lower-disk speed on the held-out runs: measured, "
+                "free-running nominal model and model with the effect.",
+            )
+        )
         # residual spectra of the short-horizon prediction
         fig, axes = plt.subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
         for ax, name in zip(axes[0], held, strict=False):
@@ -109,7 +119,9 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             ax.loglog(c.freqs[band], c.psd_short_residual[band], color="tab:red", lw=1, label="nominal")
             if name in res.after:
                 a = res.after[name]
-                ax.loglog(a.freqs[band], a.psd_short_residual[band], color="tab:blue", lw=1, label="with effect")
+                ax.loglog(
+                    a.freqs[band], a.psd_short_residual[band], color="tab:blue", lw=1, label="with effect"
+                )
             ax.set_title(runs[name].label, fontsize=9)
             ax.set_xlabel("frequency [Hz]")
             ax.set_ylabel("PSD of speed residual")
@@ -117,8 +129,13 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         fig.tight_layout()
         fig.savefig(out / "residual_spectra.png", dpi=110)
         plt.close(fig)
-        figs.append(("residual_spectra.png", "Spectra of the short-horizon speed residual (measured minus "
-                     "model restarted from the measured state every few seconds), held-out runs."))
+        figs.append(
+            (
+                "residual_spectra.png",
+                "Spectra of the short-horizon speed residual (measured minus "
+                "model restarted from the measured state every few seconds), held-out runs.",
+            )
+        )
         # trajectories
         fig, axes = plt.subplots(k, 1, figsize=(9, 2.4 * k), squeeze=False)
         for ax, name in zip(axes[:, 0], held, strict=False):
@@ -127,8 +144,14 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             ax.plot(c.t[sel], c.measured_speed[sel], color="k", lw=0.8, label="measured")
             ax.plot(c.t[sel], c.short_speed[sel], color="tab:red", lw=0.8, label="nominal, short horizons")
             if name in res.after:
-                ax.plot(c.t[sel], res.after[name].short_speed[sel], color="tab:blue", lw=0.8, ls="--",
-                        label="with effect, short horizons")
+                ax.plot(
+                    c.t[sel],
+                    res.after[name].short_speed[sel],
+                    color="tab:blue",
+                    lw=0.8,
+                    ls="--",
+                    label="with effect, short horizons",
+                )
             ax.set_ylabel("lower speed [rad/s]")
             ax.set_title(runs[name].label, fontsize=9)
         axes[-1, 0].set_xlabel("time since start of recording [s]")
@@ -136,8 +159,13 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         fig.tight_layout()
         fig.savefig(out / "trajectories.png", dpi=110)
         plt.close(fig)
-        figs.append(("trajectories.png", "Lower-disk speed, first 40 s of each held-out run: measured and "
-                     "models restarted from the measured state."))
+        figs.append(
+            (
+                "trajectories.png",
+                "Lower-disk speed, first 40 s of each held-out run: measured and "
+                "models restarted from the measured state.",
+            )
+        )
 
     # bifurcation points
     const = [n for n, c in res.nominal.items() if c.features_measured is not None]
@@ -163,8 +191,13 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         fig.tight_layout()
         fig.savefig(out / "bifurcation.png", dpi=110)
         plt.close(fig)
-        figs.append(("bifurcation.png", "Experimental bifurcation-diagram points (min, mean, max of the "
-                     "lower-disk speed over the second half of each constant-voltage run)."))
+        figs.append(
+            (
+                "bifurcation.png",
+                "Experimental bifurcation-diagram points (min, mean, max of the "
+                "lower-disk speed over the second half of each constant-voltage run).",
+            )
+        )
     return figs
 
 
@@ -187,28 +220,39 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
     if res.corrected is not None:
         lines += [
             "The chosen effect is written as a rig configuration, `model.yaml` (its `effects:` entry); "
-            "`drill_env.simulate(\"model.yaml\", ...)` and `drill_env.load_params(\"model.yaml\")` accept it. "
+            '`drill_env.simulate("model.yaml", ...)` and `drill_env.load_params("model.yaml")` accept it. '
             "Times in it count from the start of a recording (simulate with `t0 = 0` there).",
             "",
         ]
     lines += ["## Where the nominal model disagrees", ""]
     rows = []
     for w in res.where:
-        rows.append([
-            w["label"],
-            w["upper_ss_per_window"],
-            w["lower_ss_per_window"],
-            w.get("short_horizon_angle_over_floor", float("nan")),
-            w.get("spectrum_distance_db", float("nan")),
-            ", ".join(f"{f:.3g}" for f in w.get("disagreeing_frequencies_hz", [])) or "-",
-        ])
+        rows.append(
+            [
+                w["label"],
+                w["upper_ss_per_window"],
+                w["lower_ss_per_window"],
+                w.get("short_horizon_angle_over_floor", float("nan")),
+                w.get("spectrum_distance_db", float("nan")),
+                ", ".join(f"{f:.3g}" for f in w.get("disagreeing_frequencies_hz", [])) or "-",
+            ]
+        )
     lines += [
         "Equation error as sum of squares per window in noise units (1 = at the noise floor); short-horizon "
         "angle error over the angle noise; spectral distance of the lower-disk speed [dB] and the "
         "frequencies [Hz] where the spectra differ by more than 6 dB.",
         "",
-        _table(["run", "upper SS/window", "lower SS/window", "short-horizon angle / floor",
-                "spectrum distance [dB]", "disagreeing frequencies [Hz]"], rows),
+        _table(
+            [
+                "run",
+                "upper SS/window",
+                "lower SS/window",
+                "short-horizon angle / floor",
+                "spectrum distance [dB]",
+                "disagreeing frequencies [Hz]",
+            ],
+            rows,
+        ),
         "",
     ]
     const = [w for w in res.where if "steady_measured" in w]
@@ -216,14 +260,40 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         rows = []
         for w in const:
             m, s = w["steady_measured"], w["steady_model"]
-            rows.append([w["label"], m["mean_speed"], s["mean_speed"], m["min_speed"], s["min_speed"],
-                         m["max_speed"], s["max_speed"], m["period"], s["period"], m["stick_fraction"],
-                         s["stick_fraction"]])
+            rows.append(
+                [
+                    w["label"],
+                    m["mean_speed"],
+                    s["mean_speed"],
+                    m["min_speed"],
+                    s["min_speed"],
+                    m["max_speed"],
+                    s["max_speed"],
+                    m["period"],
+                    s["period"],
+                    m["stick_fraction"],
+                    s["stick_fraction"],
+                ]
+            )
         lines += [
             "Steady state (second half of each constant-voltage run), measured vs nominal model:",
             "",
-            _table(["run", "mean meas", "mean model", "min meas", "min model", "max meas", "max model",
-                    "period meas [s]", "period model [s]", "stuck meas", "stuck model"], rows),
+            _table(
+                [
+                    "run",
+                    "mean meas",
+                    "mean model",
+                    "min meas",
+                    "min model",
+                    "max meas",
+                    "max model",
+                    "period meas [s]",
+                    "period model [s]",
+                    "stuck meas",
+                    "stuck model",
+                ],
+                rows,
+            ),
             "",
         ]
     ln = res.line
@@ -236,8 +306,17 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         "## Which effect",
         "",
     ]
-    rows = [[s.name, s.gain, s.threshold, s.significant,
-             ", ".join(f"{k}={v:.4g}" for k, v in s.parameters.items()), s.note or ""] for s in d.scores]
+    rows = [
+        [
+            s.name,
+            s.gain,
+            s.threshold,
+            s.significant,
+            ", ".join(f"{k}={v:.4g}" for k, v in s.parameters.items()),
+            s.note or "",
+        ]
+        for s in d.scores
+    ]
     lines += [
         "Each candidate is fitted on the training runs and scored on the held-out runs: the gain is the drop "
         "of the held-out sum of squares (noise units), normalised by the remaining misfit; the threshold is "
@@ -258,6 +337,6 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         lines += ["## Figures", ""]
         for fn, cap in figs:
             lines += [f"![{fn}]({fn})", "", cap, ""]
-    path = out / "report.md"
-    path.write_text("\n".join(lines))
-    return path
+    from drill_env.outputs import atomic_write_text
+
+    return atomic_write_text(out / "report.md", "\n".join(lines))

@@ -12,6 +12,9 @@ without ever seeing the answer, and tabulates
 :func:`paper_case` builds data made to look like the paper's low-voltage runs (brake,
 1 kHz, constant 0.2-1.0 V plus identification runs, position-dependent friction at the
 lower disk) and runs the full workflow with the 0.2 V and 0.5 V runs held out.
+
+Both hold their output folder (:func:`drill_env.outputs.output_lock`) while they write and
+replace each file whole; the counts are checked before anything is written.
 """
 
 from __future__ import annotations
@@ -28,11 +31,22 @@ import numpy as np
 from drill_env.discrepancy.dataset import MeasuredDataset
 from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse
+from drill_env.outputs import atomic_file, atomic_write_text, output_lock
 
-__all__ = ["run_study", "paper_case", "expected_verdict"]
+__all__ = ["run_study", "paper_case", "expected_verdict", "check_seed_count", "MAX_SEEDS"]
 
 MAGNITUDE_FACTORS = (0.1, 0.3, 1.0)
 NOISE_LEVELS = (0.0, 1e-3, 3e-3, 1e-2)  # [rad]
+# The confusion matrix, the magnitude sweep and the noise sweep draw their datasets from the
+# seeds 1000+s, 2000+s and 3000+s: at most 1000 seeds each keeps the three parts apart.
+SEED_BLOCK = 1000
+MAX_SEEDS = SEED_BLOCK
+
+
+def check_seed_count(name: str, value: object) -> None:
+    """ValueError unless ``value`` is a number of seeds the study can use (1 to MAX_SEEDS)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_SEEDS:
+        raise ValueError(f"{name} must be an integer from 1 to {MAX_SEEDS}, got {value!r}")
 
 
 def expected_verdict(effect: str) -> str:
@@ -45,7 +59,9 @@ def _one(effect: str, seed: int, magnitude, cfg: SynthConfig, bootstrap: int) ->
     from drill_env.discrepancy.decide import DecisionRule
 
     syn = make_dataset(effect, seed=seed, magnitude=magnitude, config=cfg)
-    ds = MeasuredDataset(preset=cfg.preset, encoder_counts_per_rev=cfg.encoder_counts_per_rev, runs=tuple(syn.runs))
+    ds = MeasuredDataset(
+        preset=cfg.preset, encoder_counts_per_rev=cfg.encoder_counts_per_rev, runs=tuple(syn.runs)
+    )
     t = time.perf_counter()
     res = analyse(ds, simulate_gaps=False, rule=DecisionRule(bootstrap=bootstrap), seed=seed)
     return {
@@ -69,27 +85,38 @@ def run_study(
     bootstrap: int = 100,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict:
-    """Run the study and write ``study.json``, ``confusion.md``, and the figures to ``out``."""
+    """Run the study and write ``study.json``, ``confusion.md``, and the figures to ``out``.
+
+    ``seeds`` and ``sweep_seeds`` (datasets per effect and per sweep point) are 1 to
+    :data:`MAX_SEEDS`; nothing is written unless they are.
+    """
+    check_seed_count("seeds", seeds)
+    check_seed_count("sweep_seeds", sweep_seeds)
+    if isinstance(bootstrap, bool) or not isinstance(bootstrap, (int, np.integer)) or bootstrap < 0:
+        raise ValueError(f"bootstrap must be an integer >= 0, got {bootstrap!r}")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    base = base or SynthConfig()
+    with output_lock(out, "discrepancy-study"):
+        return _run_study(out, seeds, sweep_seeds, base or SynthConfig(), bootstrap, progress)
+
+
+def _run_study(out: Path, seeds: int, sweep_seeds: int, base: SynthConfig, bootstrap: int, progress) -> dict:
     effects = [e for e in HIDDEN_EFFECTS]
     jobs: list[tuple[str, str, int, float | None, SynthConfig]] = []
     for e in effects:
         for s in range(seeds):
-            jobs.append(("confusion", e, 1000 + s, None, base))
+            jobs.append(("confusion", e, SEED_BLOCK + s, None, base))
     for e in effects:
         if e == "none":
             continue
         low = HIDDEN_EFFECTS[e].low
         for f in MAGNITUDE_FACTORS:
             for s in range(sweep_seeds):
-                jobs.append((f"magnitude:{f}", e, 2000 + s, low * f, base))
+                jobs.append((f"magnitude:{f}", e, 2 * SEED_BLOCK + s, low * f, base))
     for e in effects:
         low = HIDDEN_EFFECTS[e].low if e != "none" else None
         for nz in NOISE_LEVELS:
             for s in range(sweep_seeds):
-                jobs.append((f"noise:{nz}", e, 3000 + s, low, replace(base, angle_noise_std=nz)))
+                jobs.append((f"noise:{nz}", e, 3 * SEED_BLOCK + s, low, replace(base, angle_noise_std=nz)))
     rows = []
     for i, (part, e, seed, mag, cfg) in enumerate(jobs):
         row = _one(e, seed, mag, cfg, bootstrap)
@@ -98,7 +125,7 @@ def run_study(
         if progress:
             progress(i + 1, len(jobs))
     summary = _summarise(rows, effects)
-    (out / "study.json").write_text(json.dumps({"rows": rows, "summary": summary}, indent=2) + "\n")
+    atomic_write_text(out / "study.json", json.dumps({"rows": rows, "summary": summary}, indent=2) + "\n")
     _write_markdown(out, rows, summary, effects, base, seeds, sweep_seeds)
     _plot(out, summary, effects)
     return summary
@@ -165,7 +192,11 @@ def _write_markdown(out, rows, summary, effects, base, seeds, sweep_seeds):
         "|---|" + "---|" * len(MAGNITUDE_FACTORS),
     ]
     for e, d in summary["detection_vs_magnitude"].items():
-        lines.append(f"| {e} | " + " | ".join(f"{d.get(str(float(f)), float('nan')):.2f}" for f in MAGNITUDE_FACTORS) + " |")
+        lines.append(
+            f"| {e} | "
+            + " | ".join(f"{d.get(str(float(f)), float('nan')):.2f}" for f in MAGNITUDE_FACTORS)
+            + " |"
+        )
     lines += [
         "",
         f"## Detection rate against angle noise ({sweep_seeds} seeds; magnitude at the lower end of the range; "
@@ -175,11 +206,16 @@ def _write_markdown(out, rows, summary, effects, base, seeds, sweep_seeds):
         "|---|" + "---|" * len(NOISE_LEVELS),
     ]
     for e, d in summary["detection_vs_noise"].items():
-        lines.append(f"| {e} | " + " | ".join(f"{d.get(str(float(n)), float('nan')):.2f}" for n in NOISE_LEVELS) + " |")
+        lines.append(
+            f"| {e} | " + " | ".join(f"{d.get(str(float(n)), float('nan')):.2f}" for n in NOISE_LEVELS) + " |"
+        )
     wrong = [r for r in rows if not r["correct"]]
     lines += ["", f"## Misclassified datasets ({len(wrong)} of {len(rows)})", ""]
     if wrong:
-        lines += ["| part | truth | magnitude | noise [rad] | seed | verdict | confidence |", "|---|---|---|---|---|---|---|"]
+        lines += [
+            "| part | truth | magnitude | noise [rad] | seed | verdict | confidence |",
+            "|---|---|---|---|---|---|---|",
+        ]
         for r in wrong:
             lines.append(
                 f"| {r['part']} | {r['effect']} | {r['magnitude']:.4g} | {r['noise']:g} | {r['seed']} | "
@@ -192,7 +228,7 @@ def _write_markdown(out, rows, summary, effects, base, seeds, sweep_seeds):
         "![detection](detection.png)",
         "",
     ]
-    (out / "confusion.md").write_text("\n".join(lines))
+    atomic_write_text(out / "confusion.md", "\n".join(lines))
 
 
 def _plot(out, summary, effects):
@@ -217,7 +253,8 @@ def _plot(out, summary, effects):
     axes[1].set_ylim(-0.05, 1.05)
     axes[1].legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(out / "detection.png", dpi=110)
+    with atomic_file(out / "detection.png", "wb") as f:
+        fig.savefig(f, format="png", dpi=110)
     plt.close(fig)
 
 
@@ -233,7 +270,9 @@ PAPER_CASE = SynthConfig(
 )
 
 
-def paper_case(out: str | Path, *, seed: int = 4, magnitude: float = 0.12, data_dir: str | Path | None = None) -> dict:
+def paper_case(
+    out: str | Path, *, seed: int = 4, magnitude: float = 0.12, data_dir: str | Path | None = None
+) -> dict:
     """The paper's Sec. 4.1 case: position-dependent friction at the lower disk, seen at 0.2 and 0.5 V.
 
     Writes the data to ``data_dir`` (default: a temporary folder, the runs are large), the
@@ -245,11 +284,16 @@ def paper_case(out: str | Path, *, seed: int = 4, magnitude: float = 0.12, data_
     if data_dir is None:
         with tempfile.TemporaryDirectory() as tmp:
             return paper_case(out, seed=seed, magnitude=magnitude, data_dir=Path(tmp) / "data")
+    out = Path(out)
+    with output_lock(out, "discrepancy-study (paper's case)"):
+        return _paper_case(out, seed, magnitude, Path(data_dir))
+
+
+def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
     from drill_env.discrepancy.report import plot_spectra
     from drill_env.discrepancy.synth import write_synthetic
     from drill_env.discrepancy.workflow import run_discrepancy
 
-    out = Path(out)
     syn = make_dataset("position_friction_lower", seed=seed, magnitude=magnitude, config=PAPER_CASE)
     write_synthetic(syn, data_dir, out / "answer.json", preset=PAPER_CASE.preset)
     held = [r.name for r in syn.runs if r.is_constant_voltage and r.voltage in (0.2, 0.5)]
@@ -268,7 +312,8 @@ def paper_case(out: str | Path, *, seed: int = 4, magnitude: float = 0.12, data_
         ax.text(rot, ax.get_ylim()[1], " rotation rate", fontsize=7, va="top", color="gray")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "spectra_0.2_0.5V.png", dpi=110)
+    with atomic_file(out / "spectra_0.2_0.5V.png", "wb") as f:
+        fig.savefig(f, format="png", dpi=110)
     plt.close(fig)
     truth = syn.answer["model_effects"]
     found = res.decision.winner.parameters if res.decision.winner else {}
@@ -313,6 +358,6 @@ def paper_case(out: str | Path, *, seed: int = 4, magnitude: float = 0.12, data_
         "[analysis/report.md](analysis/report.md).",
         "",
     ]
-    (out / "paper_case.md").write_text("\n".join(lines))
-    (out / "paper_case.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    atomic_write_text(out / "paper_case.md", "\n".join(lines))
+    atomic_write_text(out / "paper_case.json", json.dumps(summary, indent=2, default=float) + "\n")
     return summary

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.discrepancy.dataset import MeasuredRun, write_dataset
+from drill_env.outputs import atomic_write_text
 from drill_env.params import RigParams, load_params
 
 __all__ = [
@@ -337,4 +338,4 @@ def write_synthetic(result: SynthResult, out: str | Path, answer_file: str | Pat
         encoder_counts_per_rev=int(result.answer["design"]["encoder_counts_per_rev"]),
     )
     answer_file.parent.mkdir(parents=True, exist_ok=True)
-    answer_file.write_text(json.dumps(result.answer, indent=2) + "\n")
+    atomic_write_text(answer_file, json.dumps(result.answer, indent=2) + "\n")

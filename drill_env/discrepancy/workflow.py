@@ -38,6 +38,7 @@ from drill_env.discrepancy.equation_error import (
     RunEquations,
     estimate_angle_noise,
 )
+from drill_env.outputs import atomic_write_text, output_lock
 from drill_env.params import RigParams, load_params
 
 __all__ = ["DiscrepancyResult", "analyse", "run_discrepancy", "RESULT_EFFECTS"]
@@ -257,15 +258,16 @@ def run_discrepancy(
     progress: Callable[[str, int, int], None] | None = None,
 ) -> DiscrepancyResult:
     """Run the workflow on a dataset folder and write ``report.md``, ``result.json``,
-    the figures and (when an effect is named) ``model.yaml`` under ``out``."""
+    the figures and (when an effect is named) ``model.yaml`` under ``out``, which is held
+    for this run alone (:func:`drill_env.outputs.output_lock`) from the analysis on."""
     dataset = load_dataset(data_dir)
-    res = analyse(dataset, heldout=heldout, seed=seed, progress=progress)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    if res.corrected is not None:
-        res.corrected.to_yaml(out / "model.yaml")
-    (out / "result.json").write_text(json.dumps(_jsonable(res.result_json()), indent=2) + "\n")
-    from drill_env.discrepancy.report import write_report
+    with output_lock(out, "discrepancy"):
+        res = analyse(dataset, heldout=heldout, seed=seed, progress=progress)
+        if res.corrected is not None:
+            res.corrected.to_yaml(out / "model.yaml")
+        atomic_write_text(out / "result.json", json.dumps(_jsonable(res.result_json()), indent=2) + "\n")
+        from drill_env.discrepancy.report import write_report
 
-    write_report(res, out, figures=figures)
+        write_report(res, out, figures=figures)
     return res

@@ -3,18 +3,30 @@
 Importing this package (``import drill_env`` does) registers them:
 
 * ``DrillString-v0``: the rig with the brake on the lower disk (the paper's experiments);
-* ``DrillStringNoBrake-v0``: the rig without the brake.
+* ``DrillStringNoBrake-v0``: the rig without the brake;
+* ``DrillString-v1``, ``DrillStringNoBrake-v1``: the same rigs with observation version 1
+  (the v0 entries followed by the encoder angles and the integrated speed error of the
+  lower disk; see ``DrillStringEnv``'s "Version History"). The policies in
+  ``results/agents/`` are trained on these; the v0 ids stay registered unchanged, so the
+  v0 policies (``results/agents/v0/``) still load and run.
 
-Both have a native vector version: ``gymnasium.make_vec(id, num_envs=N)`` returns a
+All have a native vector version: ``gymnasium.make_vec(id, num_envs=N)`` returns a
 :class:`~drill_env.envs.vector.DrillStringVectorEnv` that steps all rigs in one compiled
 call.
 """
 
 from __future__ import annotations
 
-__all__ = ["register_envs", "ENV_IDS", "MAX_EPISODE_STEPS"]
+__all__ = ["register_envs", "ENV_IDS", "ENV_VERSIONS", "MAX_EPISODE_STEPS"]
 
-ENV_IDS = {"DrillString-v0": "brake", "DrillStringNoBrake-v0": "no_brake"}
+# Every registered id -> its rig preset; ENV_VERSIONS gives its observation version.
+ENV_IDS = {
+    "DrillString-v0": "brake",
+    "DrillStringNoBrake-v0": "no_brake",
+    "DrillString-v1": "brake",
+    "DrillStringNoBrake-v1": "no_brake",
+}
+ENV_VERSIONS = {env_id: int(env_id.rsplit("-v", 1)[1]) for env_id in ENV_IDS}
 MAX_EPISODE_STEPS = 400  # 20 s at the default control period of 0.05 s
 
 
@@ -25,12 +37,15 @@ def register_envs() -> None:
     for env_id, preset in ENV_IDS.items():
         if env_id in gymnasium.registry:
             continue
+        kwargs = {"params": preset}  # v0: exactly as before v1 existed
+        if ENV_VERSIONS[env_id] != 0:
+            kwargs["observation_version"] = ENV_VERSIONS[env_id]
         gymnasium.register(
             id=env_id,
             entry_point="drill_env.envs.drill_string:DrillStringEnv",
             vector_entry_point="drill_env.envs.vector:DrillStringVectorEnv",
             max_episode_steps=MAX_EPISODE_STEPS,
-            kwargs={"params": preset},
+            kwargs=kwargs,
         )
 
 

@@ -14,6 +14,8 @@ rigs run the same compiled code and agree bit for bit.
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -21,7 +23,10 @@ from drill_env import _layout as L
 from drill_env.kernel import N_STATS, ST_H, WORK_ROWS, run_ws
 from drill_env.sensors import (
     C_ANGLE_NOISE,
+    C_INV_RES,
+    C_RES,
     C_SPEED_NOISE,
+    C_TS,
     S_QL,
     S_QU,
     S_VL,
@@ -48,7 +53,11 @@ EP_UNOM = 5  # nominal voltage of the operating point [V]
 EP_MEAN_U = 6  # upper encoder speed averaged over the last control period [rad/s]
 EP_MEAN_L = 7  # lower encoder speed averaged over the last control period [rad/s]
 EP_STATUS = 8  # kernel status of the last call (0 = ok)
-NEP = 9
+# The integrated speed error of the lower disk (observation v1) is measured from a base:
+EP_INT_TICK0 = 9  # tick t0 of the base: the episode start, re-based when the target changes
+EP_INT_QL0 = 10  # lower encoder reading at t0 [rad]
+EP_INT_TARGET = 11  # target speed the base was taken for [rad/s]
+NEP = 12
 
 # -- environment configuration (shared by all rigs of an env) ------------------------------------
 EC_RTOL = 0
@@ -62,21 +71,33 @@ EC_SPEED_REF = 7  # floor of the speed that normalises the reward terms [rad/s]
 EC_VMAX = 8  # amplifier limit [V]
 EC_SETTLE = 9  # control periods run at the end of an open-loop warm-up to settle the sensors
 EC_MAX_STEPS = 10  # integration step cap per control period
-EC_SCALE = 11  # NOBS observation divisors (all 1 for physical units)
-NOBS = 8
+EC_OBS_VERSION = 11  # observation version: 0 (NOBS_V0 entries) or 1 (NOBS entries)
+EC_INT_BOUND = 12  # clip bound of the integrated lower speed error [rad]
+EC_SCALE = 13  # NOBS observation divisors (all 1 for physical units; entries beyond the version's unused)
+NOBS_V0 = 8  # entries of observation version 0
+NOBS = 13  # entries of observation version 1 (the largest): the v0 entries, then the encoder extras
 NEC = EC_SCALE + NOBS
 
 # -- observation entries -----------------------------------------------------------------------
 OB_LOWER_SPEED, OB_UPPER_SPEED, OB_TWIST, OB_LOWER_MEAN, OB_UPPER_MEAN, OB_VOLTAGE, OB_TARGET, OB_UNOM = (
-    range(NOBS)
+    range(NOBS_V0)
 )
+# version 1 only: encoder angles within the revolution and the integrated lower speed error
+OB_LOWER_SIN, OB_LOWER_COS, OB_UPPER_SIN, OB_UPPER_COS, OB_LOWER_ERR_INT = range(NOBS_V0, NOBS)
+
+
+def n_obs(version: int) -> int:
+    """Length of the observation of a version (0 or 1)."""
+    return NOBS_V0 if version == 0 else NOBS
+
 
 # -- per-step outputs ----------------------------------------------------------------------------
 O_TRACK, O_STICK, O_OSC, O_EFFORT, O_REWARD, O_STATUS = range(6)
 O_TRUE = 6  # twist, upper speed, lower speed, upper angle, lower angle (true values)
 O_UPPER_STUCK = 11
 O_LOWER_STUCK = 12
-NOUT = 13
+O_INT_CLIPPED = 13  # 1 when the integrated lower speed error was clipped to its bound (version 1)
+NOUT = 14
 N_TRUE = 5
 
 # -- start states --------------------------------------------------------------------------------
@@ -142,7 +163,20 @@ def _integrate(p, y, modes, t0, t1, u, t_out, ybuf, mbuf, ubuf, ep, ecfg, ws):
 
 
 @nb.njit(**_NO_NRT)
-def _write_obs(y, ep, ecfg, sst, obs):
+def _encoder_angle(q, scfg):
+    """Position within the revolution [rad, in [0, 2 pi)] of the encoder reading ``q``:
+    (counts mod N) * 2 pi / N from the whole count, so it does not degrade as ``q`` grows;
+    ideal (unquantised) angles are reduced modulo 2 pi."""
+    res = scfg[C_RES]
+    if res > 0.0:
+        n = math.floor(2.0 * math.pi * scfg[C_INV_RES] + 0.5)  # counts per revolution
+        c = math.floor(q * scfg[C_INV_RES] + 0.5)  # q is a whole number of counts
+        return (c - n * math.floor(c / n)) * res
+    return q - 2.0 * math.pi * math.floor(q / (2.0 * math.pi))
+
+
+@nb.njit(**_NO_NRT)
+def _write_obs(y, ep, ecfg, scfg, sst, obs, out):
     obs[OB_LOWER_SPEED] = sst[S_VL] / ecfg[EC_SCALE + OB_LOWER_SPEED]
     obs[OB_UPPER_SPEED] = sst[S_VU] / ecfg[EC_SCALE + OB_UPPER_SPEED]
     obs[OB_TWIST] = (sst[S_QU] - sst[S_QL]) / ecfg[EC_SCALE + OB_TWIST]
@@ -151,6 +185,25 @@ def _write_obs(y, ep, ecfg, sst, obs):
     obs[OB_VOLTAGE] = ep[EP_U] / ecfg[EC_SCALE + OB_VOLTAGE]
     obs[OB_TARGET] = ep[EP_TARGET] / ecfg[EC_SCALE + OB_TARGET]
     obs[OB_UNOM] = ep[EP_UNOM] / ecfg[EC_SCALE + OB_UNOM]
+    if ecfg[EC_OBS_VERSION] >= 1.0:
+        al = _encoder_angle(sst[S_QL], scfg)
+        au = _encoder_angle(sst[S_QU], scfg)
+        obs[OB_LOWER_SIN] = math.sin(al)
+        obs[OB_LOWER_COS] = math.cos(al)
+        obs[OB_UPPER_SIN] = math.sin(au)
+        obs[OB_UPPER_COS] = math.cos(au)
+        # theta_l_enc(t) - theta_l_enc(t0) - w* (t - t0), exact in the encoder readings
+        e = (sst[S_QL] - ep[EP_INT_QL0]) - ep[EP_TARGET] * ((ep[EP_TICK] - ep[EP_INT_TICK0]) * scfg[C_TS])
+        bound = ecfg[EC_INT_BOUND]
+        clipped = 0.0
+        if e > bound:
+            e = bound
+            clipped = 1.0
+        elif e < -bound:
+            e = -bound
+            clipped = 1.0
+        obs[OB_LOWER_ERR_INT] = e / ecfg[EC_SCALE + OB_LOWER_ERR_INT]
+        out[O_INT_CLIPPED] = clipped
 
 
 @nb.njit(**_NO_NRT)
@@ -189,6 +242,11 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
     qu0 = sst[S_QU]
     ql0 = sst[S_QL]
     target = ep[EP_TARGET]
+    if target != ep[EP_INT_TARGET]:
+        # a new target speed: the integrated speed error restarts from here (t0 = now)
+        ep[EP_INT_TICK0] = tick0
+        ep[EP_INT_QL0] = ql0
+        ep[EP_INT_TARGET] = target
     inv_sref = 1.0 / max(target, ecfg[EC_SPEED_REF])
     noise = ws[1]
     dirty = ws[10]
@@ -229,7 +287,7 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
     )
     out[O_STATUS] = status
     _write_true(y, modes, out)
-    _write_obs(y, ep, ecfg, sst, obs)
+    _write_obs(y, ep, ecfg, scfg, sst, obs, out)
     return status
 
 
@@ -304,12 +362,15 @@ def rig_reset(
         modes[0] = 0 if y[L.X2] == 0.0 else (1 if y[L.X2] > 0.0 else -1)
         modes[1] = 0 if y[L.X3] == 0.0 else (1 if y[L.X3] > 0.0 else -1)
     ep[EP_TICK0] = ep[EP_TICK]
+    ep[EP_INT_TICK0] = ep[EP_TICK]  # the integrated speed error starts with the episode
+    ep[EP_INT_QL0] = sst[S_QL]
+    ep[EP_INT_TARGET] = target
     ep[EP_STATUS] = status
     for j in range(NOUT):
         out[j] = 0.0
     out[O_STATUS] = status
     _write_true(y, modes, out)
-    _write_obs(y, ep, ecfg, sst, obs)
+    _write_obs(y, ep, ecfg, scfg, sst, obs, out)
     return status
 
 

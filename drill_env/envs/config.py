@@ -45,6 +45,8 @@ __all__ = [
     "OBSERVATION_NAMES",
     "OBSERVATION_UNITS",
     "OBSERVATION_SCALES",
+    "OBSERVATION_VERSIONS",
+    "observation_layout",
     "TRUE_STATE_NAMES",
     "REWARD_NAMES",
 ]
@@ -101,6 +103,56 @@ OBSERVATION_HIGH = (
     SPEED_BOUND,
     VOLTAGE_LIMIT,
 )
+
+# -- observation version 1: the v0 entries, then what the encoders give beyond them -------------
+# sin/cos of each disk's encoder angle within the revolution (from the whole counts) and the
+# integrated speed error of the lower disk, theta_l_enc(t) - theta_l_enc(t0) - w* (t - t0).
+OBSERVATION_NAMES_V1 = OBSERVATION_NAMES + (
+    "lower_angle_sin",
+    "lower_angle_cos",
+    "upper_angle_sin",
+    "upper_angle_cos",
+    "lower_speed_error_integral",
+)
+OBSERVATION_UNITS_V1 = OBSERVATION_UNITS + ("-", "-", "-", "-", "rad")
+# One revolution: +-1 is the bit a whole turn ahead of (+) or behind (-) its reference
+# angle. A controller that holds the speed keeps it well inside +-1 (a PI's integrator holds
+# (u - u_nom) / k_i, a fraction of a radian); open-loop stick-slip loses ~0.1-1 rad/s
+# against the target, a few revolutions per 20 s episode.
+INTEGRAL_SCALE = 2.0 * math.pi  # [rad]
+# Clip bound: 50 revolutions. In a registered episode (20 s) the bit cannot get that far
+# from its reference angle: standing still at the fastest target (8.9 rad/s, the equilibrium
+# speed at 5 V) it lags 178 rad = 28 revolutions. Longer episodes with a stalled or runaway
+# bit can reach it; then the entry is clipped and info["integral_clipped"] says so.
+INTEGRAL_BOUND = 100.0 * math.pi  # [rad]
+OBSERVATION_SCALES_V1 = OBSERVATION_SCALES + (1.0, 1.0, 1.0, 1.0, INTEGRAL_SCALE)
+OBSERVATION_LOW_V1 = OBSERVATION_LOW + (-1.0, -1.0, -1.0, -1.0, -INTEGRAL_BOUND)
+OBSERVATION_HIGH_V1 = OBSERVATION_HIGH + (1.0, 1.0, 1.0, 1.0, INTEGRAL_BOUND)
+OBSERVATION_VERSIONS = (0, 1)
+assert len(OBSERVATION_NAMES) == C.NOBS_V0 and len(OBSERVATION_NAMES_V1) == C.NOBS
+
+
+def observation_layout(version: int) -> dict[str, tuple]:
+    """Names, units, scales and physical bounds (low, high) of observation ``version``."""
+    if version == 0:
+        return {
+            "names": OBSERVATION_NAMES,
+            "units": OBSERVATION_UNITS,
+            "scales": OBSERVATION_SCALES,
+            "low": OBSERVATION_LOW,
+            "high": OBSERVATION_HIGH,
+        }
+    if version == 1:
+        return {
+            "names": OBSERVATION_NAMES_V1,
+            "units": OBSERVATION_UNITS_V1,
+            "scales": OBSERVATION_SCALES_V1,
+            "low": OBSERVATION_LOW_V1,
+            "high": OBSERVATION_HIGH_V1,
+        }
+    raise ValueError(f"observation_version: {version!r} is not one of {list(OBSERVATION_VERSIONS)}")
+
+
 TRUE_STATE_NAMES = ("twist", "upper_speed", "lower_speed", "upper_angle", "lower_angle")
 REWARD_NAMES = ("tracking", "stick", "oscillation", "effort")
 SPEED_REF_FLOOR = 1.0  # [rad/s] reward terms are normalised by max(target speed, this)
@@ -241,6 +293,7 @@ class EnvSettings:
         normalize_observation: bool = True,
         rtol: float = DEFAULT_RTOL,
         atol: float = DEFAULT_ATOL,
+        observation_version: int = 0,
     ):
         if params_overrides is not None and not isinstance(params_overrides, Mapping):
             raise ValueError(
@@ -271,6 +324,21 @@ class EnvSettings:
         if not isinstance(normalize_observation, (bool, np.bool_)):
             raise ValueError(f"normalize_observation: expected True or False, got {normalize_observation!r}")
         self.normalize_observation = bool(normalize_observation)
+        if (
+            isinstance(observation_version, (bool, np.bool_))
+            or not isinstance(observation_version, (int, np.integer))
+            or int(observation_version) not in OBSERVATION_VERSIONS
+        ):
+            raise ValueError(
+                f"observation_version: {observation_version!r} is not one of {list(OBSERVATION_VERSIONS)}"
+            )
+        self.observation_version = int(observation_version)
+        layout = observation_layout(self.observation_version)
+        self.n_obs = C.n_obs(self.observation_version)
+        self.observation_names: tuple[str, ...] = layout["names"]
+        self.observation_units: tuple[str, ...] = layout["units"]
+        self._obs_low = np.asarray(layout["low"], dtype=np.float64)
+        self._obs_high = np.asarray(layout["high"], dtype=np.float64)
         self.rtol = _number("rtol", rtol, 1e-14, 1e-3)
         self.atol = _number("atol", atol, 1e-16, 1e-3)
         self.sampler = OperatingPointSampler(self.params, self.task)
@@ -285,10 +353,15 @@ class EnvSettings:
         """The observation Box (normalised or physical units)."""
         from gymnasium import spaces
 
-        scale = self.ecfg[C.EC_SCALE : C.EC_SCALE + C.NOBS]
-        low = np.asarray(OBSERVATION_LOW) / scale
-        high = np.asarray(OBSERVATION_HIGH) / scale
+        scale = self.observation_scales
+        low = self._obs_low / scale
+        high = self._obs_high / scale
         return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+
+    @property
+    def observation_scales(self) -> np.ndarray:
+        """Divisor of each observation entry (physical = obs * scale; all 1 unnormalised)."""
+        return self.ecfg[C.EC_SCALE : C.EC_SCALE + self.n_obs].copy()
 
     def action_space(self):
         """The action Box: the voltage / 5 V (normalized) or the voltage [V]."""
@@ -311,7 +384,11 @@ class EnvSettings:
         e[C.EC_VMAX] = VOLTAGE_LIMIT
         e[C.EC_SETTLE] = self.settle_periods
         e[C.EC_MAX_STEPS] = max(100_000, 20_000 * self.n_sub)
-        e[C.EC_SCALE : C.EC_SCALE + C.NOBS] = OBSERVATION_SCALES if self.normalize_observation else 1.0
+        e[C.EC_OBS_VERSION] = self.observation_version
+        e[C.EC_INT_BOUND] = INTEGRAL_BOUND
+        e[C.EC_SCALE : C.EC_SCALE + C.NOBS] = 1.0
+        if self.normalize_observation:
+            e[C.EC_SCALE : C.EC_SCALE + self.n_obs] = observation_layout(self.observation_version)["scales"]
         return e
 
     @property

@@ -72,7 +72,8 @@ class DrillStringEnv(gym.Env):
 
     ## Observation Space
 
-    ``Box(low, high, (8,), float32)``: only what a controller on the rig has. Each entry
+    ``Box(low, high, (8,), float32)`` in v0, ``(13,)`` in v1 (``DrillString-v1``, or
+    ``observation_version=1``): only what a controller on the rig has. Each entry
     is divided by its scale (``normalize_observation=True``, the default) so that typical
     values are of order one; with ``normalize_observation=False`` the entries are in the
     units given. The bounds (before scaling) are the amplifier's +-5 V for the voltages
@@ -89,6 +90,26 @@ class DrillStringEnv(gym.Env):
     | 5   | `voltage`          | V     | 5     | voltage applied during the last step (after the +-5 V limit)            |
     | 6   | `target_speed`     | rad/s | 10    | target lower-disk speed of this episode                                 |
     | 7   | `nominal_voltage`  | V     | 5     | voltage whose nominal-model equilibrium gives the target speed         |
+
+    Version 1 appends what else the encoders give:
+
+    | Num | Observation                  | Unit | Scale | What it is                                                   |
+    |-----|------------------------------|------|-------|--------------------------------------------------------------|
+    | 8   | `lower_angle_sin`            | -    | 1     | sin of the lower encoder angle within the revolution          |
+    | 9   | `lower_angle_cos`            | -    | 1     | cos of the lower encoder angle within the revolution          |
+    | 10  | `upper_angle_sin`            | -    | 1     | sin of the upper encoder angle within the revolution          |
+    | 11  | `upper_angle_cos`            | -    | 1     | cos of the upper encoder angle within the revolution          |
+    | 12  | `lower_speed_error_integral` | rad  | 2 pi  | theta_l(t) - theta_l(t0) - w* (t - t0) from the encoder counts |
+
+    The angles within the revolution are (counts mod N) 2 pi / N from the whole encoder
+    count, so they do not lose precision as the disks turn: a policy can learn effects
+    that depend on where the disks are (position-dependent friction, Sec. 4.1 of the
+    paper). Entry 12 is the lag of the bit behind its reference angle, the integral of the
+    lower-disk speed error measured exactly by the encoder (no drift from integrating an
+    estimate): t0 is the start of the episode (the controller's switch-on) and it restarts
+    from 0 whenever the target speed changes; it is clipped to +-100 pi rad (50
+    revolutions, far beyond what a 20 s episode reaches), and ``info["integral_clipped"]``
+    says when it is.
 
     Why 3, 4 and 7: the count difference over a control period is a speed estimate every
     rig controller can form from the same encoders, far less noisy than the 1 kHz
@@ -144,7 +165,7 @@ class DrillStringEnv(gym.Env):
     ## Arguments
 
     ```python
-    env = gymnasium.make("DrillString-v0", control_dt=0.05, sensors={"counts_per_rev": 4096})
+    env = gymnasium.make("DrillString-v1", control_dt=0.05, sensors={"counts_per_rev": 4096})
     ```
 
     * ``params``: preset name (``"brake"``, ``"no_brake"``), YAML path or ``RigParams``.
@@ -170,6 +191,7 @@ class DrillStringEnv(gym.Env):
       :func:`drill_env.simulate` (1e-9, 1e-9); switching instants are located to 1e-12 s
       whatever the tolerances.
     * ``render_mode``: None, ``"rgb_array"`` or ``"human"``.
+    * ``observation_version``: 0 or 1 (set by the registered id: ``-v0`` / ``-v1``).
 
     ``reset(options=...)`` may fix the operating point with ``target_speed`` [rad/s],
     ``nominal_voltage`` [V] or ``regime`` (one of them), and the start with ``start``.
@@ -184,7 +206,11 @@ class DrillStringEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version.
+    * v1: the observation adds sin/cos of both encoder angles and the integrated lower
+      speed error (entries 8-12); dynamics, reward, action and episodes unchanged (the
+      same seed gives the same episode as v0). ``info["integral_clipped"]``.
+    * v0: initial version (8 observation entries); kept registered so that v0 policies
+      (``results/agents/v0/``) load and run.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
@@ -206,6 +232,7 @@ class DrillStringEnv(gym.Env):
         rtol: float = DEFAULT_RTOL,
         atol: float = DEFAULT_ATOL,
         render_mode: str | None = None,
+        observation_version: int = 0,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -226,6 +253,7 @@ class DrillStringEnv(gym.Env):
             normalize_observation=normalize_observation,
             rtol=rtol,
             atol=atol,
+            observation_version=observation_version,
         )
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / s.control_dt)))
@@ -242,7 +270,8 @@ class DrillStringEnv(gym.Env):
         self._ep = np.zeros(C.NEP)
         self._sst = np.zeros(s.sensor_state_size)
         self._rng = np.zeros(4, dtype=np.uint64)
-        self._obs = np.zeros(C.NOBS, dtype=np.float32)
+        self._obs = np.zeros(s.n_obs, dtype=np.float32)
+        self._v1 = s.observation_version >= 1
         self._out = np.zeros(C.NOUT)
         self._ybuf = np.zeros((n, L.NY))
         self._mbuf = np.zeros((n, 2), dtype=np.int64)
@@ -329,6 +358,8 @@ class DrillStringEnv(gym.Env):
             "rewards": dict(zip(REWARD_NAMES, terms[:4], strict=True)),
             "sim_status": status,
         }
+        if self._v1:
+            info["integral_clipped"] = bool(out[C.O_INT_CLIPPED])
         truncated = False
         if status != 0:
             truncated = True
@@ -432,7 +463,7 @@ class DrillStringEnv(gym.Env):
 
     def _reset_info(self, setup: EpisodeSetup) -> dict[str, Any]:
         out = self._out
-        return {
+        info = {
             "true_state": out[C.O_TRUE : C.O_TRUE + C.N_TRUE].copy(),
             "upper_stuck": bool(out[C.O_UPPER_STUCK]),
             "lower_stuck": bool(out[C.O_LOWER_STUCK]),
@@ -442,9 +473,12 @@ class DrillStringEnv(gym.Env):
             "nominal_voltage": setup.point.nominal_voltage,
             "regime": setup.point.regime,
         }
+        if self._v1:
+            info["integral_clipped"] = bool(out[C.O_INT_CLIPPED])
+        return info
 
     def _physical_obs(self) -> np.ndarray:
-        return self._obs.astype(np.float64) * self._ecfg[C.EC_SCALE : C.EC_SCALE + C.NOBS]
+        return self._obs.astype(np.float64) * self._ecfg[C.EC_SCALE : C.EC_SCALE + self.settings.n_obs]
 
     def _record_history(self) -> None:
         phys = self._physical_obs()

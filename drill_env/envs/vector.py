@@ -101,7 +101,8 @@ class DrillStringVectorEnv(VectorEnv):
         self._EP = np.zeros((n, C.NEP))
         self._SST = np.zeros((n, s.sensor_state_size))
         self._RNG = np.zeros((n, 4), dtype=np.uint64)
-        self._OBS = np.zeros((n, C.NOBS), dtype=np.float32)
+        self._OBS = np.zeros((n, s.n_obs), dtype=np.float32)
+        self._v1 = s.observation_version >= 1
         self._OUT = np.zeros((n, C.NOUT))
         self._YBUF = np.zeros((n, k, L.NY))
         self._MBUF = np.zeros((n, k, 2), dtype=np.int64)
@@ -143,9 +144,12 @@ class DrillStringVectorEnv(VectorEnv):
             if seeds[i] is not None or self._rngs[i] is None:
                 self._rngs[i], _ = seeding.np_random(seeds[i])
         self._reset_rigs(mask, opts)
+        self._elapsed[mask] = 0  # new episodes: truncation counts from this reset
         self._done[mask] = False
         self._was_reset = True
-        return self._OBS.copy(), self._info_reset_only(mask)
+        info = self._info_reset_only(mask)
+        # masked reset: the rigs not reset report nothing (zeros, masks False), as SyncVectorEnv
+        return self._OBS.copy(), info if mask.all() else _select(info, mask)
 
     def step(self, actions):
         if not self._was_reset:
@@ -303,6 +307,9 @@ class DrillStringVectorEnv(VectorEnv):
         info["_lower_stuck"] = rows.copy()
         info["time"] = (self._EP[:, C.EP_TICK] - self._EP[:, C.EP_TICK0]) * self._ts
         info["_time"] = rows.copy()
+        if self._v1:
+            info["integral_clipped"] = (out[:, C.O_INT_CLIPPED] != 0.0) & rows
+            info["_integral_clipped"] = rows.copy()
 
     def _reset_part(self, info: dict[str, Any], rows: np.ndarray) -> None:
         n = self.num_envs

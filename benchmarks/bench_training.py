@@ -1,0 +1,140 @@
+"""End-to-end RL training speed, against the previous training setup timed in the same run.
+
+Baseline (the setup the version-0 policies were trained with, ``configs/agents/v0/ppo.yaml``
+and ``sac.yaml``): SB3's ``DummyVecEnv`` of 8 single ``DrillString-v0`` envs, PPO with
+n_steps 512, batch 256, 10 epochs, 64x64, one torch thread; SAC on one env, one gradient
+step per env-step. Against it: the shipped configs (``configs/agents/ppo.yaml``,
+``sac.yaml``: many rigs in the native batched env through ``drill_env.sb3_vec_env``, large
+batches).
+
+Two measurements:
+
+1. **Throughput**: env-steps per wall second of ``model.learn`` (rollouts and gradient
+   updates, no evaluation), each case for the same number of steps; ratio new / baseline.
+   Target: PPO >= 5x (aim 10x).
+2. **Time to a suppressing policy** (``--time-to-policy``): ``drill-env train`` with the
+   shipped PPO configs of both rigs (including its learning-curve evaluations), then the
+   quick benchmark of each policy; reports the wall time of each training and the mean
+   suppression in the Hopf-cycle and stick-slip regimes. Target: every regime >= 0.99,
+   training under 5 minutes per rig on 2 cores.
+
+Run::
+
+    python benchmarks/bench_training.py                    # throughput, ~2 minutes
+    python benchmarks/bench_training.py --time-to-policy   # + both trainings and quick benchmarks
+    python benchmarks/bench_training.py --quick            # a smoke test, seconds
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def _model(cfg, seed: int = 0):
+    import torch
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.rl import _algo_class, make_train_vec_env
+
+    torch.set_num_threads(cfg.torch_threads)
+    venv = make_train_vec_env(cfg, seed)
+    if cfg.normalize_reward:
+        venv = VecNormalize(
+            venv, norm_obs=False, norm_reward=True, gamma=float(cfg.hyperparameters.get("gamma", 0.99))
+        )
+    return _algo_class(cfg.algo)(
+        "MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **dict(cfg.hyperparameters)
+    )
+
+
+def throughput(config: Path, steps: int, **overrides) -> float:
+    """Env-steps per second of ``learn`` over ``steps`` steps (after a short warm-up that
+    compiles the env and fills SAC's ``learning_starts``)."""
+    from agents.rl import load_config
+
+    cfg = load_config(config, **overrides)
+    model = _model(cfg)
+    warm = int(cfg.hyperparameters.get("learning_starts", 0)) + cfg.n_envs * int(
+        cfg.hyperparameters.get("n_steps", 1)
+    )
+    model.learn(warm)
+    t0 = time.perf_counter()
+    model.learn(steps, reset_num_timesteps=False)
+    return steps / (time.perf_counter() - t0)
+
+
+def time_to_policy(config: Path, preset: str, out: Path) -> dict:
+    """Train with ``config`` as ``drill-env train`` does, then run the quick benchmark."""
+    import pandas as pd
+
+    from agents.benchmark import BenchmarkConfig, run_benchmark
+    from agents.rl import load_config, train
+
+    cfg = load_config(config)
+    t0 = time.perf_counter()
+    summary = train(
+        cfg, 0, out / "agents" / f"{cfg.algo}_{preset}", out / "runs" / preset, progress_bar=False
+    )
+    wall = time.perf_counter() - t0
+    bench = BenchmarkConfig.preset_grid(
+        (preset,), quick=True, controllers=(cfg.algo,), agents_dir=str(out / "agents")
+    )
+    csv = run_benchmark(bench, out / f"bench_{preset}", backend="sequential", fresh=True, report=False)
+    rows = pd.read_csv(csv)
+    supp = {
+        r: float(g["suppression"].mean()) for r, g in rows.groupby("regime") if g["suppression"].notna().any()
+    }
+    rms = {r: float(g["rms_error"].mean()) for r, g in rows.groupby("regime")}
+    return {"wall_s": wall, "steps": summary["total_timesteps"], "suppression": supp, "rms_error": rms}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=200_000, help="PPO env-steps timed per case")
+    ap.add_argument("--sac-steps", type=int, default=20_000, help="SAC env-steps timed per case")
+    ap.add_argument(
+        "--time-to-policy", action="store_true", help="also train both rigs and run the quick benchmark"
+    )
+    ap.add_argument("--quick", action="store_true", help="a smoke test: few steps")
+    a = ap.parse_args(argv)
+    if a.quick:
+        a.steps, a.sac_steps = 20_000, 2_000
+    cfgs = ROOT / "configs" / "agents"
+    print(
+        f"throughput (env-steps/s of model.learn), {a.steps} PPO / {a.sac_steps} SAC steps per case",
+        flush=True,
+    )
+    rows = []
+    for algo, steps in (("ppo", a.steps), ("sac", a.sac_steps)):
+        base = throughput(cfgs / "v0" / f"{algo}.yaml", steps)
+        new = throughput(cfgs / f"{algo}.yaml", steps)
+        rows.append((algo, base, new))
+        print(
+            f"  {algo}: baseline (v0 config) {base:9.0f}   shipped config {new:9.0f}   ratio {new / base:5.1f}x",
+            flush=True,
+        )
+    if a.time_to_policy:
+        print(
+            "time to a suppressing policy (drill-env train with the shipped PPO configs, then the quick benchmark)"
+        )
+        with tempfile.TemporaryDirectory() as tmp:
+            for preset, name in (("brake", "ppo.yaml"), ("no_brake", "ppo_no_brake.yaml")):
+                r = time_to_policy(cfgs / name, preset, Path(tmp))
+                supp = ", ".join(f"{k} {v:.4f}" for k, v in sorted(r["suppression"].items()))
+                rms = ", ".join(f"{k} {v:.4f}" for k, v in sorted(r["rms_error"].items()))
+                print(
+                    f"  {preset}: {r['steps']} steps in {r['wall_s']:.0f} s; suppression {supp}; RMS error [rad/s] {rms}",
+                    flush=True,
+                )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
