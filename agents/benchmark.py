@@ -374,6 +374,12 @@ def _run_benchmark(
     return csv_path
 
 
+def _policy_note(text: str) -> str:
+    """``path on ENV-ID`` -> ```path``` on ``ENV-ID`` (markdown)."""
+    path, _, env_id = text.partition(" on ")
+    return f"`{path}` on `{env_id}`" if env_id else f"`{path}`"
+
+
 def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
     """Which trained policy each learned controller runs per preset (for the report)."""
     from agents.registry import LEARNED, default_agents_dir, policy_path
@@ -386,11 +392,19 @@ def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
         for p in cfg.presets:
             try:
                 path = policy_path(c, p, cfg.agents_dir)
-                out[f"{c}/{p}"] = (
+                shown = (
                     str(path.relative_to(root.parent.parent))
                     if root.parent.parent in path.parents
                     else str(path)
                 )
+                try:
+                    from agents.evaluation import env_id_of
+                    from agents.rl import policy_observation_version
+
+                    shown += f" on {env_id_of(p, policy_observation_version(path))}"
+                except ValueError:
+                    pass
+                out[f"{c}/{p}"] = shown
             except ValueError as exc:
                 out[f"{c}/{p}"] = f"missing ({exc})"
     return out
@@ -506,7 +520,9 @@ def summary_tables(df, notes: Mapping[str, str] | None = None) -> str:
         lines.append("")
         used = {k.split("/")[0]: v for k, v in (notes or {}).items() if k.endswith(f"/{preset}")}
         if used:
-            lines.append("Learned policies: " + "; ".join(f"{c}: `{v}`" for c, v in used.items()) + ".")
+            lines.append(
+                "Learned policies: " + "; ".join(f"{c}: {_policy_note(v)}" for c, v in used.items()) + "."
+            )
             lines.append("")
         for regime, title in REGIME_TITLES.items():
             reg = sub[sub["regime"] == regime]

@@ -131,11 +131,14 @@ def build_controller(
 
 
 def observation_version(name: str, preset: str, agents_dir: str | Path | None = None) -> int:
-    """The observation version of the environment controller ``name`` runs on: 0 for the
-    classical controllers (they read the version-0 entries, which every version starts with),
-    and for a learned policy the version it was trained on, from its observation space."""
+    """The observation version of the environment controller ``name`` runs on: the latest
+    for the classical controllers (they read the version-0 entries, which every version
+    starts with, and every version runs the same episode for the same seed), and for a
+    learned policy the version it was trained on, from its observation space."""
     if name in CLASSICAL:
-        return 0
+        from drill_env.envs.config import OBSERVATION_VERSIONS
+
+        return max(OBSERVATION_VERSIONS)
     if name not in LEARNED:
         raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")
     from agents.rl import policy_observation_version

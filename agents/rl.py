@@ -4,7 +4,7 @@ policies behind the same ``predict`` as the classical controllers.
 A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping::
 
     algo: ppo                       # ppo or sac
-    env_id: DrillString-v0
+    env_id: DrillString-v1
     env_kwargs: {}                  # DrillStringEnv arguments
     n_envs: 64                      # parallel rigs
     vec_env: native                 # native: all rigs in one compiled call (drill_env.sb3_vec_env);
@@ -12,7 +12,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     total_timesteps: 2000000
     normalize_reward: true          # VecNormalize on the reward only (nothing needed at inference)
     torch_threads: 1
-    hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...), incl. policy_kwargs
+    hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...), incl. policy_kwargs;
+                                    # learning_rate / clip_range may be lin_<value> (linear decay)
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
 
@@ -125,6 +126,7 @@ class TrainConfig:
         for key in ("env", "seed", "tensorboard_log", "verbose", "device"):
             if key in self.hyperparameters:
                 raise ValueError(f"hyperparameters: {key!r} is set by the training command")
+        algo_kwargs(self.hyperparameters)  # lin_ schedules parse
         e = self.evaluation
         if isinstance(e, Mapping):
             e = _sub(EvalConfig, e, "evaluation")
@@ -383,6 +385,45 @@ def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
     return out
 
 
+SCHEDULED = ("learning_rate", "clip_range")
+
+
+class LinearSchedule:
+    """``value * progress_remaining``: from ``value`` at the start of training to 0 at its
+    end (rl-zoo3's ``lin_<value>``). A class, not a lambda, so that saved models pickle it."""
+
+    def __init__(self, value: float):
+        self.value = float(value)
+
+    def __call__(self, progress_remaining: float) -> float:
+        return progress_remaining * self.value
+
+    def __repr__(self) -> str:
+        return f"lin_{self.value:g}"
+
+
+def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
+    """The algorithm's keyword arguments from a config's ``hyperparameters``:
+    ``learning_rate`` and ``clip_range`` may be ``lin_<value>`` (linear decay to 0, as in
+    rl-zoo3's files)."""
+    hp = copy.deepcopy(dict(hyperparameters))
+    for key in SCHEDULED:
+        v = hp.get(key)
+        if isinstance(v, str):
+            if not v.startswith("lin_"):
+                raise ValueError(f"hyperparameters.{key}: expected a number or 'lin_<number>', got {v!r}")
+            try:
+                value = float(v[4:])
+            except ValueError:
+                raise ValueError(
+                    f"hyperparameters.{key}: expected a number or 'lin_<number>', got {v!r}"
+                ) from None
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"hyperparameters.{key}: {v!r} must decay from a finite value > 0")
+            hp[key] = LinearSchedule(value)
+    return hp
+
+
 def make_train_vec_env(cfg: TrainConfig, seed: int):
     """The training rigs of ``cfg``: ``cfg.n_envs`` envs of ``cfg.env_id`` seeded ``seed, seed + 1, ...``
     with episode statistics (``rollout/ep_rew_mean``), as SB3's native batched adapter
@@ -428,7 +469,7 @@ def train(
     if cfg.normalize_reward:
         gamma = float(cfg.hyperparameters.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=gamma)
-    hp = copy.deepcopy(dict(cfg.hyperparameters))
+    hp = algo_kwargs(cfg.hyperparameters)
     model = _algo_class(cfg.algo)("MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **hp)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
 

@@ -33,6 +33,10 @@ def __getattr__(name: str):
         from drill_env.envs.sb3 import sb3_vec_env
 
         return sb3_vec_env
+    if name == "precompile":
+        from drill_env.precompile import precompile
+
+        return precompile
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
@@ -48,4 +52,5 @@ __all__ = [
     "simulate",
     "simulate_batch",
     "sb3_vec_env",
+    "precompile",
 ]

@@ -95,3 +95,8 @@ def configure() -> Path:
         # only the directory above: never numba's default locations, not keyed by the hash
         numba.config.CACHE_LOCATOR_CLASSES = "UserProvidedCacheLocator"
     return path
+
+
+def cache_dir() -> Path:
+    """The directory the compiled kernels of this process go to."""
+    return Path(numba.config.CACHE_DIR)

@@ -9,10 +9,17 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, settings
 
-# Property-based tests: "ci" (the default) draws a fixed, reproducible set of examples;
-# HYPOTHESIS_PROFILE=slow explores many more (a longer fuzzing run).
+# Property-based tests: "ci" (the default) draws a fixed, reproducible set of a few
+# examples (derandomized: the same on every run); HYPOTHESIS_PROFILE=slow explores many
+# more, randomly (a longer fuzzing run). A test's own @settings(max_examples=...) overrides
+# the profile's count.
 settings.register_profile(
-    "ci", derandomize=True, deadline=None, print_blob=True, suppress_health_check=[HealthCheck.too_slow]
+    "ci",
+    max_examples=12,
+    derandomize=True,
+    deadline=None,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow],
 )
 settings.register_profile(
     "slow", max_examples=500, deadline=None, print_blob=True, suppress_health_check=[HealthCheck.too_slow]

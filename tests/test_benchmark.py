@@ -198,3 +198,21 @@ def test_cli_benchmark(tmp_path):
     assert bad.exit_code == 2 and "--preset" in bad.output
     bad = runner.invoke(app, ["benchmark", "--out", str(tmp_path), "--voltages", "9"])
     assert bad.exit_code == 2 and "voltages" in bad.output
+
+
+def test_cli_benchmark_says_what_was_resumed_and_fails_when_a_run_failed(tmp_path):
+    runner = CliRunner()
+    args = ["benchmark", "--out", str(tmp_path), "--preset", "brake", "--voltages", "1.0", "--seeds", "1"]
+    args += ["--duration", "4", "--window", "2", "--warmup", "2", "--backend", "sequential"]
+    res = runner.invoke(app, [*args, "--controllers", "open_loop"])
+    assert res.exit_code == 0, res.output
+    assert "resumed" not in res.output
+    # one run more, one from before; the learned one fails: no policy where it is looked for
+    res = runner.invoke(
+        app, [*args, "--controllers", "open_loop,ppo", "--agents-dir", str(tmp_path / "none")]
+    )
+    assert res.exit_code == 1
+    assert "1 resumed from an earlier run" in res.output
+    assert "1 of 2 runs failed" in res.output and "no trained ppo policy" in res.output
+    df = load_results(tmp_path / "benchmark.csv")
+    assert len(df) == 2 and np.isfinite(df.loc[df["controller"] == "open_loop", "amplitude"]).all()

@@ -130,3 +130,14 @@ def test_the_command_exits_non_zero_in_a_real_process():
     )
     assert proc.returncode != 0
     assert "--duration" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_precompile_command_compiles_every_part():
+    from typer.testing import CliRunner
+
+    from drill_env.cli import app
+
+    res = CliRunner().invoke(app, ["precompile"])
+    assert res.exit_code == 0, res.output
+    for part in ("simulator", "environment", "vector environment", "done in"):
+        assert part in res.output

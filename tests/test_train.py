@@ -13,7 +13,17 @@ from typer.testing import CliRunner
 
 from agents.evaluation import EpisodeSettings, evaluate, make_env
 from agents.registry import default_agents_dir, policy_path
-from agents.rl import SB3Policy, TrainConfig, load_config, load_policy, plateau, train
+from agents.rl import (
+    SB3Policy,
+    TrainConfig,
+    algo_kwargs,
+    load_config,
+    load_policy,
+    make_train_vec_env,
+    plateau,
+    policy_observation_version,
+    train,
+)
 from drill_env.cli import app
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -65,7 +75,7 @@ def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
     assert (tmp_path / "run" / "progress.csv").is_file()
     assert any(p.name.startswith("events.out.tfevents") for p in (tmp_path / "run").iterdir())
     policy = load_policy(out / "policy.zip")
-    env = make_env("brake", EpisodeSettings())
+    env = make_env("brake", EpisodeSettings(), policy_observation_version(out / "policy.zip"))
     policy.check_env(env)
     a, _ = policy.predict(env.reset(seed=0)[0], deterministic=True)
     assert a.shape == (1,) and -1.0 <= a[0] <= 1.0
@@ -80,11 +90,12 @@ def test_committed_policy_loads_and_is_evaluated(algo):
     assert summary["total_timesteps"] >= 10_000 and summary["wall_time_s"] > 0
     assert isinstance(summary["converged"], bool)
     cfg = yaml.safe_load((path.parent / "config.yaml").read_text())
-    assert cfg["algo"] == algo and cfg["env_id"] == "DrillString-v0"
+    assert cfg["algo"] == algo and cfg["env_id"] == "DrillString-v1"
+    assert policy_observation_version(path) == 1
     policy = load_policy(path)
     assert isinstance(policy, SB3Policy)
     settings = EpisodeSettings(duration=10.0, window=5.0, warmup_time=20.0, warmup_jitter=1.0)
-    env = make_env("brake", settings)
+    env = make_env("brake", settings, 1)
     policy.check_env(env)
     m = evaluate(policy, "brake", 1.0, 0, settings, name=algo, env=env)
     assert m.controller == algo and m.sim_status == 0
@@ -134,3 +145,42 @@ def test_cli_train_rejects_bad_input(tmp_path):
     assert res.exit_code == 2 and "does not match" in res.output
     res = runner.invoke(app, ["train", "--algo", "ppo", "--config", str(tmp_path / "none.yaml")])
     assert res.exit_code == 2 and "no such file" in res.output
+
+
+def test_native_and_dummy_training_envs_give_the_same_rollouts():
+    # vec_env: native (one compiled call) and dummy (SB3's DummyVecEnv of Monitor-wrapped
+    # single envs) are the same rigs: same observations, rewards, dones and episode stats
+    d = small_config("ppo", 256).to_dict()
+    d["env_kwargs"].update(max_episode_steps=50)
+    cfg = TrainConfig(**d)
+    a = make_train_vec_env(cfg, 5)
+    b = make_train_vec_env(TrainConfig(**{**d, "vec_env": "dummy"}), 5)
+    np.testing.assert_array_equal(a.reset(), b.reset())
+    rng = np.random.default_rng(0)
+    finished = 0
+    for _ in range(120):
+        act = rng.uniform(-1, 1, size=(cfg.n_envs, 1)).astype(np.float32)
+        (oa, ra, da, ia), (ob, rb, db, ib) = a.step(act), b.step(act)
+        np.testing.assert_array_equal(oa, ob)
+        np.testing.assert_array_equal(ra, rb)
+        np.testing.assert_array_equal(da, db)
+        for x, y in zip(ia, ib, strict=True):
+            if "episode" in y:
+                finished += 1
+                assert x["episode"]["r"] == pytest.approx(y["episode"]["r"], rel=1e-6)
+                assert x["episode"]["l"] == y["episode"]["l"]
+                np.testing.assert_array_equal(x["terminal_observation"], y["terminal_observation"])
+    assert finished == 2 * cfg.n_envs  # every rig ended two 50-step episodes
+
+
+def test_linear_schedules_and_their_errors():
+    hp = algo_kwargs({"learning_rate": "lin_6e-4", "clip_range": 0.2})
+    assert hp["learning_rate"](1.0) == pytest.approx(6e-4) and hp["learning_rate"](0.25) == pytest.approx(
+        1.5e-4
+    )
+    assert hp["clip_range"] == 0.2
+    for bad in ("6e-4", "lin_x", "lin_-1", "lin_inf"):
+        with pytest.raises(ValueError, match="hyperparameters.learning_rate"):
+            TrainConfig(algo="ppo", hyperparameters={"learning_rate": bad})
+    with pytest.raises(ValueError, match="vec_env"):
+        TrainConfig(algo="ppo", vec_env="subproc")

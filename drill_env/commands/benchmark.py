@@ -133,8 +133,12 @@ def register(app: typer.Typer) -> None:
             with Progress(*columns, console=console) as prog:
                 task = prog.add_task("runs", total=n)
 
+                resumed: list[int] = []
+
                 def on_progress(done: int, total: int, row: dict) -> None:
                     desc = "runs"
+                    if not resumed:
+                        resumed.append(done)  # the first call: runs found in OUT already
                     if row:
                         desc = f"{row['controller']:>15s} {row['preset']:>8s} {float(row['voltage']):4.2f} V"
                     prog.update(task, completed=done, description=desc)
@@ -151,7 +155,25 @@ def register(app: typer.Typer) -> None:
                     )
                 except ValueError as exc:
                     _fail(str(exc))
-        typer.echo(f"{n} runs in {time.perf_counter() - t0:.0f} s")
+        reused = resumed[0] if resumed else 0
+        typer.echo(
+            f"{n} runs in {time.perf_counter() - t0:.0f} s"
+            + (f" ({reused} resumed from an earlier run in {out}, {n - reused} run now)" if reused else "")
+        )
         summary = (out / "summary.md").read_text()
         typer.echo(summary)
         typer.echo(f"wrote {csv_path}, {out / 'summary.md'} and the figures in {out}")
+        import pandas as pd
+
+        rows = pd.read_csv(csv_path, keep_default_na=False)
+        failed = rows[rows["error"].astype(str) != ""]
+        if len(failed):
+            first = failed.iloc[0]
+            typer.secho(
+                f"error: {len(failed)} of {len(rows)} runs failed (their metrics are NaN in {csv_path}); "
+                f"first: {first['controller']} {first['preset']} {first['voltage']} V seed {first['seed']}: "
+                f"{first['error']}",
+                fg=typer.colors.RED,
+                err=True,
+            )
+            raise typer.Exit(code=1)

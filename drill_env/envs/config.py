@@ -294,6 +294,7 @@ class EnvSettings:
         rtol: float = DEFAULT_RTOL,
         atol: float = DEFAULT_ATOL,
         observation_version: int = 0,
+        start_angle: float | str = 0.0,
     ):
         if params_overrides is not None and not isinstance(params_overrides, Mapping):
             raise ValueError(
@@ -316,6 +317,16 @@ class EnvSettings:
         self.start = start
         self.warmup_time = _number("warmup_time", warmup_time, 0.0, 3600.0)
         self.warmup_jitter = _number("warmup_jitter", warmup_jitter, 0.0, 3600.0)
+        if start_angle == "random":
+            self.start_angle: float | str = "random"
+        else:
+            if isinstance(start_angle, str):
+                raise ValueError(
+                    f"start_angle: expected a number in [0, 2 pi) rad or 'random', got {start_angle!r}"
+                )
+            self.start_angle = _number("start_angle", start_angle, 0.0, 2.0 * math.pi)
+            if self.start_angle >= 2.0 * math.pi:
+                raise ValueError(f"start_angle: {start_angle!r} is outside the allowed range [0, 2 pi) rad")
         self.reward_weights = config_from_any(RewardWeights, reward_weights, "reward_weights")
         self.randomization = DomainRandomization.from_any(domain_randomization)
         if action_mode not in ("normalized", "voltage"):
@@ -466,6 +477,9 @@ class EnvSettings:
             y0 = np.zeros(L.NY)
             if start == C.START_OPEN_LOOP:
                 y0[L.TM] = p[L.KM] * point.nominal_voltage
+        # where the (untwisted) disks stand at the start; drawn last, so that the other draws
+        # of a seed do not depend on it
+        y0[L.THL] = 2.0 * math.pi * float(rng.uniform()) if self.start_angle == "random" else self.start_angle
         return EpisodeSetup(point, start, warm_ticks, plant, p, sensors, scfg, rng_state(words), y0)
 
     def draw_warm_ticks(self, rng: np.random.Generator) -> int:

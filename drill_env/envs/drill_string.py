@@ -192,6 +192,12 @@ class DrillStringEnv(gym.Env):
       whatever the tolerances.
     * ``render_mode``: None, ``"rgb_array"`` or ``"human"``.
     * ``observation_version``: 0 or 1 (set by the registered id: ``-v0`` / ``-v1``).
+    * ``start_angle`` [rad]: where the disks stand (untwisted) before the warm-up, in
+      ``[0, 2 pi)`` (default 0), or ``"random"``: uniform per episode. From the same angle
+      every episode, the encoder angle at switch-on is tied to the phase of the open-loop
+      cycle there, a correlation a policy observing the angles (v1) can learn and the rig
+      does not have; training with ``"random"`` removes it. On the nominal model the angle
+      changes nothing else (friction depends on it only with position-dependent effects).
 
     ``reset(options=...)`` may fix the operating point with ``target_speed`` [rad/s],
     ``nominal_voltage`` [V] or ``regime`` (one of them), and the start with ``start``.
@@ -233,6 +239,7 @@ class DrillStringEnv(gym.Env):
         atol: float = DEFAULT_ATOL,
         render_mode: str | None = None,
         observation_version: int = 0,
+        start_angle: float | str = 0.0,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -254,6 +261,7 @@ class DrillStringEnv(gym.Env):
             rtol=rtol,
             atol=atol,
             observation_version=observation_version,
+            start_angle=start_angle,
         )
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / s.control_dt)))

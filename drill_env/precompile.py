@@ -1,0 +1,59 @@
+"""Compile every kernel of the package into the on-disk cache, once.
+
+With an empty cache (a fresh install, or after an upgrade: the cache is keyed by the
+package's source, see :mod:`drill_env._cache`) the first simulation, the first
+``gym.make(...)`` + ``reset()`` and the first vector-env step each compile their kernels.
+Processes that start together on an empty cache -- the workers of SB3's
+``SubprocVecEnv`` or of the benchmark's process pool -- would each compile the same
+kernels at once. :func:`precompile` (``drill-env precompile``) compiles them in this
+process, so that every process started afterwards loads them from the cache.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+__all__ = ["precompile"]
+
+
+def precompile(progress: Callable[[str, float], None] | None = None) -> dict[str, float]:
+    """Compile (or load from the cache) the simulator, the sensors, the single and the
+    vector environments; returns the wall time [s] of each part.
+
+    ``progress(part, seconds)`` is called after each part.
+    """
+    import gymnasium as gym
+    import numpy as np
+
+    import drill_env
+
+    def simulator() -> None:
+        drill_env.simulate("brake", 2.0, 0.2)
+        drill_env.simulate("brake", [1.0, 2.0], 0.2, control_dt=0.1)
+        drill_env.simulate_batch("brake", [1.0, 2.0], 0.2)
+
+    def single_env() -> None:
+        env = gym.make("DrillString-v1")
+        env.reset(seed=0)
+        env.step(np.zeros(1, dtype=np.float32))
+        env.close()
+
+    def vector_env() -> None:
+        venv = gym.make_vec("DrillString-v1", num_envs=2, vectorization_mode="vector_entry_point")
+        venv.reset(seed=0)
+        venv.step(np.zeros((2, 1), dtype=np.float32))
+        venv.close()
+
+    times = {}
+    for name, part in (
+        ("simulator", simulator),
+        ("environment", single_env),
+        ("vector environment", vector_env),
+    ):
+        t0 = time.perf_counter()
+        part()
+        times[name] = time.perf_counter() - t0
+        if progress is not None:
+            progress(name, times[name])
+    return times

@@ -1,0 +1,115 @@
+"""rl-zoo3 fits: the shipped hyperparameter files (``configs/agents/rl_zoo3/``) train through
+``python -m rl_zoo3.train`` and match the project's own training configs."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+import drill_env  # noqa: F401  (registers the environments)
+from agents.rl import load_config
+from drill_env.envs import ENV_IDS, ENV_VERSIONS
+
+# Looked up, not imported: importing rl_zoo3 replaces gymnasium's TimeLimit for the whole
+# process (rl_zoo3.gym_patches), which would change every later test's environments.
+for _module in ("rl_zoo3", "sb3_contrib"):
+    if importlib.util.find_spec(_module) is None:
+        pytest.skip(f"{_module} is not installed (pip install -e '.[zoo]')", allow_module_level=True)
+
+ROOT = Path(__file__).resolve().parent.parent
+ZOO = ROOT / "configs" / "agents" / "rl_zoo3"
+FILES = sorted(ZOO.glob("*.yml"))
+V1_IDS = sorted(i for i in ENV_IDS if ENV_VERSIONS[i] == 1)
+
+
+def zoo_train(tmp_path: Path, algo: str, steps: int, *params: str) -> Path:
+    cmd = [
+        sys.executable,
+        "-m",
+        "rl_zoo3.train",
+        "--algo",
+        algo,
+        "--env",
+        "DrillString-v1",
+        "--gym-packages",
+        "drill_env",
+        "-conf",
+        str(ZOO / f"{algo}.yml"),
+        "-n",
+        str(steps),
+        "--log-folder",
+        str(tmp_path / "logs"),
+        "--seed",
+        "0",
+        "--eval-freq",
+        "-1",
+    ]
+    if params:
+        cmd += ["-params", *params]
+    res = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, res.stderr[-3000:]
+    models = list((tmp_path / "logs" / algo).glob("DrillString-v1_*/DrillString-v1.zip"))
+    assert len(models) == 1, res.stdout[-2000:]
+    return models[0]
+
+
+def test_every_file_covers_the_v1_ids_with_known_algorithms():
+    assert {f.stem for f in FILES} == {"ppo", "sac", "tqc", "ppo_lstm"}
+    for f in FILES:
+        data = yaml.safe_load(f.read_text())
+        assert sorted(data) == V1_IDS, f
+        for env_id, hp in data.items():
+            gym.spec(env_id)  # registered by drill_env
+            assert hp["policy"] in ("MlpPolicy", "MlpLstmPolicy")
+            assert hp["n_timesteps"] > 0 and hp["n_envs"] >= 1
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_zoo_files_mirror_the_training_configs(algo):
+    # the same hyperparameters as drill-env train's configs/agents/<algo>.yaml
+    zoo = yaml.safe_load((ZOO / f"{algo}.yml").read_text())
+    for env_id, hp in zoo.items():
+        name = algo if ENV_IDS[env_id] == "brake" else f"{algo}_{ENV_IDS[env_id]}"
+        cfg = load_config(ROOT / "configs" / "agents" / f"{name}.yaml")
+        assert cfg.env_id == env_id
+        assert hp["n_envs"] == cfg.n_envs and hp["n_timesteps"] == cfg.total_timesteps
+        assert hp.get("env_kwargs", {}) == cfg.env_kwargs
+        ours = dict(cfg.hyperparameters)
+        policy_kwargs = ours.pop("policy_kwargs")
+        assert eval(hp["policy_kwargs"], {"dict": dict}) == policy_kwargs  # noqa: S307 (rl-zoo3's own format)
+        for key, value in ours.items():
+            assert hp[key] == value, key
+        assert ("normalize" in hp) == cfg.normalize_reward
+
+
+def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
+    # the issue's command: python -m rl_zoo3.train --algo ppo --env DrillString-v1
+    #   --gym-packages drill_env -conf configs/agents/rl_zoo3/ppo.yml -n 5000
+    path = zoo_train(tmp_path, "ppo", 5000)
+    with zipfile.ZipFile(path) as zf:
+        assert "policy.pth" in zf.namelist()
+    from stable_baselines3 import PPO
+
+    model = PPO.load(str(path), device="cpu")
+    env = gym.make("DrillString-v1")
+    obs, _ = env.reset(seed=0)
+    assert model.observation_space.shape == obs.shape == (13,)
+    action, _ = model.predict(obs, deterministic=True)
+    assert env.action_space.contains(action)
+    assert np.isfinite(env.step(action)[1])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["sac", "tqc", "ppo_lstm"])
+def test_rl_zoo3_trains_the_other_algorithms(tmp_path, algo):
+    params = ("learning_starts:200", "n_envs:2") if algo in ("sac", "tqc") else ("n_envs:4", "batch_size:128")
+    path = zoo_train(tmp_path, algo, 1000, *params)
+    assert path.stat().st_size > 0
