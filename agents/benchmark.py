@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation import METRIC_COLUMNS, EpisodeSettings
+from agents.evaluation import IDENTIFIED_SPEED, METRIC_COLUMNS, EpisodeSettings
 from agents.registry import CONTROLLERS
 from drill_env.outputs import atomic_file, atomic_write_text, output_lock
 
@@ -52,8 +52,12 @@ __all__ = [
 ]
 
 BACKENDS = ("process", "sequential", "ray")
-COLUMNS = METRIC_COLUMNS + ("error",)
-KEY = ("controller", "preset", "voltage", "seed")
+# the plant a run's rig is (after the preset whose controllers and operating points it uses)
+COLUMNS = METRIC_COLUMNS[:2] + ("plant",) + METRIC_COLUMNS[2:] + ("error",)
+KEY = ("controller", "preset", "plant", "voltage", "seed")
+NOMINAL = "nominal"  # the plant that is the preset's own model (the paper's)
+# [rad/s] below this open-loop amplitude a plant has no cycle to suppress (suppression NaN)
+OPEN_LOOP_FLOOR = 1e-3
 
 # Voltages [V] of the grid per preset. Brake: 0.2-5 V across the three regimes (A = 0.116,
 # Hopf B = 0.583, stick-slip from D = 1.781 V). No brake: every regime of Fig. 8(a)
@@ -76,15 +80,69 @@ REGIME_TITLES = {
 
 
 @dataclass(frozen=True)
+class Plant:
+    """The rig a benchmark run drives: ``nominal`` (the preset's own model, the one every
+    controller was designed on) or a rig YAML in the preset format, effects included (e.g. a
+    discrepancy ``model.yaml``). Controllers keep their design on the nominal model."""
+
+    name: str = NOMINAL
+    params: Any = None  # RigParams; None: the preset's nominal model
+    source: str = ""  # where it was read from
+
+    @classmethod
+    def from_path(cls, path: str | Path) -> Plant:
+        """A plant from a rig YAML; its name is the file's stem. Raises ``ParameterError``
+        (a ValueError) naming the field for a bad file."""
+        from drill_env.params import load_params
+
+        p = Path(path)
+        if not p.is_file():
+            raise ValueError(f"plant: {path} is not a file (a rig YAML in the preset format)")
+        params = load_params(p)
+        name = p.stem
+        if name == NOMINAL:
+            raise ValueError(
+                f"plant: {path}: the name {NOMINAL!r} is the preset's own model; rename the file"
+            )
+        return cls(name=name, params=params, source=str(p))
+
+    def record(self) -> dict[str, Any]:
+        """What identifies the plant's rig (for resuming a benchmark safely)."""
+        if self.params is None:
+            return {"name": self.name}
+        from dataclasses import asdict
+
+        return {"name": self.name, "source": self.source, "params": asdict(self.params)}
+
+    def family(self) -> str | None:
+        """The preset whose lower-disk friction this plant's is closest to (None: nominal)."""
+        if self.params is None:
+            return None
+        from drill_env.params import load_params
+
+        fields_ = ("lower_static", "lower_viscous", "lower_hump_1", "lower_hump_2")
+
+        def dist(preset: str) -> float:
+            ref = load_params(preset)
+            return sum(
+                abs(getattr(self.params, f) - getattr(ref, f)) / max(abs(getattr(ref, f)), 1e-12)
+                for f in fields_
+            )
+
+        return min(("brake", "no_brake"), key=dist)
+
+
+@dataclass(frozen=True)
 class Job:
     controller: str
     preset: str
     voltage: float
     seed: int
+    plant: str = NOMINAL
 
     @property
-    def key(self) -> tuple[str, str, float, int]:
-        return (self.controller, self.preset, round(self.voltage, 9), self.seed)
+    def key(self) -> tuple[str, str, str, float, int]:
+        return (self.controller, self.preset, self.plant, round(self.voltage, 9), self.seed)
 
 
 @dataclass(frozen=True)
@@ -98,6 +156,7 @@ class BenchmarkConfig:
     episode: EpisodeSettings = field(default_factory=EpisodeSettings)
     agents_dir: str | None = None  # where the trained policies are (default: results/agents)
     gains_file: str | None = None  # tuned gains (default: configs/agents/controllers.yaml)
+    plants: tuple[Plant, ...] = (Plant(),)  # the rigs every controller runs on
 
     def __post_init__(self) -> None:
         from drill_env.envs.task import VOLTAGE_LIMIT
@@ -130,6 +189,13 @@ class BenchmarkConfig:
                         f"voltages: {v!r} V for {p!r} is outside the allowed range ({uc1:.4g}, {VOLTAGE_LIMIT:g}] V"
                     )
             volts[p] = vs
+        if not self.plants or not all(isinstance(p, Plant) for p in self.plants):
+            raise ValueError("plants: expected one or more Plant (default: the nominal model)")
+        names = [p.name for p in self.plants]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"plants: the name(s) {dup} appear twice (a plant is named by its file's stem)")
+        object.__setattr__(self, "plants", tuple(self.plants))
         object.__setattr__(self, "voltages", volts)
         object.__setattr__(self, "presets", tuple(self.presets))
         object.__setattr__(self, "controllers", tuple(self.controllers))
@@ -143,10 +209,17 @@ class BenchmarkConfig:
         kwargs.setdefault("seeds", QUICK_SEEDS if quick else FULL_SEEDS)
         return cls(presets=tuple(presets), voltages={p: grid[p] for p in presets}, **kwargs)
 
+    def plant(self, name: str) -> Plant:
+        for p in self.plants:
+            if p.name == name:
+                return p
+        raise ValueError(f"plant: {name!r} is not one of {[p.name for p in self.plants]}")
+
     def jobs(self) -> list[Job]:
         return [
-            Job(c, p, v, s)
+            Job(c, p, v, s, plant.name)
             for p in self.presets
+            for plant in self.plants
             for v in self.voltages[p]
             for s in self.seeds
             for c in self.controllers
@@ -154,7 +227,10 @@ class BenchmarkConfig:
 
     def settings_record(self) -> dict[str, Any]:
         """What must match for a resumed benchmark (the grid may grow)."""
-        return {"episode": self.episode.to_dict()}
+        rec: dict[str, Any] = {"episode": self.episode.to_dict()}
+        if any(p.params is not None for p in self.plants):
+            rec["plants"] = [p.record() for p in self.plants if p.params is not None]
+        return rec
 
 
 # -- one run, in whichever process ---------------------------------------------------------------
@@ -179,26 +255,75 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
     try:
         # cached per process, keyed by everything they are built from
         version = observation_version(job.controller, job.preset, cfg.agents_dir)
-        env_key = (job.preset, version, json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str))
-        env = _ENVS.get(env_key)
-        if env is None:
-            env = _ENVS[env_key] = make_env(job.preset, cfg.episode, version)
-        ctrl_key = (job.controller, *env_key, cfg.agents_dir, cfg.gains_file)
+        episode_key = json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str)
+
+        def env_of(plant: str, v: int):
+            key = (job.preset, v, episode_key, plant)
+            if key not in _ENVS:
+                _ENVS[key] = make_env(job.preset, cfg.episode, v, params=cfg.plant(plant).params)
+            return _ENVS[key]
+
+        # the controller is built on the nominal model (its design), then run on the plant
+        design_env = env_of(NOMINAL, version)
+        ctrl_key = (job.controller, job.preset, version, episode_key, cfg.agents_dir, cfg.gains_file)
         ctrl = _CONTROLLERS.get(ctrl_key)
         if ctrl is None:
             ctrl = _CONTROLLERS[ctrl_key] = build_controller(
-                job.controller, env, job.preset, agents_dir=cfg.agents_dir, gains_file=cfg.gains_file
+                job.controller, design_env, job.preset, agents_dir=cfg.agents_dir, gains_file=cfg.gains_file
             )
+        reference = None if job.plant == NOMINAL else _plant_open_loop(job, cfg, env_of(job.plant, 0))
         row = evaluate(
-            ctrl, job.preset, job.voltage, job.seed, cfg.episode, name=job.controller, env=env
+            ctrl,
+            job.preset,
+            job.voltage,
+            job.seed,
+            cfg.episode,
+            name=job.controller,
+            env=env_of(job.plant, version),
+            open_loop_amplitude=reference,
         ).as_dict()
+        row["plant"] = job.plant
         row["error"] = ""
     except Exception as exc:  # recorded, the benchmark goes on
         row = {c: math.nan for c in COLUMNS}
-        row.update(controller=job.controller, preset=job.preset, voltage=job.voltage, seed=job.seed)
+        row.update(
+            controller=job.controller, preset=job.preset, plant=job.plant, voltage=job.voltage, seed=job.seed
+        )
         row.update(regime="", sim_status=-1, wall_time=time.perf_counter() - t0)
         row["error"] = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
     return row
+
+
+_OPEN_LOOP: dict[tuple[Any, ...], float] = {}
+
+
+def _plant_open_loop(job: Job, cfg: BenchmarkConfig, env: Any) -> float:
+    """The open-loop amplitude on ``job``'s plant at its voltage and seed (cached per process):
+    the reference of the suppression where the bifurcation analysis (nominal model) does not
+    apply. 0 below :data:`OPEN_LOOP_FLOOR` (no cycle: suppression NaN)."""
+    from agents.base import ControllerSpec
+    from agents.evaluation import evaluate
+    from agents.open_loop import OpenLoop
+
+    key = (
+        job.preset,
+        job.plant,
+        round(job.voltage, 9),
+        job.seed,
+        json.dumps(cfg.episode.to_dict(), default=str),
+    )
+    if key not in _OPEN_LOOP:
+        m = evaluate(
+            OpenLoop(ControllerSpec.from_env(env)),
+            job.preset,
+            job.voltage,
+            job.seed,
+            cfg.episode,
+            env=env,
+            open_loop_amplitude=0.0,
+        )
+        _OPEN_LOOP[key] = m.amplitude if m.amplitude >= OPEN_LOOP_FLOOR else 0.0
+    return _OPEN_LOOP[key]
 
 
 def _run_chunk(jobs: list[Job], cfg: BenchmarkConfig) -> list[dict[str, Any]]:
@@ -209,10 +334,11 @@ def _run_chunk(jobs: list[Job], cfg: BenchmarkConfig) -> list[dict[str, Any]]:
 # -- results file ----------------------------------------------------------------------------------
 
 
-def _key_of_row(row: Mapping[str, Any]) -> tuple[str, str, float, int]:
+def _key_of_row(row: Mapping[str, Any]) -> tuple[str, str, str, float, int]:
     return (
         str(row["controller"]),
         str(row["preset"]),
+        str(row.get("plant") or NOMINAL),
         round(float(row["voltage"]), 9),
         int(float(row["seed"])),
     )
@@ -222,16 +348,26 @@ def load_results(path: str | Path):
     """The benchmark CSV as a pandas DataFrame."""
     import pandas as pd
 
-    text = ("controller", "preset", "regime", "error")
+    text = ("controller", "preset", "plant", "regime", "error")
     df = pd.read_csv(path, dtype={c: object for c in text})
+    if "plant" not in df.columns:  # a CSV from before plants: every run on the nominal model
+        df.insert(2, "plant", NOMINAL)
+    if "x3_peak_abs" not in df.columns and {"x3_min", "x3_max", "preset"} <= set(df.columns):
+        # a CSV written before these columns existed: the peak of its scoring window
+        df["x3_peak_abs"] = np.maximum(df["x3_min"].abs(), df["x3_max"].abs())
+        limit = df["preset"].map(lambda p: IDENTIFIED_SPEED.get(str(p), math.inf)).astype(float)
+        df["beyond_identified_range"] = df["x3_peak_abs"] > limit
     missing = [c for c in COLUMNS if c not in df.columns]
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing}; expected {list(COLUMNS)}")
     for c in text:
         df[c] = df[c].where(df[c].notna(), "").astype(str)
+    flags = ("beyond_identified_range",)
     for c in COLUMNS:
-        if c not in text:
+        if c not in text and c not in flags:
             df[c] = df[c].astype(float)
+    for c in flags:
+        df[c] = df[c].map(lambda v: str(v).strip().lower() in ("true", "1", "1.0"))
     df["seed"] = df["seed"].astype(int)
     df["sim_status"] = df["sim_status"].astype(int)
     return df
@@ -248,6 +384,16 @@ def _done_keys(csv_path: Path) -> set[tuple[str, str, float, int]]:
 class _Writer:
     def __init__(self, path: Path):
         new = not path.is_file() or path.stat().st_size == 0
+        if not new:
+            with open(path, newline="") as f:
+                header = next(csv.reader(f), [])
+            if header != list(COLUMNS):  # an older layout: rewrite it in this one, then append
+                df = load_results(path)
+                with atomic_file(path, "w", newline="") as f:
+                    w = csv.DictWriter(f, fieldnames=list(COLUMNS))
+                    w.writeheader()
+                    for row in df.to_dict("records"):
+                        w.writerow({c: _fmt(row[c]) for c in COLUMNS})
         self.f = open(path, "a", newline="")
         self.w = csv.DictWriter(self.f, fieldnames=list(COLUMNS))
         if new:
@@ -326,6 +472,23 @@ def _run_benchmark(
                 f"out: {out} holds a benchmark with other episode settings ({old.get('episode')}); "
                 "use another directory or --fresh to start over"
             )
+        before = {q["name"]: q for q in old.get("plants", [])}
+        for q in json.loads(json.dumps(record.get("plants", []))):
+            if q["name"] in before and before[q["name"]] != q:
+                raise ValueError(
+                    f"plant: {q['name']!r} in {out} was run with other parameters; rename the plant "
+                    "file, use another directory or --fresh to start over"
+                )
+        record = (
+            dict(
+                record,
+                plants=list(
+                    {**before, **{q.name: q.record() for q in cfg.plants if q.params is not None}}.values()
+                ),
+            )
+            if before
+            else record
+        )
     full_record = dict(
         record,
         presets=list(cfg.presets),
@@ -333,6 +496,15 @@ def _run_benchmark(
         voltages={p: list(v) for p, v in cfg.voltages.items()},
         seeds=list(cfg.seeds),
         policies=_policies_used(cfg),
+        plant_notes=[
+            {
+                "name": q.name,
+                "source": q.source,
+                "effects": list(q.params.effects.active) if q.params is not None else [],
+                "family": q.family(),
+            }
+            for q in cfg.plants
+        ],
     )
     atomic_write_text(cfg_path, json.dumps(full_record, indent=2) + "\n")
     done = _done_keys(csv_path)
@@ -471,9 +643,13 @@ def _rewrite_sorted(csv_path: Path, cfg: BenchmarkConfig) -> set[tuple[str, str,
     df_keys = list(df["_key"])
     order_c = {c: i for i, c in enumerate(CONTROLLERS)}
     order_p = {p: i for i, p in enumerate(("brake", "no_brake"))}
+    order_q = {q.name: i for i, q in enumerate(cfg.plants)}
     df["_c"] = df["controller"].map(order_c)
     df["_p"] = df["preset"].map(order_p)
-    df = df.sort_values(["_p", "voltage", "seed", "_c"]).drop(columns=["_key", "_c", "_p"])
+    df["_q"] = df["plant"].map(lambda q: order_q.get(q, len(order_q)))
+    df = df.sort_values(["_p", "_q", "plant", "voltage", "seed", "_c"]).drop(
+        columns=["_key", "_c", "_p", "_q"]
+    )
     with atomic_file(csv_path, "w", newline="") as f:  # a temporary file of its own, then one replace
         w = csv.DictWriter(f, fieldnames=list(COLUMNS))
         w.writeheader()
@@ -496,7 +672,39 @@ def _num(x: float, digits: int = 3) -> str:
     return t[1:] if t.startswith("-") and float(t) == 0.0 else t
 
 
-def summary_tables(df, notes: Mapping[str, str] | None = None) -> str:
+def _plant_heading(preset: str, plant: str, info: Mapping[str, Any] | None) -> list[str]:
+    if plant == NOMINAL:
+        return [
+            f"## {preset}, plant `{NOMINAL}`",
+            "",
+            "The preset's own model, on which every controller was designed; open-loop reference: "
+            "the bifurcation analysis.",
+            "",
+        ]
+    info = info or {}
+    effects = ", ".join(info.get("effects") or []) or "none"
+    lines = [
+        f"## {preset}, plant `{plant}`",
+        "",
+        f"Rig `{info.get('source', plant)}` (effects: {effects}). The controllers keep their design on "
+        f"the nominal `{preset}` model; open-loop reference: the open-loop run on this plant at the "
+        "same voltage and seed (no cycle below "
+        f"{OPEN_LOOP_FLOOR:g} rad/s: suppression `-`). Regimes are the nominal model's at each voltage.",
+        "",
+    ]
+    family = info.get("family")
+    if family and family != preset:
+        lines += [
+            f"**Note:** this plant's lower-disk friction is closer to the `{family}` preset than to "
+            f"`{preset}`, whose controllers run on it here.",
+            "",
+        ]
+    return lines
+
+
+def summary_tables(
+    df, notes: Mapping[str, str] | None = None, plants: Mapping[str, Mapping[str, Any]] | None = None
+) -> str:
     """The markdown of ``summary.md`` from the results DataFrame."""
     lines = [
         "# Controller benchmark",
@@ -508,16 +716,33 @@ def summary_tables(df, notes: Mapping[str, str] | None = None) -> str:
         "(1: cycle removed, 0: as open loop, < 0: worse); it is defined only where the analysis",
         "predicts a cycle. Means over the runs of a regime, worst case in brackets; peak |u| is the",
         "largest over the runs. |u| and the time at the 5 V limit are over the whole closed-loop",
-        "episode. The brake's friction model was identified up to 12.6 rad/s only (Sec. 4 of the",
-        "paper): runs that leave that range are outside what the model vouches for.",
+        "episode.",
+        "",
+        "Terms: *amplitude* = max - min of x3 over the window [rad/s]; *open-loop amplitude* = the",
+        "same on the limit cycle the analysis predicts at u (0: a stable equilibrium); *stuck* = time",
+        "fraction with the lower disk stuck; *severity* = (max - min) / (2 mean) of x3, the usual",
+        "stick-slip severity (1 or more: the bit stops in each cycle); *RMS error* = RMS of x3 - w*,",
+        "w* the target speed. The brake's friction model was identified up to 12.6 rad/s only",
+        "(Sec. 4 of the paper): *beyond 12.6 rad/s* counts the runs whose |x3| exceeded that at any",
+        "time of the closed-loop episode (CSV: `beyond_identified_range`, `x3_peak_abs`); their",
+        "figures are outside what the model vouches for.",
         "",
     ]
     ok = df[df["error"] == ""]
     failed = df[df["error"] != ""]
-    for preset in [p for p in ("brake", "no_brake") if p in set(df["preset"])]:
-        sub = ok[ok["preset"] == preset]
-        lines.append(f"## {preset}")
-        lines.append("")
+    only_nominal = set(df["plant"]) <= {NOMINAL}
+    sections = [
+        (preset, plant)
+        for preset in ("brake", "no_brake")
+        if preset in set(df["preset"])
+        for plant in _plants_in(df[df["preset"] == preset])
+    ]
+    for preset, plant in sections:
+        sub = ok[(ok["preset"] == preset) & (ok["plant"] == plant)]
+        if only_nominal:
+            lines += [f"## {preset}", ""]
+        else:
+            lines += _plant_heading(preset, plant, (plants or {}).get(plant))
         used = {k.split("/")[0]: v for k, v in (notes or {}).items() if k.endswith(f"/{preset}")}
         if used:
             lines.append(
@@ -535,8 +760,16 @@ def summary_tables(df, notes: Mapping[str, str] | None = None) -> str:
             lines.append(
                 "| controller | suppression | amplitude [rad/s] | open-loop amplitude [rad/s] | stuck [%] | "
                 "severity | RMS error [rad/s] | mean \\|u\\| [V] | peak \\|u\\| [V] | at 5 V limit [%] | runs |"
+                + (
+                    f" beyond {IDENTIFIED_SPEED[preset]:g} rad/s [runs] |"
+                    if preset in IDENTIFIED_SPEED
+                    else ""
+                )
             )
-            lines.append("|---|---|---|---|---|---|---|---|---|---|---|")
+            lines.append(
+                "|---|---|---|---|---|---|---|---|---|---|---|"
+                + ("---|" if preset in IDENTIFIED_SPEED else "")
+            )
             for c in _ordered(reg["controller"]):
                 r = reg[reg["controller"] == c]
                 sup = r["suppression"].dropna()
@@ -554,6 +787,9 @@ def summary_tables(df, notes: Mapping[str, str] | None = None) -> str:
                     _num(100 * r["u_limit_fraction"].mean(), 1),
                     str(len(r)),
                 ]
+                if preset in IDENTIFIED_SPEED:
+                    n_out = int(r["beyond_identified_range"].sum())
+                    cells.append(f"**{n_out}**" if n_out else "0")
                 lines.append("| " + " | ".join(cells) + " |")
             lines.append("")
         # suppression at every voltage
@@ -576,8 +812,9 @@ def summary_tables(df, notes: Mapping[str, str] | None = None) -> str:
         lines.append("## runs that failed")
         lines.append("")
         for r in failed.to_dict("records"):
+            on = "" if r["plant"] == NOMINAL else f" (plant {r['plant']})"
             lines.append(
-                f"- {r['controller']} {r['preset']} {r['voltage']:g} V seed {int(r['seed'])}: {r['error']}"
+                f"- {r['controller']} {r['preset']}{on} {r['voltage']:g} V seed {int(r['seed'])}: {r['error']}"
             )
         lines.append("")
     return "\n".join(lines)
@@ -588,14 +825,25 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
     df = load_results(csv_path)
     out = Path(out_dir)
     notes = None
+    plants: dict[str, dict[str, Any]] = {}
     cfg_path = Path(csv_path).parent / "benchmark_config.json"
     if cfg_path.is_file():
-        notes = json.loads(cfg_path.read_text()).get("policies")
+        rec = json.loads(cfg_path.read_text())
+        notes = rec.get("policies")
+        plants = {p["name"]: p for p in rec.get("plant_notes", [])}
     paths = [out / "summary.md"]
-    atomic_write_text(paths[0], summary_tables(df, notes) + "\n")
+    atomic_write_text(paths[0], summary_tables(df, notes, plants) + "\n")
     for preset in [p for p in ("brake", "no_brake") if p in set(df["preset"])]:
-        paths += _figures(df[(df["preset"] == preset) & (df["error"] == "")], preset, out)
+        for plant in _plants_in(df[df["preset"] == preset]):
+            sel = (df["preset"] == preset) & (df["plant"] == plant) & (df["error"] == "")
+            paths += _figures(df[sel], preset, out, plant)
     return paths
+
+
+def _plants_in(df) -> list[str]:
+    """The plants of a results frame, the nominal one first, then in order of appearance."""
+    names = list(dict.fromkeys(df["plant"]))
+    return sorted(names, key=lambda n: n != NOMINAL)
 
 
 _COLORS = {
@@ -619,7 +867,9 @@ _MARKERS = {
 }
 
 
-def _figures(df, preset: str, out: Path) -> list[Path]:
+def _figures(df, preset: str, out: Path, plant: str = NOMINAL) -> list[Path]:
+    """The bifurcation figure (nominal plant only: the analysis is of the nominal model) and
+    the suppression figure of one preset and plant."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -636,6 +886,8 @@ def _figures(df, preset: str, out: Path) -> list[Path]:
     span = float(volts.max() - volts.min()) if volts.size > 1 else 1.0
     offsets = {c: (i - (len(ctrls) - 1) / 2) * 0.008 * span for i, c in enumerate(ctrls)}
 
+    if plant != NOMINAL:
+        return paths + _suppression_figure(df, preset, out, plant, ctrls, offsets)
     diagram = bifurcation_diagram(preset, u_max=5.0)
     fig, ax = plt.subplots(figsize=(11, 6.5))
     plot_bifurcation(diagram, ax)
@@ -678,6 +930,11 @@ def _figures(df, preset: str, out: Path) -> list[Path]:
     fig.savefig(p, dpi=110)
     plt.close(fig)
     paths.append(p)
+    return paths + _suppression_figure(df, preset, out, plant, ctrls, offsets)
+
+
+def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls, offsets) -> list[Path]:
+    import matplotlib.pyplot as plt
 
     cyc = df[df["open_loop_amplitude"] > 0]
     fig, ax = plt.subplots(figsize=(11.5, 5))
@@ -718,9 +975,10 @@ def _figures(df, preset: str, out: Path) -> list[Path]:
     ax.axhline(1.0, color="gray", lw=0.8, ls=":")
     ax.set_xlabel("nominal voltage u [V]")
     ax.set_ylabel("suppression = 1 - amplitude / open-loop amplitude")
+    on = "" if plant == NOMINAL else f" on plant {plant} (reference: the open-loop run on it)"
     ax.set_title(
-        f"{preset}: suppression of the open-loop limit cycle (shaded: Hopf cycle / stick-slip; "
-        f"means below {Y_FLOOR:g} drawn at {Y_FLOOR:g} with their value)",
+        f"{preset}{on}: suppression of the open-loop cycle\n(shaded: the nominal model's Hopf cycle / "
+        f"stick-slip; means below {Y_FLOOR:g} drawn at {Y_FLOOR:g} with their value)",
         fontsize=10,
     )
     lo_y = min(-0.5, float(np.nanmin(cyc["suppression"])) - 0.05) if not cyc.empty else -0.5
@@ -729,11 +987,10 @@ def _figures(df, preset: str, out: Path) -> list[Path]:
     ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    p = out / f"suppression_{preset}.png"
+    p = out / (f"suppression_{preset}.png" if plant == NOMINAL else f"suppression_{preset}_{plant}.png")
     fig.savefig(p, dpi=110)
     plt.close(fig)
-    paths.append(p)
-    return paths
+    return [p]
 
 
 def _regime_spans(preset: str) -> list[tuple[str, float, float]]:

@@ -30,6 +30,11 @@ Metrics (:class:`RunMetrics`), over the window unless stated:
 * ``u_mean_abs``, ``u_peak_abs`` [V], ``u_limit_fraction``: mean and peak |u| and the
   fraction of control periods at the +-5 V limit (a request at or beyond it), over the
   whole closed-loop episode (transients included);
+* ``x3_peak_abs``: the largest |x3| over the whole closed-loop episode (every control
+  period and the window's 1 kHz samples) [rad/s]; ``beyond_identified_range``: True when it
+  exceeds the speed up to which the preset's friction was identified
+  (:data:`IDENTIFIED_SPEED`: 12.6 rad/s for the brake, Sec. 4 of the paper), i.e. the run
+  left what the model vouches for;
 * ``episode_return``: the environment's reward summed over the episode.
 """
 
@@ -51,6 +56,7 @@ from drill_env.envs.task import VOLTAGE_LIMIT
 from drill_env.metrics import stick_slip_metrics
 
 __all__ = [
+    "IDENTIFIED_SPEED",
     "EpisodeSettings",
     "RunMetrics",
     "Trajectory",
@@ -67,6 +73,10 @@ __all__ = [
 ENV_ID_OF = {(preset, ENV_VERSIONS[env_id]): env_id for env_id, preset in ENV_IDS.items()}
 PRESET_ENV_IDS = {preset: env_id for (preset, version), env_id in ENV_ID_OF.items() if version == 0}
 LIMIT_TOL = 1e-6  # [V] a voltage within this of +-5 V counts as at the limit
+# [rad/s] the lower-disk speed up to which a preset's friction was identified from rig data:
+# the brake's measured friction reached about 12.6 rad/s (Sec. 4 of the paper); the no-brake
+# friction has no stated limit.
+IDENTIFIED_SPEED: dict[str, float] = {"brake": 12.6}
 
 
 def env_id_of(preset: str, observation_version: int = 0) -> str:
@@ -127,16 +137,22 @@ class EpisodeSettings:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-def make_env(preset: str, settings: EpisodeSettings, observation_version: int = 0) -> gym.Env:
+def make_env(
+    preset: str, settings: EpisodeSettings, observation_version: int = 0, params: Any = None
+) -> gym.Env:
     """The registered environment of ``preset`` (observation version ``observation_version``)
     configured for evaluation episodes. The versions differ only in what is observed: the
-    same seed gives the same episode."""
+    same seed gives the same episode. ``params`` (a ``RigParams``, preset name or YAML path)
+    replaces the preset's rig: the *plant* the controller runs on, which may differ from the
+    model it was designed on (operating points and their regimes stay the preset's)."""
+    extra = {} if params is None else {"params": params}
     env = gym.make(
         env_id_of(preset, observation_version),
         max_episode_steps=10**9,  # the evaluation decides the length
         warmup_time=settings.warmup_time,
         warmup_jitter=settings.warmup_jitter,
         **settings.env_kwargs,
+        **extra,
     )
     return env
 
@@ -294,6 +310,8 @@ class RunMetrics:
     u_mean_abs: float  # [V]
     u_peak_abs: float  # [V]
     u_limit_fraction: float  # [-]
+    x3_peak_abs: float  # [rad/s] over the whole closed-loop episode
+    beyond_identified_range: bool  # x3_peak_abs above IDENTIFIED_SPEED[preset]
     episode_return: float
     sim_status: int
     wall_time: float  # [s]
@@ -314,11 +332,14 @@ def evaluate(
     *,
     name: str | None = None,
     env: gym.Env | None = None,
+    open_loop_amplitude: float | None = None,
 ) -> RunMetrics:
     """Run one evaluation episode and score it (see the module docstring).
 
     ``env`` may be passed to reuse an environment made by :func:`make_env` with the same
-    preset and settings.
+    preset and settings (and possibly another plant). ``open_loop_amplitude`` [rad/s]
+    replaces the analysis' prediction as the reference of the suppression (for a plant the
+    analysis does not cover: the open-loop run on that plant).
     """
     settings = settings or EpisodeSettings()
     v = float(voltage)
@@ -341,9 +362,16 @@ def evaluate(
     info = traj.reset_info
     w = float(info["target_speed"])
     m = stick_slip_metrics(traj.window_t, traj.window_lower_speed, traj.window_lower_stuck)
-    ol = open_loop_cycle(preset, v)
+    ol = (
+        open_loop_cycle(preset, v)
+        if open_loop_amplitude is None
+        else {"amplitude": float(open_loop_amplitude)}
+    )
     err = traj.window_lower_speed - w
     at_limit = np.abs(traj.voltage_requested) >= VOLTAGE_LIMIT - LIMIT_TOL
+    peak = float(np.max(np.abs(traj.true_state[:, 2])))
+    if traj.window_lower_speed.size:
+        peak = max(peak, float(np.max(np.abs(traj.window_lower_speed))))
     return RunMetrics(
         controller=name or getattr(controller, "name", type(controller).__name__),
         preset=preset,
@@ -364,6 +392,8 @@ def evaluate(
         u_mean_abs=float(np.mean(np.abs(traj.voltage))),
         u_peak_abs=float(np.max(np.abs(traj.voltage))),
         u_limit_fraction=float(np.mean(at_limit)),
+        x3_peak_abs=peak,
+        beyond_identified_range=bool(peak > IDENTIFIED_SPEED.get(preset, math.inf)),
         episode_return=float(np.sum(traj.reward)),
         sim_status=traj.sim_status,
         wall_time=time.perf_counter() - t0,

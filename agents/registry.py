@@ -5,9 +5,9 @@ from their committed policies.
   environment's :class:`~agents.base.ControllerSpec` with the gains that
   ``drill-env tune`` wrote to ``configs/agents/controllers.yaml`` for the preset;
 * ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
-  ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v1``, the braked rig;
-  a policy trained on the rig without brake, ``results/agents/<algo>_no_brake/``, is used
-  for that preset when present, else the braked rig's policy is run as it is). Each runs
+  ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v1``, the braked rig)
+  and ``results/agents/<algo>_no_brake/policy.zip`` (on ``DrillStringNoBrake-v1``); a
+  missing one is an error, never the other rig's policy run in its place. Each runs
   on the observation version it was trained on (:func:`observation_version`), so the
   version-0 policies of ``results/agents/v0/`` are evaluated with ``agents_dir`` pointing
   there.
@@ -94,18 +94,19 @@ def default_agents_dir() -> Path:
 
 
 def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) -> Path:
-    """The committed policy of ``algo`` for ``preset`` (see the module docstring)."""
+    """The trained policy of ``algo`` for ``preset``: ``<agents_dir>/<algo>/policy.zip`` for
+    the braked rig, ``<agents_dir>/<algo>_<preset>/policy.zip`` for any other preset. A
+    missing policy is an error naming that file, never a policy trained on another rig."""
     if algo not in LEARNED:
         raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
     root = Path(agents_dir) if agents_dir is not None else default_agents_dir()
-    own = root / f"{algo}_{preset}" / "policy.zip"
-    if own.is_file():
-        return own
-    path = root / algo / "policy.zip"
+    name = algo if preset == "brake" else f"{algo}_{preset}"
+    path = root / name / "policy.zip"
     if not path.is_file():
         raise ValueError(
-            f"policy: no trained {algo} policy at {path}; train one with "
-            f"`drill-env train --algo {algo} --config configs/agents/{algo}.yaml --seed 0`"
+            f"policy: no trained {algo} policy for preset {preset!r} at {path}; train one with "
+            f"`drill-env train --algo {algo} --config configs/agents/{name}.yaml --out {root / name}` "
+            "or pass --agents-dir"
         )
     return path
 

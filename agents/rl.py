@@ -599,11 +599,22 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     ax.legend(fontsize=8)
     ax = axes[1]
     prog_path = out_dir / "progress.csv"
-    if prog_path.is_file():
+    rows = None
+    if prog_path.is_file() and prog_path.read_text().strip():  # blank: SB3 logged nothing yet
         prog = pd.read_csv(prog_path)
         if "rollout/ep_rew_mean" in prog and "time/total_timesteps" in prog:
             rows = prog[["time/total_timesteps", "rollout/ep_rew_mean"]].dropna()
-            ax.plot(rows["time/total_timesteps"], rows["rollout/ep_rew_mean"], lw=0.8)
+    if rows is not None and len(rows):
+        ax.plot(rows["time/total_timesteps"], rows["rollout/ep_rew_mean"], lw=0.8)
+    else:
+        ax.text(
+            0.5,
+            0.5,
+            "no training episode logged yet\n(the run was shorter than one logging interval)",
+            ha="center",
+            va="center",
+            transform=ax.transAxes,
+        )
     ax.set_xlabel("environment steps")
     ax.set_ylabel("training episode return (stochastic)")
     ax.set_title("training episodes")

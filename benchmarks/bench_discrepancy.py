@@ -45,11 +45,15 @@ def main() -> None:
         res = run_discrepancy(tmp / "data", tmp / "out")
         t_run = time.perf_counter() - t
     n = len(syn.runs)
-    print(f"dataset: {n} runs x {cfg.duration_s:g} s at {cfg.sample_rate_hz:g} Hz "
-          f"({n * (int(cfg.duration_s * cfg.sample_rate_hz) + 1)} samples); synth + write {t_synth:.1f} s")
-    print(f"drill-env discrepancy, one core: {t_run:.1f} s "
-          f"(equation error {res.timings['equation_error']:.1f} s, decide + bootstrap {res.timings['decide']:.1f} s, "
-          f"simulations {res.timings['simulate']:.1f} s); target < 120 s")
+    print(
+        f"dataset: {n} runs x {cfg.duration_s:g} s at {cfg.sample_rate_hz:g} Hz "
+        f"({n * (int(cfg.duration_s * cfg.sample_rate_hz) + 1)} samples); synth + write {t_synth:.1f} s"
+    )
+    print(
+        f"drill-env discrepancy, one core: {t_run:.1f} s "
+        f"(equation error {res.timings['equation_error']:.1f} s, decide + bootstrap {res.timings['decide']:.1f} s, "
+        f"simulations {res.timings['simulate']:.1f} s); target < 120 s"
+    )
     print(res.verdict_line())
 
 

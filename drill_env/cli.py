@@ -11,12 +11,14 @@ from pathlib import Path
 
 import typer
 
+# Plain help text (no rich markup): units in brackets such as "[s]" stay visible, switches show
+# as flags and long values wrap instead of being cut at the terminal width.
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
+    rich_markup_mode=None,
     help="drill-env: the torsional stick-slip rig of Mihajlovic et al. (2004).",
 )
-
 
 
 @app.callback()
@@ -80,7 +82,9 @@ def simulate(
     win = res.window(min(summary_window, duration))
     m = stick_slip_metrics(win.t, win.x3, win.stick_l)
     stick_u = float(win.stick_u.mean())
-    period = f"{m.period:.3f} s ({1 / m.period:.4f} Hz)" if math.isfinite(m.period) else "none (no oscillation)"
+    period = (
+        f"{m.period:.3f} s ({1 / m.period:.4f} Hz)" if math.isfinite(m.period) else "none (no oscillation)"
+    )
     typer.echo(f"rig: {params.name}, u = {applied:g} V, {duration:g} s simulated, status: {res.message}")
     typer.echo(f"last {win.t[-1] - win.t[0]:g} s of the lower-disk speed x3 [rad/s]:")
     typer.echo(f"  mean {m.mean_speed:.5f}  min {m.min_speed:.5f}  max {m.max_speed:.5f}")

@@ -8,6 +8,9 @@
   is taken over with a warning. The lock is removed when the run ends, also on an error.
   Nested locks on the same folder in the same thread are allowed (a command that locks its
   folder may call a function that locks it too).
+* :func:`fresh_run_folder` -- the default output of a command that produces results
+  (``train``, ``tune``): a new folder ``<parent>/<name>_<YYYYmmdd-HHMMSS>`` created
+  atomically, never an existing one, so a default run never replaces committed results.
 * :func:`atomic_write_text`, :func:`atomic_write_bytes` and :func:`atomic_file` -- a file
   is written to a temporary file of its own (a unique name) in the same folder and moved
   over the target in one step, so a reader never sees half a file and two writers never
@@ -42,6 +45,7 @@ __all__ = [
     "atomic_file",
     "atomic_write_text",
     "atomic_write_bytes",
+    "fresh_run_folder",
 ]
 
 LOCK_NAME = ".drill-env.lock"
@@ -307,3 +311,24 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     with atomic_file(path, "wb") as f:
         f.write(data)
     return Path(path)
+
+
+def fresh_run_folder(parent: str | os.PathLike[str], name: str) -> Path:
+    """Create and return a new folder ``parent/name_<YYYYmmdd-HHMMSS>`` (``_2``, ``_3``, ...
+    appended if that exists): a run's own output, never a folder that holds anything."""
+    base = Path(parent)
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputFolderError(f"{base}: cannot create the run folder ({exc.strerror or exc})") from None
+    stem = f"{name}_{time.strftime('%Y%m%d-%H%M%S')}"
+    for k in range(1, 1000):
+        path = base / (stem if k == 1 else f"{stem}_{k}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise OutputFolderError(f"{path}: cannot create the run folder ({exc.strerror or exc})") from None
+        return path
+    raise OutputFolderError(f"{base}: no free run folder name for {stem}")

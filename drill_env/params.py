@@ -136,9 +136,7 @@ class RigParams:
         for name, rng in self._RANGES.items():
             _check_value(name, getattr(self, name), rng)
         if not isinstance(self.effects, ModelEffects):
-            raise ParameterError(
-                f"effects: expected ModelEffects, got {type(self.effects).__name__}"
-            )
+            raise ParameterError(f"effects: expected ModelEffects, got {type(self.effects).__name__}")
         # Eq. (4): friction is dissipative, T_lp(w) > 0 for all w >= 0.
         w = np.linspace(0.0, 50.0, 2001)
         slip = (
@@ -192,9 +190,7 @@ class RigParams:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
-            raise ParameterError(
-                f"{source}: unknown key(s) {unknown}; allowed: {sorted(known)}"
-            )
+            raise ParameterError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(known)}")
         missing = sorted(n for n in cls._RANGES if n not in data)
         if missing:
             raise ParameterError(f"{source}: missing key(s) {missing}")
@@ -204,9 +200,7 @@ class RigParams:
         eff_known = {f.name for f in fields(ModelEffects)}
         eff_unknown = sorted(set(eff) - eff_known)
         if eff_unknown:
-            raise ParameterError(
-                f"{source}: unknown effect(s) {eff_unknown}; allowed: {sorted(eff_known)}"
-            )
+            raise ParameterError(f"{source}: unknown effect(s) {eff_unknown}; allowed: {sorted(eff_known)}")
         for key, value in list(data.items()):
             if key in cls._RANGES:
                 data[key] = _as_float(key, value)
@@ -285,9 +279,7 @@ def _apply_overrides(params: RigParams, overrides: Mapping[str, Any]) -> RigPara
         elif key == "effects" and isinstance(value, Mapping):
             for ek, ev in value.items():
                 if ek not in eff_names:
-                    raise ParameterError(
-                        f"unknown effect {ek!r}; allowed: {sorted(eff_names)}"
-                    )
+                    raise ParameterError(f"unknown effect {ek!r}; allowed: {sorted(eff_names)}")
                 eff_kw[ek] = _as_float(f"effects.{ek}", ev)
         else:
             raise ParameterError(
@@ -341,6 +333,5 @@ def resolve_params(params_or_preset: RigParams | str | Path, **overrides: Any) -
     if isinstance(params_or_preset, (str, Path)):
         return load_params(params_or_preset, **overrides)
     raise ParameterError(
-        f"params: expected RigParams, a preset name or a YAML path, got "
-        f"{type(params_or_preset).__name__}"
+        f"params: expected RigParams, a preset name or a YAML path, got {type(params_or_preset).__name__}"
     )

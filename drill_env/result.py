@@ -216,7 +216,16 @@ class SimulationResult:
 
 def _slice(res: SimulationResult, keep: np.ndarray) -> SimulationResult:
     fields_1d = (
-        "u", "theta_u", "theta_l", "x1", "x2", "x3", "stick_u", "stick_l", "mode_u", "mode_l",
+        "u",
+        "theta_u",
+        "theta_l",
+        "x1",
+        "x2",
+        "x3",
+        "stick_u",
+        "stick_l",
+        "mode_u",
+        "mode_l",
         "motor_torque",
     )
     kw = {f: getattr(res, f)[..., keep] for f in fields_1d}

@@ -355,3 +355,15 @@ def test_episode_settings_validate():
         evaluate(OpenLoop(ControllerSpec.default()), "brake", 7.0, 0, SHORT)
     with pytest.raises(ValueError, match="preset"):
         make_env("icy", SHORT)
+
+
+def test_a_missing_no_brake_policy_is_an_error_not_the_braked_rigs(tmp_path):
+    import shutil
+
+    from agents.registry import default_agents_dir, policy_path
+
+    (tmp_path / "ppo").mkdir()
+    shutil.copy(default_agents_dir() / "ppo" / "policy.zip", tmp_path / "ppo" / "policy.zip")
+    assert policy_path("ppo", "brake", tmp_path) == tmp_path / "ppo" / "policy.zip"
+    with pytest.raises(ValueError, match=r"preset 'no_brake' at .*ppo_no_brake/policy.zip"):
+        policy_path("ppo", "no_brake", tmp_path)

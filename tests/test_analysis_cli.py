@@ -94,3 +94,11 @@ def test_rig_comparison_command(tmp_path):
     assert res.exit_code == 0, res.output
     assert out.read_text().startswith("# The model against the rig")
     assert json.loads(out.with_suffix(".json").read_text())["preset"] == "brake"
+
+
+def test_rig_comparison_names_the_preset_equations(comparison):
+    import dataclasses
+
+    assert "eq. 11, 13, 15, 17" in comparison.to_markdown()
+    assert "eq. 11, 13, 15, 16" in dataclasses.replace(comparison, preset="no_brake").to_markdown()
+    assert "not from the paper" in dataclasses.replace(comparison, preset="my_rig").to_markdown()

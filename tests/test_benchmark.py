@@ -5,20 +5,23 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from agents.benchmark import COLUMNS, BenchmarkConfig, Job, load_results, run_benchmark
+from agents.benchmark import COLUMNS, BenchmarkConfig, Job, Plant, load_results, run_benchmark
 from agents.evaluation import EpisodeSettings
 from drill_env.cli import app
 
+ROOT = Path(__file__).resolve().parent.parent
 TINY_EPISODE = EpisodeSettings(duration=6.0, window=3.0, warmup_time=4.0, warmup_jitter=1.0)
 DOCUMENTED = [
     "controller",
     "preset",
+    "plant",
     "voltage",
     "seed",
     "regime",
@@ -36,6 +39,8 @@ DOCUMENTED = [
     "u_mean_abs",
     "u_peak_abs",
     "u_limit_fraction",
+    "x3_peak_abs",
+    "beyond_identified_range",
     "episode_return",
     "sim_status",
     "wall_time",
@@ -84,6 +89,9 @@ def test_tiny_grid_writes_the_documented_schema(sequential):
     np.testing.assert_allclose(df["amplitude"], df["x3_max"] - df["x3_min"])
     for col in ("stick_fraction", "u_limit_fraction"):
         assert df[col].between(0, 1).all()
+    # the episode's peak covers the window; nothing here reaches the brake's 12.6 rad/s
+    assert (df["x3_peak_abs"] >= np.maximum(df["x3_max"].abs(), df["x3_min"].abs()) - 1e-12).all()
+    assert not df["beyond_identified_range"].any()
     summary = (sequential / "summary.md").read_text()
     assert "### stable equilibrium" in summary and "### stick-slip" in summary
     for name in ("open_loop", "pi_upper", "lqi"):
@@ -120,6 +128,35 @@ def test_resume_runs_only_what_is_missing(tmp_path, sequential):
     other = tiny(episode=EpisodeSettings(duration=8.0, window=3.0, warmup_time=4.0, warmup_jitter=1.0))
     with pytest.raises(ValueError, match="episode settings"):
         run_benchmark(other, tmp_path, backend="sequential")
+
+
+def test_resume_upgrades_a_csv_of_the_older_layout(tmp_path, sequential):
+    # a folder from before the x3_peak_abs / beyond_identified_range columns: resumed, the
+    # CSV is rewritten in the current layout (peak from the window) and the rest appended
+    df = pd.read_csv(sequential / "benchmark.csv", keep_default_na=False)
+    old = df.drop(columns=["x3_peak_abs", "beyond_identified_range"]).iloc[:4]
+    old.to_csv(tmp_path / "benchmark.csv", index=False)
+    (tmp_path / "benchmark_config.json").write_text(json.dumps(tiny().settings_record()))
+    run_benchmark(tiny(), tmp_path, backend="sequential", report=False)
+    again = pd.read_csv(tmp_path / "benchmark.csv", keep_default_na=False)
+    assert list(again.columns) == DOCUMENTED and len(again) == 6
+    again = load_results(tmp_path / "benchmark.csv")
+    window_peak = np.maximum(again["x3_max"].abs(), again["x3_min"].abs())
+    assert (again["x3_peak_abs"] >= window_peak - 1e-12).all()
+
+
+def test_runs_beyond_the_identified_friction_range_are_flagged(tmp_path):
+    # the lower-speed PI drives the brake far beyond 12.6 rad/s at 2 V (peak to peak ~136 rad/s)
+    cfg = tiny(controllers=("open_loop", "pi_lower"), voltages={"brake": (2.0,)})
+    run_benchmark(cfg, tmp_path, backend="sequential")
+    df = load_results(tmp_path / "benchmark.csv").set_index("controller")
+    assert df.loc["pi_lower", "beyond_identified_range"] and df.loc["pi_lower", "x3_peak_abs"] > 12.6
+    assert not df.loc["open_loop", "beyond_identified_range"]
+    assert df.loc["open_loop", "x3_peak_abs"] < 12.6
+    summary = (tmp_path / "summary.md").read_text()
+    assert "beyond 12.6 rad/s [runs]" in summary and "*severity*" in summary
+    row = next(line for line in summary.splitlines() if line.startswith("| pi_lower |"))
+    assert row.endswith("| **1** |")
 
 
 def test_process_pool_matches_sequential(tmp_path, sequential):
@@ -216,3 +253,85 @@ def test_cli_benchmark_says_what_was_resumed_and_fails_when_a_run_failed(tmp_pat
     assert "1 of 2 runs failed" in res.output and "no trained ppo policy" in res.output
     df = load_results(tmp_path / "benchmark.csv")
     assert len(df) == 2 and np.isfinite(df.loc[df["controller"] == "open_loop", "amplitude"]).all()
+
+
+# -- plants that differ from the design model --------------------------------------------------------
+
+
+def _plant_yaml(path, **changes):
+    import yaml as _yaml
+
+    data = load_params_dict("brake")
+    effects = changes.pop("effects", None)
+    data.update(changes)
+    if effects:
+        data["effects"] = effects
+    path.write_text(_yaml.safe_dump(data))
+    return path
+
+
+def test_a_plant_runs_every_controller_with_its_own_open_loop_reference(tmp_path):
+    # the paper's Sec. 4.1 lower-disk position friction on the braked rig
+    plant = Plant.from_path(_plant_yaml(tmp_path / "a1.yaml", effects={"lower_position_amp_1": 0.12}))
+    cfg = tiny(controllers=("open_loop", "lqi"), voltages={"brake": (0.4, 1.0)}, plants=(Plant(), plant))
+    run_benchmark(cfg, tmp_path / "out", backend="sequential")
+    df = load_results(tmp_path / "out" / "benchmark.csv")
+    assert list(df.columns[:3]) == ["controller", "preset", "plant"] and len(df) == 2 * 2 * 2
+    nom, a1 = df[df["plant"] == "nominal"], df[df["plant"] == "a1"]
+    # nominal: the analysis' reference; the plant: its own open-loop run at the same voltage/seed
+    ol = a1[a1["controller"] == "open_loop"].set_index("voltage")
+    for _, r in a1.iterrows():
+        assert r["open_loop_amplitude"] == pytest.approx(ol.loc[r["voltage"], "amplitude"])
+    assert (ol["suppression"].abs() < 1e-9).all()
+    assert (ol["amplitude"] != nom[nom["controller"] == "open_loop"].set_index("voltage")["amplitude"]).all()
+    # at 0.4 V the nominal rig rests at an equilibrium, the plant's speed varies once per revolution
+    assert np.isnan(nom[nom["voltage"] == 0.4]["suppression"]).all()
+    assert ol.loc[0.4, "amplitude"] > 0.01 and np.isfinite(a1[a1["voltage"] == 0.4]["suppression"]).all()
+    summary = (tmp_path / "out" / "summary.md").read_text()
+    assert "## brake, plant `nominal`" in summary and "## brake, plant `a1`" in summary
+    assert "lower_position_amp_1" in summary
+    assert (tmp_path / "out" / "suppression_brake_a1.png").stat().st_size > 10_000
+
+
+def test_a_plant_of_the_other_family_is_stated_and_a_changed_plant_is_not_resumed(tmp_path):
+    nb = load_params_dict("no_brake")
+    path = tmp_path / "nb.yaml"
+    import yaml as _yaml
+
+    path.write_text(_yaml.safe_dump(nb))
+    cfg = tiny(controllers=("open_loop",), voltages={"brake": (2.0,)}, plants=(Plant.from_path(path),))
+    run_benchmark(cfg, tmp_path / "out", backend="sequential")
+    assert "closer to the `no_brake` preset" in (tmp_path / "out" / "summary.md").read_text()
+    nb["lower_static"] *= 1.1
+    path.write_text(_yaml.safe_dump(nb))
+    changed = tiny(controllers=("open_loop",), voltages={"brake": (2.0,)}, plants=(Plant.from_path(path),))
+    with pytest.raises(ValueError, match="'nb' .* other parameters"):
+        run_benchmark(changed, tmp_path / "out", backend="sequential")
+
+
+def load_params_dict(preset: str) -> dict:
+    import yaml as _yaml
+
+    return _yaml.safe_load((ROOT / "configs" / "rig" / f"{preset}.yaml").read_text())
+
+
+def test_cli_plant_errors_name_the_field(tmp_path):
+    import yaml as _yaml
+
+    bad = load_params_dict("brake")
+    bad["lower_inertia"] = -1.0
+    (tmp_path / "bad.yaml").write_text(_yaml.safe_dump(bad))
+    eff = load_params_dict("brake")
+    eff["effects"] = {"lower_position_amp_1": 1.5}
+    (tmp_path / "eff.yaml").write_text(_yaml.safe_dump(eff))
+    runner = CliRunner()
+    for name, field in (
+        ("bad.yaml", "lower_inertia"),
+        ("eff.yaml", "lower_position_amp_1"),
+        ("none.yaml", "not a file"),
+    ):
+        res = runner.invoke(
+            app, ["benchmark", "--quick", "--plant", str(tmp_path / name), "--out", str(tmp_path / "o")]
+        )
+        assert res.exit_code == 2 and field in res.output, res.output
+        assert "Traceback" not in res.output

@@ -67,7 +67,9 @@ def test_missing_and_unknown_columns(folder):
     p = folder / "run02.csv"
     text = p.read_text().splitlines()
     p.write_text("\n".join([",".join(c.split(",")[:3]) for c in text]) + "\n")
-    with pytest.raises(DatasetError, match=r"run02.csv: line 1 \(header\): missing column\(s\) \['theta_l'\]"):
+    with pytest.raises(
+        DatasetError, match=r"run02.csv: line 1 \(header\): missing column\(s\) \['theta_l'\]"
+    ):
         load_dataset(folder)
     p.write_text("\n".join([c + ",0" for c in text]).replace("theta_l,0", "theta_l,speed", 1) + "\n")
     with pytest.raises(DatasetError, match=r"unexpected column\(s\) \['speed'\]"):
@@ -88,7 +90,9 @@ def test_sample_rate_limits(tmp_path):
     with pytest.raises(DatasetError, match=r"'sample_rate_hz' = 50.0; expected a number in \[100, 10000\]"):
         load_dataset(tmp_path)
     (tmp_path / "dataset.json").write_text('{"preset": "brake", "encoder_counts_per_rev": 2000}')
-    with pytest.raises(DatasetError, match=r"sample rate 50 Hz is outside the allowed range \[100, 10000\] Hz"):
+    with pytest.raises(
+        DatasetError, match=r"sample rate 50 Hz is outside the allowed range \[100, 10000\] Hz"
+    ):
         load_dataset(tmp_path)
 
 

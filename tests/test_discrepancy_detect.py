@@ -18,14 +18,16 @@ from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_datase
 from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse
 
 # four constant voltages and two quasi-random runs of 60 s at 250 Hz: small but enough
-SMALL = SynthConfig(voltages=(0.2, 0.7, 2.0, 4.5), random_runs=2, duration_s=60.0, pre_roll_s=40.0,
-                    sample_rate_hz=250.0)
+SMALL = SynthConfig(
+    voltages=(0.2, 0.7, 2.0, 4.5), random_runs=2, duration_s=60.0, pre_roll_s=40.0, sample_rate_hz=250.0
+)
 
 
 def _dataset(effect, seed, magnitude=None, config=SMALL):
     syn = make_dataset(effect, seed=seed, magnitude=magnitude, config=config)
-    return MeasuredDataset(preset="brake", encoder_counts_per_rev=config.encoder_counts_per_rev,
-                           runs=tuple(syn.runs)), syn
+    return MeasuredDataset(
+        preset="brake", encoder_counts_per_rev=config.encoder_counts_per_rev, runs=tuple(syn.runs)
+    ), syn
 
 
 @pytest.mark.parametrize("effect", list(HIDDEN_EFFECTS))
@@ -66,20 +68,51 @@ def test_small_effect_below_detection_gives_none():
 def test_cli_end_to_end(tmp_path):
     runner = CliRunner()
     data, ans, out = tmp_path / "data", tmp_path / "answer.json", tmp_path / "out"
-    r = runner.invoke(app, ["synth", "--effect", "friction_drift", "--magnitude", "0.001", "--seed", "4",
-                            "--out", str(data), "--answer", str(ans), "--duration", "40", "--voltages",
-                            "0.5,2.0,4.5", "--random-runs", "2", "--rate", "200"])
+    r = runner.invoke(
+        app,
+        [
+            "synth",
+            "--effect",
+            "friction_drift",
+            "--magnitude",
+            "0.001",
+            "--seed",
+            "4",
+            "--out",
+            str(data),
+            "--answer",
+            str(ans),
+            "--duration",
+            "40",
+            "--voltages",
+            "0.5,2.0,4.5",
+            "--random-runs",
+            "2",
+            "--rate",
+            "200",
+        ],
+    )
     assert r.exit_code == 0, r.output
     ans.unlink()  # the workflow has nothing to peek at
     r = runner.invoke(app, ["discrepancy", str(data), "--out", str(out)])
     assert r.exit_code == 0, r.output
     assert r.output.strip().splitlines()[-1].startswith("verdict: friction_drift")
     result = json.loads((out / "result.json").read_text())
-    assert set(result) == {"effect", "confidence", "parameters", "gap_before", "gap_after", "heldout_runs",
-                           "evidence"}
+    assert set(result) == {
+        "effect",
+        "confidence",
+        "parameters",
+        "gap_before",
+        "gap_after",
+        "heldout_runs",
+        "evidence",
+    }
     assert result["effect"] in RESULT_EFFECTS and result["effect"] == "friction_drift"
     assert abs(result["parameters"]["friction_drift"]) == pytest.approx(0.001, rel=0.1)
-    assert result["gap_after"]["equation_error_ss_per_window"] < result["gap_before"]["equation_error_ss_per_window"]
+    assert (
+        result["gap_after"]["equation_error_ss_per_window"]
+        < result["gap_before"]["equation_error_ss_per_window"]
+    )
     for fig in ("spectra.png", "bifurcation.png", "trajectories.png", "residual_spectra.png"):
         assert (out / fig).is_file()
     assert "![spectra.png](spectra.png)" in (out / "report.md").read_text()
@@ -92,3 +125,34 @@ def test_cli_end_to_end(tmp_path):
     (data / "run01.csv").write_text("t,u,theta_u\n0,1,2\n")
     r = runner.invoke(app, ["discrepancy", str(data), "--out", str(out)])
     assert r.exit_code == 2 and "run01.csv" in r.output and "theta_l" in r.output
+
+
+# -- steady-state features: a period only where the speed oscillates ---------------------------------
+
+
+def test_steady_features_report_no_period_for_a_noisy_equilibrium():
+    from drill_env.discrepancy.compare import _features
+
+    # 0.5 V on the braked rig: a stable equilibrium at 0.658 rad/s seen through a 2000-count
+    # encoder at 500 Hz; the smooth speed estimate still swings by ~0.13 rad/s of noise
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 150.0, 0.002)
+    speed = 0.658 + 0.02 * rng.standard_normal(t.size)
+    # the noise estimate (measured minus a smooth fit) runs low on such coloured noise
+    feats = _features(t, speed, 0.05, 0.012, 2000)
+    assert np.ptp(speed[t >= 75]) > max(0.05 * 0.658, 8 * 0.012)  # a "cycle" to a test on raw ptp
+    assert np.isnan(feats.period)
+
+
+@pytest.mark.parametrize(
+    ("mean", "amp", "period"), [(1.56, 1.4, 4.09), (0.66, 0.3, 9.5), (0.134, 0.03, 46.4)]
+)
+def test_steady_features_find_the_period_of_a_cycle_under_the_same_noise(mean, amp, period):
+    from drill_env.discrepancy.compare import _features
+
+    # a Hopf cycle (4.09 s) and once-per-revolution friction lines at 0.5 and 0.2 V
+    rng = np.random.default_rng(1)
+    t = np.arange(0.0, 150.0 if period < 40 else 300.0, 0.002)
+    speed = mean + amp * np.sin(2 * np.pi * t / period) + 0.02 * rng.standard_normal(t.size)
+    feats = _features(t, speed, 0.01, 0.02, 2000)
+    assert feats.period == pytest.approx(period, rel=0.03)

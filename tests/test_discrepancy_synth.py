@@ -12,7 +12,9 @@ from drill_env.cli import app
 from drill_env.discrepancy.dataset import load_dataset
 from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
 
-SMALL = SynthConfig(voltages=(0.5, 2.0), random_runs=1, duration_s=20.0, pre_roll_s=20.0, sample_rate_hz=200.0)
+SMALL = SynthConfig(
+    voltages=(0.5, 2.0), random_runs=1, duration_s=20.0, pre_roll_s=20.0, sample_rate_hz=200.0
+)
 
 
 def test_runs_look_measured():
@@ -68,8 +70,27 @@ def test_cli_synth(tmp_path):
     out, ans = tmp_path / "d", tmp_path / "a.json"
     r = CliRunner().invoke(
         app,
-        ["synth", "--effect", "motor_inductance", "--magnitude", "0.01", "--seed", "1", "--out", str(out),
-         "--answer", str(ans), "--duration", "20", "--voltages", "1.0", "--random-runs", "1", "--rate", "200"],
+        [
+            "synth",
+            "--effect",
+            "motor_inductance",
+            "--magnitude",
+            "0.01",
+            "--seed",
+            "1",
+            "--out",
+            str(out),
+            "--answer",
+            str(ans),
+            "--duration",
+            "20",
+            "--voltages",
+            "1.0",
+            "--random-runs",
+            "1",
+            "--rate",
+            "200",
+        ],
     )
     assert r.exit_code == 0, r.output
     assert json.loads(ans.read_text())["model_effects"] == {"motor_lag": 0.01}

@@ -342,3 +342,14 @@ def test_an_unusable_cache_dir_gives_a_warning_and_current_results_in_a_process(
     # nothing compiled into numba's default place beside the source (not keyed by the source hash)
     stray = [p for p in (ROOT / "drill_env").rglob("*.nb[ic]") if p.stat().st_mtime >= t0 - 1]
     assert stray == []
+
+
+def test_fresh_run_folder_never_returns_an_existing_folder(tmp_path):
+    from drill_env.outputs import OutputFolderError, fresh_run_folder
+
+    made = [fresh_run_folder(tmp_path / "runs", "controllers") for _ in range(3)]
+    assert len(set(made)) == 3 and all(p.is_dir() and not any(p.iterdir()) for p in made)
+    assert all(p.parent == tmp_path / "runs" and p.name.startswith("controllers_") for p in made)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutputFolderError, match="cannot create the run folder"):
+        fresh_run_folder(tmp_path / "file", "x")

@@ -98,7 +98,11 @@ def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
         assert "policy.pth" in zf.namelist()
     from stable_baselines3 import PPO
 
-    model = PPO.load(str(path), device="cpu")
+    # the schedules are rl-zoo3 objects: unpickling them would import rl_zoo3 (and its
+    # process-wide TimeLimit patch) into the test process; inference does not need them
+    schedules = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.2}
+    model = PPO.load(str(path), device="cpu", custom_objects=schedules)
+    assert "rl_zoo3" not in sys.modules
     env = gym.make("DrillString-v1")
     obs, _ = env.reset(seed=0)
     assert model.observation_space.shape == obs.shape == (13,)

@@ -184,3 +184,40 @@ def test_linear_schedules_and_their_errors():
             TrainConfig(algo="ppo", hyperparameters={"learning_rate": bad})
     with pytest.raises(ValueError, match="vec_env"):
         TrainConfig(algo="ppo", vec_env="subproc")
+
+
+def test_cli_train_and_tune_default_to_fresh_run_folders(tmp_path, monkeypatch):
+    # by default nothing committed is written: train and tune create a new run folder each
+    import yaml as _yaml
+
+    cfg = small_config("ppo", 128).to_dict()
+    cfg["evaluation"]["every_steps"] = 64
+    cfg["hyperparameters"].update(n_steps=32, batch_size=32)
+    (tmp_path / "tiny.yaml").write_text(_yaml.safe_dump(cfg))
+    monkeypatch.chdir(tmp_path)
+    runner = CliRunner()
+    args = ["train", "--algo", "ppo", "--config", "tiny.yaml", "--no-progress"]
+    first = runner.invoke(app, args)
+    assert first.exit_code == 0, first.output
+    second = runner.invoke(app, args)
+    assert second.exit_code == 0, second.output
+    runs = sorted((tmp_path / "runs" / "train").glob("ppo_seed0_*"))
+    assert len(runs) == 2  # two runs, two folders: the second did not replace the first
+    for run in runs:
+        assert (run / "ppo" / "policy.zip").is_file() and (run / "logs").is_dir()
+        assert f"--agents-dir {run.relative_to(tmp_path)}" in first.output + second.output
+    assert not (tmp_path / "results").exists()
+    # the run folder is laid out like results/agents: the benchmark finds the policy there
+    from agents.registry import policy_path
+
+    assert policy_path("ppo", "brake", runs[0]) == runs[0] / "ppo" / "policy.zip"
+
+
+def test_a_run_shorter_than_one_logging_interval_writes_everything(tmp_path):
+    # 60 SAC steps: no episode ends, SB3 logs nothing (a blank progress.csv); the run still
+    # writes its policy, summary and a learning curve that says so
+    cfg = small_config("sac", 60)
+    summary = train(cfg, 0, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    assert summary["total_timesteps"] >= 60 and summary["n_evaluations"] >= 1
+    for name in ("policy.zip", "config.yaml", "training_summary.json", "eval.csv", "learning_curve.png"):
+        assert (tmp_path / "out" / name).is_file(), name

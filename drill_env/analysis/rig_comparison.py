@@ -33,6 +33,11 @@ RIG_MEASUREMENTS = (
 )
 
 
+# The paper's parameter equations of each preset: motor and upper disk (11), upper friction
+# (13), lower disk (15), and the lower friction with the brake (17) or without it (16).
+PRESET_EQUATIONS = {"brake": "11, 13, 15, 17", "no_brake": "11, 13, 15, 16"}
+
+
 @dataclass(frozen=True)
 class ComparisonRow:
     quantity: str
@@ -52,10 +57,12 @@ class RigComparison:
     cycles: dict[float, LimitCycle | None] = field(repr=False, default_factory=dict)
 
     def to_markdown(self) -> str:
+        eqs = PRESET_EQUATIONS.get(self.preset)
+        source = f"the paper's model, eq. {eqs}" if eqs else "parameters not from the paper"
         lines = [
             "# The model against the rig",
             "",
-            f"Preset `{self.preset}` (the paper's model, eq. 11, 13, 15, 17) against the measurements "
+            f"Preset `{self.preset}` ({source}) against the measurements "
             "quoted in Mihajlovic et al. (2004), Sec. 4 and 4.1. The model's value is that of its "
             "stable steady state at the voltage: the equilibrium, or the limit cycle (frequency "
             "1/period; mean speed = lower-disk angle per period / period). Relative error = "

@@ -29,19 +29,23 @@ def register(app: typer.Typer) -> None:
     @app.command("benchmark")
     def benchmark(
         out: Path = typer.Option(..., help="Directory for benchmark.csv, summary.md and the figures."),
-        preset: str = typer.Option("all", help="brake, no_brake or all (both)."),
+        preset: str = typer.Option("all", help="Comma-separated presets: brake, no_brake, or all (both)."),
         quick: bool = typer.Option(False, "--quick", help="A handful of voltages per preset and one seed."),
         controllers: str | None = typer.Option(
-            None, help="Comma-separated subset of open_loop,pi_upper,pi_lower,torque_feedback,lqi,ppo,sac."
+            None,
+            help="Comma-separated subset of: open_loop, pi_upper, pi_lower, torque_feedback, lqi, ppo, sac (default: all).",
         ),
         voltages: str | None = typer.Option(
-            None, help="Comma-separated nominal voltages in V (replace the grid)."
+            None,
+            help="Comma-separated nominal voltages [V] (replace the grid; default: the full or quick grid).",
         ),
-        seeds: int | None = typer.Option(None, help="Number of seeds per operating point (0, 1, ...)."),
-        duration: float = typer.Option(90.0, help="Closed-loop time per run (s)."),
-        window: float = typer.Option(20.0, help="Steady-state window at the end of each run (s)."),
+        seeds: int | None = typer.Option(
+            None, help="Number of seeds per operating point: seeds 0, 1, ... (default: 5; 1 with --quick)."
+        ),
+        duration: float = typer.Option(90.0, help="Closed-loop time per run [s]."),
+        window: float = typer.Option(20.0, help="Steady-state window at the end of each run [s]."),
         warmup: float = typer.Option(
-            60.0, help="Open-loop warm-up before the controller is switched on (s)."
+            60.0, help="Open-loop warm-up before the controller is switched on [s]."
         ),
         backend: str = typer.Option("process", help="process (local pool), sequential or ray."),
         workers: int | None = typer.Option(None, help="Parallel workers (default: the number of CPUs)."),
@@ -49,6 +53,17 @@ def register(app: typer.Typer) -> None:
             None, help="Ray cluster address (default: a local Ray instance)."
         ),
         agents_dir: Path | None = typer.Option(None, help="Trained policies (default: results/agents)."),
+        plant: list[str] | None = typer.Option(
+            None,
+            "--plant",
+            help="Run every controller on this rig instead of the nominal model: a rig YAML in the "
+            "preset format, effects included (e.g. a discrepancy model.yaml); repeatable; `nominal` "
+            "is the preset's own model. Controllers keep their design on the nominal model; "
+            "suppression is relative to the open-loop run on the plant. Default: nominal.",
+        ),
+        gains: Path | None = typer.Option(
+            None, help="Tuned gains of the classical controllers (default: configs/agents/controllers.yaml)."
+        ),
         fresh: bool = typer.Option(
             False, "--fresh", help="Discard results already in OUT instead of resuming."
         ),
@@ -59,8 +74,12 @@ def register(app: typer.Typer) -> None:
         OUT/summary.md (a table per regime), OUT/bifurcation_<preset>.png and
         OUT/suppression_<preset>.png.
         """
-        if preset not in PRESETS:
-            _fail(f"--preset must be one of {list(PRESETS)}, got {preset!r}")
+        names = [x.strip() for x in preset.split(",") if x.strip()]
+        for name in names:
+            if name not in PRESETS:
+                _fail(f"--preset: {name!r} is not one of {list(PRESETS)}")
+        if not names:
+            _fail(f"--preset: expected one or more of {list(PRESETS)}, got {preset!r}")
         from rich.console import Console
         from rich.progress import (
             BarColumn,
@@ -77,7 +96,7 @@ def register(app: typer.Typer) -> None:
 
         if backend not in BACKENDS:
             _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
-        presets = ("brake", "no_brake") if preset == "all" else (preset,)
+        presets = ("brake", "no_brake") if "all" in names else tuple(dict.fromkeys(names))
         ctrls = CONTROLLERS
         if controllers is not None:
             ctrls = tuple(c.strip() for c in controllers.split(",") if c.strip())
@@ -85,6 +104,17 @@ def register(app: typer.Typer) -> None:
             _fail(f"--seeds must be >= 1, got {seeds!r}")
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
+        from agents.benchmark import NOMINAL, Plant
+        from drill_env.params import ParameterError
+
+        plants = []
+        for item in plant or [NOMINAL]:
+            try:
+                plants.append(Plant() if item == NOMINAL else Plant.from_path(item))
+            except (ParameterError, ValueError) as exc:
+                _fail(f"--plant {item}: {exc}")
+        if gains is not None and not gains.is_file():
+            _fail(f"--gains: {gains} is not a file (a YAML written by drill-env tune)")
         try:
             episode = EpisodeSettings(duration=duration, window=window, warmup_time=warmup)
             if vs is not None:
@@ -95,6 +125,8 @@ def register(app: typer.Typer) -> None:
                     seeds=seed_list,
                     episode=episode,
                     agents_dir=None if agents_dir is None else str(agents_dir),
+                    gains_file=None if gains is None else str(gains),
+                    plants=tuple(plants),
                 )
             else:
                 cfg = BenchmarkConfig.preset_grid(
@@ -104,6 +136,8 @@ def register(app: typer.Typer) -> None:
                     seeds=seed_list,
                     episode=episode,
                     agents_dir=None if agents_dir is None else str(agents_dir),
+                    gains_file=None if gains is None else str(gains),
+                    plants=tuple(plants),
                 )
         except ValueError as exc:
             _fail(str(exc))
@@ -120,6 +154,11 @@ def register(app: typer.Typer) -> None:
             console.print(
                 f"benchmark: {len(cfg.controllers)} controllers x "
                 + " + ".join(f"{len(cfg.voltages[p])} voltages ({p})" for p in cfg.presets)
+                + (
+                    f" x {len(cfg.plants)} plants ({', '.join(q.name for q in cfg.plants)})"
+                    if len(cfg.plants) > 1
+                    else ""
+                )
                 + f" x {len(cfg.seeds)} seed(s) = {n} runs, backend {backend}; results in {out}"
             )
             columns = (
@@ -141,6 +180,8 @@ def register(app: typer.Typer) -> None:
                         resumed.append(done)  # the first call: runs found in OUT already
                     if row:
                         desc = f"{row['controller']:>15s} {row['preset']:>8s} {float(row['voltage']):4.2f} V"
+                        if row.get("plant", "nominal") != "nominal":
+                            desc += f" on {row['plant']}"
                     prog.update(task, completed=done, description=desc)
 
                 try:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from drill_env.outputs import fresh_run_folder
+
 ALGOS = ("ppo", "sac")
 
 
@@ -23,13 +25,17 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, help="Random seed of the training run (>= 0)."),
         out: Path | None = typer.Option(
             None,
-            help="Where the policy, config, summary and learning curve go "
-            "(default: results/agents/ALGO, or results/agents/ALGO_no_brake for DrillStringNoBrake-v1; "
-            "results/agents/v0/... for a -v0 id).",
+            help="Where the policy, config, summary and learning curve go. Default: a fresh "
+            "run folder runs/train/NAME_seedN_TIME/NAME (NAME: ALGO or ALGO_no_brake; "
+            "runs/train/.../vK/NAME for a -vK id older than the current one), laid out like "
+            "results/agents so that `drill-env benchmark --agents-dir runs/train/NAME_seedN_TIME` "
+            "evaluates it. The committed policies are regenerated only with an explicit "
+            "--out results/agents/NAME (see results/README.md).",
         ),
         run_dir: Path | None = typer.Option(
             None,
-            help="Where the CSV and TensorBoard logs and the final policy go (default: runs/train/ALGO_seedN).",
+            help="Where the CSV and TensorBoard logs and the final policy go (default: "
+            "the run folder's logs/, or OUT/../logs with an explicit --out).",
         ),
         total_timesteps: int | None = typer.Option(None, help="Override the config's total_timesteps."),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
@@ -58,16 +64,16 @@ def register(app: typer.Typer) -> None:
             _fail(f"--algo {algo} does not match the config's algo {cfg.algo!r} ({config})")
         from drill_env.envs import ENV_IDS, ENV_VERSIONS
 
-        # the current version's policies in results/agents, older versions' in results/agents/vN
+        # laid out like results/agents: the current version's policies at the top, older
+        # versions' in vN/
         name = algo if ENV_IDS[cfg.env_id] == "brake" else f"{algo}_{ENV_IDS[cfg.env_id]}"
         version = ENV_VERSIONS[cfg.env_id]
-        agents = Path("results") / "agents"
-        run_name = name
-        if version != max(ENV_VERSIONS.values()):
-            agents = agents / f"v{version}"
-            run_name = f"{name}_v{version}"
-        out = out or agents / name
-        run_dir = run_dir or Path("runs") / "train" / f"{run_name}_seed{seed}"
+        sub = Path(name) if version == max(ENV_VERSIONS.values()) else Path(f"v{version}") / name
+        agents_dir = None
+        if out is None:
+            agents_dir = fresh_run_folder(Path("runs") / "train", f"{name}_seed{seed}")
+            out = agents_dir / sub
+        run_dir = run_dir or (agents_dir / "logs" if agents_dir is not None else out.parent / "logs")
         typer.echo(
             f"training {algo} on {cfg.env_id} for {cfg.total_timesteps} steps, seed {seed}; "
             f"logs in {run_dir} (tensorboard --logdir {run_dir})"
@@ -94,3 +100,7 @@ def register(app: typer.Typer) -> None:
         refs = ", ".join(f"{k} {v:.2f}" for k, v in summary["reference_returns"].items())
         typer.echo(f"references on the same episodes: {refs}")
         typer.echo(f"wrote {out}/policy.zip, training_summary.json, learning_curve.png")
+        if agents_dir is not None:
+            typer.echo(
+                f"benchmark it: drill-env benchmark --quick --agents-dir {agents_dir} --out {agents_dir}/benchmark"
+            )

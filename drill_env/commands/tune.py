@@ -15,12 +15,14 @@ def _fail(message: str) -> None:
 def register(app: typer.Typer) -> None:
     @app.command("tune")
     def tune(
-        out: Path = typer.Option(
-            Path("configs/agents/controllers.yaml"),
-            help="YAML file for the tuned gains and the tuning record.",
+        out: Path | None = typer.Option(
+            None,
+            help="YAML file for the tuned gains and the tuning record. Default: a fresh run folder, "
+            "runs/tune/controllers_TIME/controllers.yaml (use it with `drill-env benchmark --gains`); "
+            "the committed configs/agents/controllers.yaml is regenerated only when named here.",
         ),
-        preset: list[str] = typer.Option(["brake", "no_brake"], help="Rig preset(s) to tune for."),
-        control_dt: float = typer.Option(0.05, help="Control period of the environment (s)."),
+        preset: str = typer.Option("brake,no_brake", help="Comma-separated rig preset(s) to tune for."),
+        control_dt: float = typer.Option(0.05, help="Control period of the environment [s]."),
     ) -> None:
         """Tune PI (upper, lower), torque feedback and LQI by the procedure of agents.tuning.
 
@@ -33,22 +35,34 @@ def register(app: typer.Typer) -> None:
         from agents.tuning import tune_all
         from drill_env.params import available_presets
 
-        for p in preset:
+        presets = tuple(dict.fromkeys(p.strip() for p in preset.split(",") if p.strip()))
+        if not presets:
+            _fail(f"--preset: expected one or more of {available_presets()}, got {preset!r}")
+        for p in presets:
             if p not in available_presets():
-                _fail(f"--preset {p!r} is not one of {available_presets()}")
+                _fail(f"--preset: {p!r} is not one of {available_presets()}")
         if not (0 < control_dt <= 1.0):
             _fail(f"--control-dt must lie in (0, 1] s, got {control_dt!r}")
 
         def progress(p: str, kind: str) -> None:
             typer.echo(f"tuning {kind} on {p} ...", err=True)
 
-        data = tune_all(presets=tuple(preset), control_dt=control_dt, progress=progress)
-        out.parent.mkdir(parents=True, exist_ok=True)
+        from drill_env.outputs import OutputFolderError, atomic_write_text, fresh_run_folder
+
+        if out is not None and out.is_dir():
+            _fail(f"--out {out} is a directory; expected a YAML file path")
+        data = tune_all(presets=presets, control_dt=control_dt, progress=progress)
+        try:
+            if out is None:
+                out = fresh_run_folder(Path("runs") / "tune", "controllers") / "controllers.yaml"
+            out.parent.mkdir(parents=True, exist_ok=True)
+        except (OutputFolderError, OSError) as exc:
+            _fail(f"--out: {exc}")
         header = (
             "# Tuned gains of the classical controllers, written by `drill-env tune` (agents/tuning.py).\n"
             "# Regenerate, never edit by hand: decay rates [1/s], noise [V], gains in SI units.\n"
         )
-        out.write_text(header + yaml.safe_dump(data, sort_keys=False, width=100))
+        atomic_write_text(out, header + yaml.safe_dump(data, sort_keys=False, width=100))
         for p, kinds in data["presets"].items():
             for kind, rec in kinds.items():
                 gains = ", ".join(f"{k}={v:.4g}" for k, v in rec["gains"].items())
@@ -57,4 +71,4 @@ def register(app: typer.Typer) -> None:
                     f"alpha {rec['worst_decay_rate']:+.3f} (envelope {rec['envelope_decay_rate']:+.3f}) 1/s, "
                     f"noise {rec['max_noise_v']:.3f} V"
                 )
-        typer.echo(f"wrote {out}")
+        typer.echo(f"wrote {out}; benchmark with these gains: drill-env benchmark --gains {out} --out DIR")

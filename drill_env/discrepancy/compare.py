@@ -115,7 +115,12 @@ def sensor_speed(eq: RunEquations, theta_u, theta_l, *, counts=None, noise=0.0, 
     from drill_env.sensors import measure
 
     m = measure(theta_u, theta_l, _sensor_config(eq, counts, noise), initial_speeds=initial, seed=seed)
-    travel = eq.config.speed_counts * 2.0 * math.pi / (counts or 2.0 * math.pi / (eq.noise.quantisation * math.sqrt(12)))
+    travel = (
+        eq.config.speed_counts
+        * 2.0
+        * math.pi
+        / (counts or 2.0 * math.pi / (eq.noise.quantisation * math.sqrt(12)))
+    )
     smooth, _ = _adaptive_speed(m.lower_angle, eq.halves, eq.dt, travel)
     return m.lower_speed, m.lower_angle, smooth
 
@@ -154,16 +159,35 @@ def _simulate(params: RigParams, eq: RunEquations, k0: int, k1: int):
     return thu, thl, res.x2[0], res.x3[0], stopped
 
 
-def _features(t, speed, stuck_speed, noise) -> SteadyFeatures:
+OSCILLATION_AVERAGE_S = 0.25  # [s] moving average before the oscillation test (see _features)
+
+
+def _features(t, speed, stuck_speed, noise, counts) -> SteadyFeatures:
+    """Steady-state features over the second half of a run.
+
+    An oscillation (and so a period) is reported only when the speed averaged over
+    :data:`OSCILLATION_AVERAGE_S` still swings by more than 5 % of its mean and clearly more
+    than what noise and encoder quantisation leave after that average: the averaged speed is
+    an angle difference over the window, so quantisation moves it by at most
+    2 (2 pi / counts) / window, and white noise by noise / sqrt(samples). The rig's cycles
+    (Hopf and stick-slip, periods of seconds; a once-per-revolution friction variation at a
+    few rad/s) pass the average almost unchanged; a run at a stable equilibrium has no period.
+    """
     half = t >= t[0] + 0.5 * (t[-1] - t[0])
     x = speed[half]
-    # an oscillation counts when it stands clear of the speed noise
-    oscillates = np.ptp(x) > max(0.05 * abs(float(np.mean(x))), 8.0 * noise)
+    th = t[half]
+    dt = float(th[1] - th[0]) if th.size > 1 else 1.0
+    m = max(1, min(x.size, int(round(OSCILLATION_AVERAGE_S / dt))))
+    avg = np.convolve(x, np.ones(m) / m, mode="valid")
+    floor = 2.0 * (2.0 * math.pi / counts) / (m * dt) + 8.0 * noise / math.sqrt(m)
+    oscillates = float(np.ptp(avg)) > max(0.05 * abs(float(np.mean(x))), floor)
     return SteadyFeatures(
         mean_speed=float(np.mean(x)),
         min_speed=float(np.min(x)),
         max_speed=float(np.max(x)),
-        period=float(dominant_period(t[half], x)) if oscillates else float("nan"),
+        period=float(dominant_period(th[: avg.size] + 0.5 * (m - 1) * dt, avg))
+        if oscillates
+        else float("nan"),
         stick_fraction=float(np.mean(np.abs(x) < stuck_speed)),
     )
 
@@ -211,7 +235,9 @@ def compare_run(
     # free run from the first sample
     thu, thl, v2, v3, stop = _simulate(params, eq, 0, n)
     stopped += int(stop)
-    free_chain, _, free_speed = sensor_speed(eq, thu, thl, counts=counts, noise=sigma_pre, initial=(v2, v3), seed=1)
+    free_chain, _, free_speed = sensor_speed(
+        eq, thu, thl, counts=counts, noise=sigma_pre, initial=(v2, v3), seed=1
+    )
     if free_speed.size < n:  # a run the simulator stopped early: pad with its last value
         pad = n - free_speed.size
         free_speed = np.concatenate([free_speed, np.full(pad, free_speed[-1])])
@@ -232,8 +258,8 @@ def compare_run(
     stuck_speed = max(eq.config.min_speed_rad_s, 3.0 * smooth_noise)
     feats_m = feats_s = None
     if run.is_constant_voltage:
-        feats_m = _features(eq.t_rel, meas_speed, stuck_speed, smooth_noise)
-        feats_s = _features(eq.t_rel, free_speed, stuck_speed, smooth_noise)
+        feats_m = _features(eq.t_rel, meas_speed, stuck_speed, smooth_noise, counts)
+        feats_s = _features(eq.t_rel, free_speed, stuck_speed, smooth_noise, counts)
     return RunComparison(
         run=run.name,
         voltage=run.voltage,
@@ -243,7 +269,11 @@ def compare_run(
         disagreeing_hz=disagree,
         features_measured=feats_m,
         features_model=feats_s,
-        floors={"angle_rad": float(eq.noise.lower), "speed_rad_s": smooth_noise, "sensor_speed_rad_s": speed_noise},
+        floors={
+            "angle_rad": float(eq.noise.lower),
+            "speed_rad_s": smooth_noise,
+            "sensor_speed_rad_s": speed_noise,
+        },
         stopped_simulations=stopped,
         t=eq.t_rel,
         measured_speed=meas_speed,
@@ -269,7 +299,9 @@ def aggregate(comparisons: list[RunComparison]) -> dict[str, float]:
     if const:
         for key in ("mean_speed", "min_speed", "max_speed", "stick_fraction"):
             out[f"steady_{key}_abs_error"] = float(
-                np.mean([abs(getattr(c.features_model, key) - getattr(c.features_measured, key)) for c in const])
+                np.mean(
+                    [abs(getattr(c.features_model, key) - getattr(c.features_measured, key)) for c in const]
+                )
             )
         per = [
             abs(c.features_model.period - c.features_measured.period)

@@ -344,9 +344,22 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
         return "unexplained", reason, scores, winner, structure, explained
     if has_structure:
         what = [k for k in ("excess_all", "correlated", "line") if structure[k]]
-        return "unexplained", f"no candidate is significant but the residual has structure ({', '.join(what)})", \
-            scores, None, structure, 0.0
-    return "none", "no candidate is significant and the residual is at the noise floor", scores, None, structure, 0.0
+        return (
+            "unexplained",
+            f"no candidate is significant but the residual has structure ({', '.join(what)})",
+            scores,
+            None,
+            structure,
+            0.0,
+        )
+    return (
+        "none",
+        "no candidate is significant and the residual is at the noise floor",
+        scores,
+        None,
+        structure,
+        0.0,
+    )
 
 
 def split_runs(runs) -> tuple[list[str], list[str]]:

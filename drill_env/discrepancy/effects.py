@@ -58,7 +58,12 @@ def _lower_level(eq: RunEquations) -> np.ndarray:
 
 
 def _harmonics(eq: RunEquations, level: np.ndarray, theta: np.ndarray, disk: str) -> np.ndarray:
-    cols = [level * np.cos(theta), -level * np.sin(theta), level * np.cos(2 * theta), -level * np.sin(2 * theta)]
+    cols = [
+        level * np.cos(theta),
+        -level * np.sin(theta),
+        level * np.cos(2 * theta),
+        -level * np.sin(2 * theta),
+    ]
     return np.column_stack([eq.kernel(c, disk) for c in cols])
 
 

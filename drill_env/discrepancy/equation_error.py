@@ -77,9 +77,10 @@ def stribeck(params: RigParams, w: np.ndarray) -> np.ndarray:
 def stribeck_slope(params: RigParams, w: np.ndarray) -> np.ndarray:
     """dS/dw [N m s / rad]."""
     b1, b2 = params.lower_hump_rate_1, params.lower_hump_rate_2
-    return params.lower_hump_1 * 0.5 * b1 / np.cosh(0.5 * b1 * w) ** 2 + params.lower_hump_2 * 0.5 * b2 / np.cosh(
-        0.5 * b2 * w
-    ) ** 2
+    return (
+        params.lower_hump_1 * 0.5 * b1 / np.cosh(0.5 * b1 * w) ** 2
+        + params.lower_hump_2 * 0.5 * b2 / np.cosh(0.5 * b2 * w) ** 2
+    )
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,7 @@ def estimate_angle_noise(runs, encoder_step: float, config: EquationErrorConfig 
             lag = max(1, int(round(cfg.noise_lag_s / r.dt)))
             if th.size <= 3 * lag:
                 continue
-            a, b, c, d = th[: -3 * lag], th[lag:-2 * lag], th[2 * lag : -lag], th[3 * lag :]
+            a, b, c, d = th[: -3 * lag], th[lag : -2 * lag], th[2 * lag : -lag], th[3 * lag :]
             moving = np.minimum(np.minimum(np.abs(b - a), np.abs(c - b)), np.abs(d - c)) >= 2.0 * encoder_step
             d3 = (d - 3.0 * c + 3.0 * b - a)[moving]
             pieces.append(d3)

@@ -1,0 +1,25 @@
+"""The speed scripts of ``benchmarks/`` run (``--quick``: a smoke test of each, not a timing)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.mark.parametrize("script", ["bench_training.py", "bench_vec_env.py", "bench_env.py"])
+def test_bench_script_runs_quick(script):
+    res = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / script), "--quick"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    # exit 1 is a missed speed target (expected on a loaded test machine), not a crash
+    assert res.returncode in (0, 1) and "Traceback" not in res.stderr, res.stderr[-3000:]
+    assert "ratio" in res.stdout or "target" in res.stdout, res.stdout[-2000:]
