@@ -25,11 +25,12 @@ controller's steady min/max of x3) and ``suppression_<preset>.png``.
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import math
 import os
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,7 +38,9 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation import IDENTIFIED_SPEED, METRIC_COLUMNS, EpisodeSettings
+from agents.plants import NOMINAL, Plant
 from agents.registry import CONTROLLERS
+from agents.robustness import COLORS, ordered_controllers, robustness_figure, robustness_lines
 from drill_env.outputs import atomic_file, atomic_write_text, output_lock
 
 __all__ = [
@@ -55,9 +58,16 @@ BACKENDS = ("process", "sequential", "ray")
 # the plant a run's rig is (after the preset whose controllers and operating points it uses)
 COLUMNS = METRIC_COLUMNS[:2] + ("plant",) + METRIC_COLUMNS[2:] + ("error",)
 KEY = ("controller", "preset", "plant", "voltage", "seed")
-NOMINAL = "nominal"  # the plant that is the preset's own model (the paper's)
-# [rad/s] below this open-loop amplitude a plant has no cycle to suppress (suppression NaN)
-OPEN_LOOP_FLOOR = 1e-3
+# up to this many plants besides the nominal one get a suppression figure each; more are
+# drawn as small multiples in one figure
+SEPARATE_PLANT_FIGURES = 3
+# the figures write_report makes (removed with the results by ``fresh``)
+REPORT_FIGURES = ("bifurcation_*.png", "suppression_*.png", "robustness_*.png", "timeseries_*.png")
+# [rad/s] below this open-loop amplitude a plant has no cycle to suppress (suppression NaN):
+# the closed loops leave a steady amplitude of 0.005-0.05 rad/s from encoder quantisation on
+# the nominal model, so a smaller "cycle" cannot be suppressed measurably (the smallest cycle
+# the analysis predicts on the grid is 1.2 rad/s)
+OPEN_LOOP_FLOOR = 0.1
 
 # Voltages [V] of the grid per preset. Brake: 0.2-5 V across the three regimes (A = 0.116,
 # Hopf B = 0.583, stick-slip from D = 1.781 V). No brake: every regime of Fig. 8(a)
@@ -77,59 +87,6 @@ REGIME_TITLES = {
     "limit_cycle": "Hopf cycle without stick",
     "stick_slip": "stick-slip",
 }
-
-
-@dataclass(frozen=True)
-class Plant:
-    """The rig a benchmark run drives: ``nominal`` (the preset's own model, the one every
-    controller was designed on) or a rig YAML in the preset format, effects included (e.g. a
-    discrepancy ``model.yaml``). Controllers keep their design on the nominal model."""
-
-    name: str = NOMINAL
-    params: Any = None  # RigParams; None: the preset's nominal model
-    source: str = ""  # where it was read from
-
-    @classmethod
-    def from_path(cls, path: str | Path) -> Plant:
-        """A plant from a rig YAML; its name is the file's stem. Raises ``ParameterError``
-        (a ValueError) naming the field for a bad file."""
-        from drill_env.params import load_params
-
-        p = Path(path)
-        if not p.is_file():
-            raise ValueError(f"plant: {path} is not a file (a rig YAML in the preset format)")
-        params = load_params(p)
-        name = p.stem
-        if name == NOMINAL:
-            raise ValueError(
-                f"plant: {path}: the name {NOMINAL!r} is the preset's own model; rename the file"
-            )
-        return cls(name=name, params=params, source=str(p))
-
-    def record(self) -> dict[str, Any]:
-        """What identifies the plant's rig (for resuming a benchmark safely)."""
-        if self.params is None:
-            return {"name": self.name}
-        from dataclasses import asdict
-
-        return {"name": self.name, "source": self.source, "params": asdict(self.params)}
-
-    def family(self) -> str | None:
-        """The preset whose lower-disk friction this plant's is closest to (None: nominal)."""
-        if self.params is None:
-            return None
-        from drill_env.params import load_params
-
-        fields_ = ("lower_static", "lower_viscous", "lower_hump_1", "lower_hump_2")
-
-        def dist(preset: str) -> float:
-            ref = load_params(preset)
-            return sum(
-                abs(getattr(self.params, f) - getattr(ref, f)) / max(abs(getattr(ref, f)), 1e-12)
-                for f in fields_
-            )
-
-        return min(("brake", "no_brake"), key=dist)
 
 
 @dataclass(frozen=True)
@@ -228,8 +185,8 @@ class BenchmarkConfig:
     def settings_record(self) -> dict[str, Any]:
         """What must match for a resumed benchmark (the grid may grow)."""
         rec: dict[str, Any] = {"episode": self.episode.to_dict()}
-        if any(p.params is not None for p in self.plants):
-            rec["plants"] = [p.record() for p in self.plants if p.params is not None]
+        if any(not p.is_nominal for p in self.plants):
+            rec["plants"] = [p.record() for p in self.plants if not p.is_nominal]
         return rec
 
 
@@ -260,7 +217,10 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
         def env_of(plant: str, v: int):
             key = (job.preset, v, episode_key, plant)
             if key not in _ENVS:
-                _ENVS[key] = make_env(job.preset, cfg.episode, v, params=cfg.plant(plant).params)
+                q = cfg.plant(plant)
+                _ENVS[key] = make_env(
+                    job.preset, cfg.episode, v, params=q.rig(job.preset), overrides=q.env_overrides()
+                )
             return _ENVS[key]
 
         # the controller is built on the nominal model (its design), then run on the plant
@@ -461,9 +421,12 @@ def _run_benchmark(
     csv_path = out / "benchmark.csv"
     cfg_path = out / "benchmark_config.json"
     record = cfg.settings_record()
-    if fresh:
-        for p in (csv_path, cfg_path):
-            if p.exists():
+    if fresh:  # the results and the report made from them (no stale figure of a plant left)
+        report = [out / "summary.md"] + [
+            f for pattern in REPORT_FIGURES for f in (out.glob(pattern) if out.is_dir() else [])
+        ]
+        for p in (csv_path, cfg_path, *report):
+            if p.is_file():
                 p.unlink()
     if cfg_path.is_file() and csv_path.is_file():
         old = json.loads(cfg_path.read_text())
@@ -483,7 +446,7 @@ def _run_benchmark(
             dict(
                 record,
                 plants=list(
-                    {**before, **{q.name: q.record() for q in cfg.plants if q.params is not None}}.values()
+                    {**before, **{q.name: q.record() for q in cfg.plants if not q.is_nominal}}.values()
                 ),
             )
             if before
@@ -500,8 +463,11 @@ def _run_benchmark(
             {
                 "name": q.name,
                 "source": q.source,
-                "effects": list(q.params.effects.active) if q.params is not None else [],
-                "family": q.family(),
+                "description": q.description,
+                "effects": q.effects_on(cfg.presets[0]),
+                "scale": dict(q.scale),
+                "sensors": dict(q.sensors),
+                "family": q.friction_family(),
             }
             for q in cfg.plants
         ],
@@ -661,11 +627,6 @@ def _rewrite_sorted(csv_path: Path, cfg: BenchmarkConfig) -> set[tuple[str, str,
 # -- report ----------------------------------------------------------------------------------------
 
 
-def _ordered(names: Iterable[str]) -> list[str]:
-    names = set(names)
-    return [c for c in CONTROLLERS if c in names] + sorted(names - set(CONTROLLERS))
-
-
 def _num(x: float, digits: int = 3) -> str:
     """Fixed-point text without a minus sign on a rounded zero."""
     t = f"{x:.{digits}f}"
@@ -683,10 +644,15 @@ def _plant_heading(preset: str, plant: str, info: Mapping[str, Any] | None) -> l
         ]
     info = info or {}
     effects = ", ".join(info.get("effects") or []) or "none"
+    what = (
+        f"The nominal `{preset}` model with {info['description']}"
+        if info.get("description")
+        else f"Rig `{info.get('source', plant)}`"
+    )
     lines = [
         f"## {preset}, plant `{plant}`",
         "",
-        f"Rig `{info.get('source', plant)}` (effects: {effects}). The controllers keep their design on "
+        f"{what} (effects: {effects}). The controllers keep their design on "
         f"the nominal `{preset}` model; open-loop reference: the open-loop run on this plant at the "
         "same voltage and seed (no cycle below "
         f"{OPEN_LOOP_FLOOR:g} rad/s: suppression `-`). Regimes are the nominal model's at each voltage.",
@@ -739,6 +705,11 @@ def summary_tables(
     ]
     for preset, plant in sections:
         sub = ok[(ok["preset"] == preset) & (ok["plant"] == plant)]
+        if (
+            plant == _plants_in(df[df["preset"] == preset])[0]
+            and len(_plants_in(df[df["preset"] == preset])) > 1
+        ):
+            lines += robustness_lines(df, preset, plants)
         if only_nominal:
             lines += [f"## {preset}", ""]
         else:
@@ -770,7 +741,7 @@ def summary_tables(
                 "|---|---|---|---|---|---|---|---|---|---|---|"
                 + ("---|" if preset in IDENTIFIED_SPEED else "")
             )
-            for c in _ordered(reg["controller"]):
+            for c in ordered_controllers(reg["controller"]):
                 r = reg[reg["controller"] == c]
                 sup = r["suppression"].dropna()
                 sup_txt = f"{_num(sup.mean())} ({_num(sup.min())})" if len(sup) else "-"
@@ -800,7 +771,7 @@ def summary_tables(
             lines.append("")
             lines.append("| controller | " + " | ".join(f"{v:g} V" for v in volts) + " |")
             lines.append("|---|" + "---|" * len(volts))
-            for c in _ordered(cyc["controller"]):
+            for c in ordered_controllers(cyc["controller"]):
                 r = cyc[cyc["controller"] == c]
                 cells = []
                 for v in volts:
@@ -834,9 +805,16 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
     paths = [out / "summary.md"]
     atomic_write_text(paths[0], summary_tables(df, notes, plants) + "\n")
     for preset in [p for p in ("brake", "no_brake") if p in set(df["preset"])]:
-        for plant in _plants_in(df[df["preset"] == preset]):
+        names = _plants_in(df[df["preset"] == preset])
+        others = [q for q in names if q != NOMINAL]
+        many = len(others) > SEPARATE_PLANT_FIGURES
+        for plant in names if not many else [q for q in names if q == NOMINAL]:
             sel = (df["preset"] == preset) & (df["plant"] == plant) & (df["error"] == "")
             paths += _figures(df[sel], preset, out, plant)
+        if many:
+            paths.append(_plants_figure(df, preset, out, others))
+        if len(names) > 1:
+            paths.append(robustness_figure(df, preset, out))
     return paths
 
 
@@ -846,15 +824,6 @@ def _plants_in(df) -> list[str]:
     return sorted(names, key=lambda n: n != NOMINAL)
 
 
-_COLORS = {
-    "open_loop": "black",
-    "pi_upper": "tab:red",
-    "pi_lower": "tab:orange",
-    "torque_feedback": "tab:green",
-    "lqi": "tab:blue",
-    "ppo": "tab:purple",
-    "sac": "tab:brown",
-}
 Y_FLOOR = -2.0  # suppression below this is drawn at the floor with its value written
 _MARKERS = {
     "open_loop": "o",
@@ -881,7 +850,7 @@ def _figures(df, preset: str, out: Path, plant: str = NOMINAL) -> list[Path]:
     paths = []
     if df.empty:
         return paths
-    ctrls = _ordered(df["controller"])
+    ctrls = ordered_controllers(df["controller"])
     volts = np.array(sorted(set(df["voltage"])))
     span = float(volts.max() - volts.min()) if volts.size > 1 else 1.0
     offsets = {c: (i - (len(ctrls) - 1) / 2) * 0.008 * span for i, c in enumerate(ctrls)}
@@ -900,7 +869,7 @@ def _figures(df, preset: str, out: Path, plant: str = NOMINAL) -> list[Path]:
         r = df[df["controller"] == c]
         u = r["voltage"].to_numpy() + offsets[c]
         hi, lo = r["x3_max"].to_numpy(), r["x3_min"].to_numpy()
-        col, m = _COLORS.get(c, "gray"), _MARKERS.get(c, "o")
+        col, m = COLORS.get(c, "gray"), _MARKERS.get(c, "o")
         ax.plot(u, np.clip(hi, y_lo, y_hi), m, color=col, ms=4, mfc="none", label=c)
         ax.plot(u, np.clip(lo, y_lo, y_hi), m, color=col, ms=4)
         ax.vlines(u, np.clip(lo, y_lo, y_hi), np.clip(hi, y_lo, y_hi), color=col, lw=0.5, alpha=0.6)
@@ -933,11 +902,9 @@ def _figures(df, preset: str, out: Path, plant: str = NOMINAL) -> list[Path]:
     return paths + _suppression_figure(df, preset, out, plant, ctrls, offsets)
 
 
-def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls, offsets) -> list[Path]:
-    import matplotlib.pyplot as plt
-
+def _draw_suppression(ax, df, preset: str, ctrls, offsets, *, small: bool = False) -> None:
+    """Suppression against voltage of each controller (mean over seeds, seed range as bars)."""
     cyc = df[df["open_loop_amplitude"] > 0]
-    fig, ax = plt.subplots(figsize=(11.5, 5))
     for name, lo, hi in _regime_spans(preset):
         if name != "equilibrium":
             ax.axvspan(lo, hi, color="tab:red" if name == "stick_slip" else "tab:orange", alpha=0.07, lw=0)
@@ -954,25 +921,40 @@ def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls, offsets) 
             shown,
             yerr=[shown - np.maximum(lo, Y_FLOOR), np.maximum(hi, Y_FLOOR) - shown],
             fmt=_MARKERS.get(c, "o") + "-",
-            color=_COLORS.get(c, "gray"),
-            ms=5,
-            lw=1,
-            capsize=2,
+            color=COLORS.get(c, "gray"),
+            ms=3 if small else 5,
+            lw=0.8 if small else 1,
+            capsize=0 if small else 2,
             label=c,
         )
+        if small:
+            continue
         for vv, mm in zip(v, mean, strict=True):
             if mm < Y_FLOOR:
                 ax.annotate(
                     f"{mm:.1f}",
                     (vv + offsets[c], Y_FLOOR),
                     fontsize=7,
-                    color=_COLORS.get(c, "gray"),
+                    color=COLORS.get(c, "gray"),
                     xytext=(0, 4),
                     textcoords="offset points",
                     ha="center",
                 )
     ax.axhline(0.0, color="gray", lw=0.8)
     ax.axhline(1.0, color="gray", lw=0.8, ls=":")
+    lo_y = (
+        min(-0.5, float(np.nanmin(cyc["suppression"])) - 0.05) if cyc["suppression"].notna().any() else -0.5
+    )
+    ax.set_ylim(max(lo_y, Y_FLOOR - 0.1), 1.1)
+    ax.set_xlim(0.0, 5.1)
+    ax.grid(alpha=0.3)
+
+
+def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls, offsets) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(11.5, 5))
+    _draw_suppression(ax, df, preset, ctrls, offsets)
     ax.set_xlabel("nominal voltage u [V]")
     ax.set_ylabel("suppression = 1 - amplitude / open-loop amplitude")
     on = "" if plant == NOMINAL else f" on plant {plant} (reference: the open-loop run on it)"
@@ -981,11 +963,7 @@ def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls, offsets) 
         f"stick-slip; means below {Y_FLOOR:g} drawn at {Y_FLOOR:g} with their value)",
         fontsize=10,
     )
-    lo_y = min(-0.5, float(np.nanmin(cyc["suppression"])) - 0.05) if not cyc.empty else -0.5
-    ax.set_ylim(max(lo_y, Y_FLOOR - 0.1), 1.1)
-    ax.set_xlim(0.0, 5.1)
     ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    ax.grid(alpha=0.3)
     fig.tight_layout()
     p = out / (f"suppression_{preset}.png" if plant == NOMINAL else f"suppression_{preset}_{plant}.png")
     fig.savefig(p, dpi=110)
@@ -993,6 +971,50 @@ def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls, offsets) 
     return [p]
 
 
+def _plants_figure(df, preset: str, out: Path, plants: Sequence[str]) -> Path:
+    """``suppression_<preset>_plants.png``: the suppression figure of every plant other than
+    the nominal one as small multiples (one panel per plant, shared axes)."""
+    import matplotlib.pyplot as plt
+
+    ok = df[(df["preset"] == preset) & (df["error"] == "")]
+    ctrls = ordered_controllers(ok["controller"])
+    volts = np.array(sorted(set(ok["voltage"])))
+    span = float(volts.max() - volts.min()) if volts.size > 1 else 1.0
+    offsets = {c: (i - (len(ctrls) - 1) / 2) * 0.008 * span for i, c in enumerate(ctrls)}
+    ncol = 4
+    nrow = -(-len(plants) // ncol)
+    fig, axes = plt.subplots(
+        nrow, ncol, figsize=(16, 2.6 * nrow + 1.2), sharex=True, sharey=True, squeeze=False
+    )
+    for k, plant in enumerate(plants):
+        ax = axes[k // ncol][k % ncol]
+        _draw_suppression(ax, ok[ok["plant"] == plant], preset, ctrls, offsets, small=True)
+        ax.set_title(plant, fontsize=9)
+        ax.set_ylim(Y_FLOOR - 0.1, 1.1)
+        if k % ncol == 0:
+            ax.set_ylabel("suppression [-]")
+        if k // ncol == nrow - 1 or k + ncol >= len(plants):
+            ax.set_xlabel("nominal voltage u [V]")
+            ax.tick_params(labelbottom=True)
+    for k in range(len(plants), nrow * ncol):
+        axes[k // ncol][k % ncol].set_visible(False)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper right", ncol=len(labels), fontsize=8)
+    fig.suptitle(
+        f"{preset}: suppression on each plant (reference: the open-loop run on it; shaded: the nominal "
+        f"model's Hopf / stick-slip range; below {Y_FLOOR:g} drawn at {Y_FLOOR:g})",
+        fontsize=10,
+        x=0.01,
+        ha="left",
+    )
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    p = out / f"suppression_{preset}_plants.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    return p
+
+
+@functools.lru_cache(maxsize=8)
 def _regime_spans(preset: str) -> list[tuple[str, float, float]]:
     from drill_env.envs.task import operating_regimes
     from drill_env.params import load_params

@@ -43,6 +43,7 @@ from __future__ import annotations
 import functools
 import math
 import time
+import warnings
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
@@ -138,22 +139,33 @@ class EpisodeSettings:
 
 
 def make_env(
-    preset: str, settings: EpisodeSettings, observation_version: int = 0, params: Any = None
+    preset: str,
+    settings: EpisodeSettings,
+    observation_version: int = 0,
+    params: Any = None,
+    overrides: Mapping[str, Any] | None = None,
 ) -> gym.Env:
     """The registered environment of ``preset`` (observation version ``observation_version``)
     configured for evaluation episodes. The versions differ only in what is observed: the
     same seed gives the same episode. ``params`` (a ``RigParams``, preset name or YAML path)
     replaces the preset's rig: the *plant* the controller runs on, which may differ from the
-    model it was designed on (operating points and their regimes stay the preset's)."""
-    extra = {} if params is None else {"params": params}
-    env = gym.make(
-        env_id_of(preset, observation_version),
-        max_episode_steps=10**9,  # the evaluation decides the length
-        warmup_time=settings.warmup_time,
-        warmup_jitter=settings.warmup_jitter,
-        **settings.env_kwargs,
-        **extra,
-    )
+    model it was designed on (operating points and their regimes stay the preset's).
+    ``overrides`` (e.g. ``{"sensors": {...}}`` of a plant's measurement chain) replace
+    arguments of ``settings.env_kwargs``."""
+    kwargs = {**settings.env_kwargs, **(overrides or {})}
+    if params is not None:
+        kwargs["params"] = params
+    with warnings.catch_warnings():
+        # v0 is chosen on purpose (the classical controllers' and v0 policies' observation):
+        # gymnasium's "out of date, consider v1" is not news to the user here
+        warnings.filterwarnings("ignore", message=".*is out of date", category=DeprecationWarning)
+        env = gym.make(
+            env_id_of(preset, observation_version),
+            max_episode_steps=10**9,  # the evaluation decides the length
+            warmup_time=settings.warmup_time,
+            warmup_jitter=settings.warmup_jitter,
+            **kwargs,
+        )
     return env
 
 

@@ -12,7 +12,15 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from agents.benchmark import COLUMNS, BenchmarkConfig, Job, Plant, load_results, run_benchmark
+from agents.benchmark import (
+    COLUMNS,
+    OPEN_LOOP_FLOOR,
+    BenchmarkConfig,
+    Job,
+    Plant,
+    load_results,
+    run_benchmark,
+)
 from agents.evaluation import EpisodeSettings
 from drill_env.cli import app
 
@@ -168,15 +176,29 @@ def test_process_pool_matches_sequential(tmp_path, sequential):
 
 def test_ray_backend_on_a_local_instance(tmp_path, sequential):
     ray = pytest.importorskip("ray")
+    from agents.plants import standard_family
+
+    lag = next(p for p in standard_family() if p.name == "motor_lag")
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
     try:
-        cfg = tiny(controllers=("open_loop", "lqi"), voltages={"brake": (2.0,)})
-        run_benchmark(cfg, tmp_path, backend="ray", report=False)
+        cfg = tiny(controllers=("open_loop", "lqi"), voltages={"brake": (2.0,)}, plants=(Plant(), lag))
+        run_benchmark(cfg, tmp_path / "ray", backend="ray", report=False)
     finally:
         ray.shutdown()
+    got = load_results(tmp_path / "ray" / "benchmark.csv")
     ref = load_results(sequential / "benchmark.csv")
     ref = ref[(ref["voltage"] == 2.0) & ref["controller"].isin(["open_loop", "lqi"])]
-    pd.testing.assert_frame_equal(metrics(load_results(tmp_path / "benchmark.csv")), metrics(ref))
+    pd.testing.assert_frame_equal(metrics(got[got["plant"] == "nominal"]), metrics(ref))
+    # a family plant runs the same on Ray as in this process
+    run_benchmark(
+        tiny(controllers=("open_loop", "lqi"), voltages={"brake": (2.0,)}, plants=(lag,)),
+        tmp_path / "seq",
+        backend="sequential",
+        report=False,
+    )
+    pd.testing.assert_frame_equal(
+        metrics(got[got["plant"] == "motor_lag"]), metrics(load_results(tmp_path / "seq" / "benchmark.csv"))
+    )
 
 
 def test_failing_run_is_recorded_not_fatal(tmp_path):
@@ -284,9 +306,12 @@ def test_a_plant_runs_every_controller_with_its_own_open_loop_reference(tmp_path
         assert r["open_loop_amplitude"] == pytest.approx(ol.loc[r["voltage"], "amplitude"])
     assert (ol["suppression"].abs() < 1e-9).all()
     assert (ol["amplitude"] != nom[nom["controller"] == "open_loop"].set_index("voltage")["amplitude"]).all()
-    # at 0.4 V the nominal rig rests at an equilibrium, the plant's speed varies once per revolution
+    # at 0.4 V the nominal rig rests at an equilibrium, the plant's speed varies once per
+    # revolution; suppression is defined exactly where the plant's open loop reaches the floor
     assert np.isnan(nom[nom["voltage"] == 0.4]["suppression"]).all()
-    assert ol.loc[0.4, "amplitude"] > 0.01 and np.isfinite(a1[a1["voltage"] == 0.4]["suppression"]).all()
+    assert ol.loc[0.4, "amplitude"] > 0.01 and ol.loc[1.0, "amplitude"] > 1.0
+    for _, r in a1.iterrows():
+        assert np.isfinite(r["suppression"]) == (r["open_loop_amplitude"] >= OPEN_LOOP_FLOOR)
     summary = (tmp_path / "out" / "summary.md").read_text()
     assert "## brake, plant `nominal`" in summary and "## brake, plant `a1`" in summary
     assert "lower_position_amp_1" in summary

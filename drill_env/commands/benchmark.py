@@ -11,6 +11,9 @@ import typer
 PRESETS = ("all", "brake", "no_brake")
 
 
+TIMESERIES_VOLTAGE = 1.0  # [V] the rig's operating region, where position friction hurts most
+
+
 def _fail(message: str) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code=2)
@@ -61,11 +64,26 @@ def register(app: typer.Typer) -> None:
             "is the preset's own model. Controllers keep their design on the nominal model; "
             "suppression is relative to the open-loop run on the plant. Default: nominal.",
         ),
+        plants: str | None = typer.Option(
+            None,
+            "--plants",
+            help="`family`: run on the standard family of plants as well (the nominal rig, each "
+            "identified parameter perturbed, each library effect, 10 ms delay, 3 mrad angle noise; "
+            "see agents/plants.py); summary.md and robustness_<preset>.png then show each "
+            "controller's nominal, mean and worst case across them.",
+        ),
         gains: Path | None = typer.Option(
             None, help="Tuned gains of the classical controllers (default: configs/agents/controllers.yaml)."
         ),
         fresh: bool = typer.Option(
             False, "--fresh", help="Discard results already in OUT instead of resuming."
+        ),
+        timeseries: bool | None = typer.Option(
+            None,
+            "--timeseries/--no-timeseries",
+            help="Also write timeseries_<preset>_<controller>.png: one run per controller at "
+            f"{TIMESERIES_VOLTAGE:g} V on the nominal rig and on the rig with the paper's lower "
+            "position friction (a1 = 0.12). Default: with --quick.",
         ),
     ) -> None:
         """Run every controller at every operating point and seed; resume an interrupted run.
@@ -104,15 +122,25 @@ def register(app: typer.Typer) -> None:
             _fail(f"--seeds must be >= 1, got {seeds!r}")
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
-        from agents.benchmark import NOMINAL, Plant
+        from agents.plants import FAMILY, NOMINAL, Plant, standard_family
         from drill_env.params import ParameterError
 
-        plants = []
-        for item in plant or [NOMINAL]:
+        if plants is not None and plants.strip() != FAMILY:
+            _fail(f"--plants: {plants!r} is not one of ['{FAMILY}'] (single rigs: --plant PATH)")
+        plant_list = list(standard_family()) if plants is not None else []
+        for item in plant or ([] if plant_list else [NOMINAL]):
+            if item == NOMINAL and any(q.is_nominal for q in plant_list):
+                continue
+            if item == FAMILY:
+                _fail(f"--plant {item}: use --plants {FAMILY} for the standard family")
             try:
-                plants.append(Plant() if item == NOMINAL else Plant.from_path(item))
+                plant_list.append(Plant() if item == NOMINAL else Plant.from_path(item))
             except (ParameterError, ValueError) as exc:
                 _fail(f"--plant {item}: {exc}")
+        names = [q.name for q in plant_list]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            _fail(f"--plant: the plant name(s) {dup} appear twice (a plant is named by its file's stem)")
         if gains is not None and not gains.is_file():
             _fail(f"--gains: {gains} is not a file (a YAML written by drill-env tune)")
         try:
@@ -126,7 +154,7 @@ def register(app: typer.Typer) -> None:
                     episode=episode,
                     agents_dir=None if agents_dir is None else str(agents_dir),
                     gains_file=None if gains is None else str(gains),
-                    plants=tuple(plants),
+                    plants=tuple(plant_list),
                 )
             else:
                 cfg = BenchmarkConfig.preset_grid(
@@ -137,7 +165,7 @@ def register(app: typer.Typer) -> None:
                     episode=episode,
                     agents_dir=None if agents_dir is None else str(agents_dir),
                     gains_file=None if gains is None else str(gains),
-                    plants=tuple(plants),
+                    plants=tuple(plant_list),
                 )
         except ValueError as exc:
             _fail(str(exc))
@@ -183,6 +211,11 @@ def register(app: typer.Typer) -> None:
                         if row.get("plant", "nominal") != "nominal":
                             desc += f" on {row['plant']}"
                     prog.update(task, completed=done, description=desc)
+                    if not console.is_terminal and row and (done == total or done % max(1, total // 20) == 0):
+                        # no live bar in a log file: a line every 5 % of the runs
+                        console.print(
+                            f"{done}/{total} runs, {time.perf_counter() - t0:.0f} s", highlight=False
+                        )
 
                 try:
                     csv_path = run_benchmark(
@@ -204,6 +237,26 @@ def register(app: typer.Typer) -> None:
         summary = (out / "summary.md").read_text()
         typer.echo(summary)
         typer.echo(f"wrote {csv_path}, {out / 'summary.md'} and the figures in {out}")
+        if timeseries if timeseries is not None else quick:
+            from agents.plants import standard_family
+            from agents.timeseries import timeseries_figures
+
+            paper = next(q for q in standard_family() if q.name == "position_friction_lower")
+            for p in cfg.presets:
+                try:
+                    made = timeseries_figures(
+                        cfg.controllers,
+                        p,
+                        TIMESERIES_VOLTAGE,
+                        (Plant(), paper),
+                        out,
+                        episode=cfg.episode,
+                        agents_dir=cfg.agents_dir,
+                        gains_file=cfg.gains_file,
+                    )
+                except ValueError as exc:
+                    _fail(f"--timeseries: {exc}")
+                typer.echo(f"wrote {len(made)} time-series figures of {p} in {out}")
         import pandas as pd
 
         rows = pd.read_csv(csv_path, keep_default_na=False)

@@ -1,0 +1,254 @@
+"""How each controller holds up across plants: the nominal, mean and worst case of a
+benchmark run on several plants (``drill-env benchmark --plants family`` or ``--plant``).
+
+Per preset, regime (the nominal model's, at each voltage) and controller:
+
+* *nominal*: the mean over the runs on the nominal plant;
+* *mean*: the mean over plants of each plant's mean (every plant weighs the same);
+* *worst*: the worst single run over all plants, voltages and seeds, with where it was.
+
+Suppression counts only runs whose plant has an open-loop cycle at that voltage and seed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from agents.plants import NOMINAL
+
+__all__ = [
+    "COLORS",
+    "METRICS",
+    "ordered_controllers",
+    "robustness_figure",
+    "robustness_lines",
+    "robustness_rows",
+]
+
+# metric column, heading, unit, whether larger is worse, scale to print
+METRICS: tuple[tuple[str, str, str, bool, float], ...] = (
+    ("suppression", "suppression", "-", False, 1.0),
+    ("stick_fraction", "stuck", "%", True, 100.0),
+    ("rms_error", "RMS speed error", "rad/s", True, 1.0),
+)
+REGIMES = {
+    "equilibrium": "stable equilibrium",
+    "limit_cycle": "Hopf cycle without stick",
+    "stick_slip": "stick-slip",
+}
+
+
+def ordered_controllers(names) -> list[str]:
+    from agents.registry import CONTROLLERS
+
+    names = set(names)
+    return [c for c in CONTROLLERS if c in names] + sorted(names - set(CONTROLLERS))
+
+
+def robustness_rows(df, preset: str) -> list[dict[str, Any]]:
+    """One dict per (regime, controller, metric) with ``nominal``, ``mean``, ``worst``,
+    ``worst_plant``, ``worst_voltage`` and ``per_plant`` (plant -> mean)."""
+    ok = df[(df["error"] == "") & (df["preset"] == preset)]
+    rows = []
+    for regime in REGIMES:
+        reg = ok[ok["regime"] == regime]
+        for c in ordered_controllers(reg["controller"]):
+            r = reg[reg["controller"] == c]
+            for col, _, _, worse_high, _ in METRICS:
+                if col == "suppression" and c == "open_loop":
+                    continue  # the reference itself: 0 by definition
+                vals = r[["plant", "voltage", col]].dropna()
+                if vals.empty:
+                    continue
+                per_plant = vals.groupby("plant", sort=False)[col].mean()
+                i = vals[col].idxmax() if worse_high else vals[col].idxmin()
+                nominal = per_plant.get(NOMINAL, math.nan)
+                rows.append(
+                    {
+                        "regime": regime,
+                        "controller": c,
+                        "metric": col,
+                        "nominal": float(nominal),
+                        "mean": float(per_plant.mean()),
+                        "worst": float(vals.at[i, col]),
+                        "worst_plant": str(vals.at[i, "plant"]),
+                        "worst_voltage": float(vals.at[i, "voltage"]),
+                        # every run alike: no plant to name
+                        "spread": bool(vals[col].max() - vals[col].min() > 1e-9),
+                        "per_plant": {str(k): float(v) for k, v in per_plant.items()},
+                        "n_plants": int(per_plant.size),
+                    }
+                )
+    return rows
+
+
+def _cell(x: float, scale: float, digits: int) -> str:
+    if not math.isfinite(x):
+        return "-"
+    t = f"{scale * x:.{digits}f}"
+    return t[1:] if t.startswith("-") and float(t) == 0.0 else t
+
+
+def robustness_lines(df, preset: str, plants: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:
+    """The markdown section of ``summary.md`` for one preset run on several plants."""
+    names = list(dict.fromkeys(df[df["preset"] == preset]["plant"]))
+    lines = [
+        f"## {preset}: robustness across {len(names)} plants",
+        "",
+        "Every controller keeps its design on the nominal model. Per regime of the nominal model:",
+        "*nominal* = mean over the runs on the nominal plant, *mean* = mean over plants of each",
+        "plant's mean, *worst* = the worst single run over all plants, voltages and seeds (plant,",
+        "voltage). Suppression counts only runs whose plant has an open-loop cycle there "
+        f"(figure: `robustness_{preset}.png`).",
+        "",
+    ]
+    if plants:
+        lines += ["| plant | what differs from the nominal model |", "|---|---|"]
+        for n in names:
+            info = plants.get(n) or {}
+            what = info.get("description") or (
+                "the preset's own model" if n == NOMINAL else f"rig `{info.get('source', n)}`"
+            )
+            lines.append(f"| `{n}` | {what} |")
+        lines.append("")
+    rows = robustness_rows(df, preset)
+    for regime, title in REGIMES.items():
+        reg = [r for r in rows if r["regime"] == regime]
+        if not reg:
+            continue
+        lines += [f"### {title}", ""]
+        head = ["controller"]
+        for col, label, unit, _, _ in METRICS:
+            if any(r["metric"] == col for r in reg):
+                u = "" if unit == "-" else f" [{unit}]"
+                head += [f"{label}{u}: nominal", "mean", "worst (plant, V)"]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for c in ordered_controllers({r["controller"] for r in reg}):
+            cells = [c]
+            for col, _, _, _, scale in METRICS:
+                if not any(r["metric"] == col for r in reg):
+                    continue
+                m = next((r for r in reg if r["controller"] == c and r["metric"] == col), None)
+                if m is None:
+                    cells += ["-", "-", "-"]
+                    continue
+                digits = 1 if scale == 100.0 else 3
+                cells += [
+                    _cell(m["nominal"], scale, digits),
+                    _cell(m["mean"], scale, digits),
+                    f"{_cell(m['worst'], scale, digits)} ({m['worst_plant']}, {m['worst_voltage']:g})"
+                    if m["spread"]
+                    else f"{_cell(m['worst'], scale, digits)} (every run)",
+                ]
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
+COLORS = {
+    "open_loop": "black",
+    "pi_upper": "tab:red",
+    "pi_lower": "tab:orange",
+    "torque_feedback": "tab:green",
+    "lqi": "tab:blue",
+    "ppo": "tab:purple",
+    "sac": "tab:brown",
+}
+SUPPRESSION_FLOOR = -1.0  # [-] values below are drawn at the floor
+RMS_FLOOR = 1e-4  # [rad/s] log axis floor
+
+
+def robustness_figure(df, preset: str, out: str | Path) -> Path:
+    """``robustness_<preset>.png``: per regime (rows) and metric (columns), each controller's
+    per-plant means (dots), their mean (bar), the nominal plant (diamond) and the worst run
+    (cross, labelled with its plant)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = robustness_rows(df, preset)
+    regimes = [g for g in REGIMES if any(r["regime"] == g for r in rows)]
+    ctrls = ordered_controllers({r["controller"] for r in rows})
+    n_plants = max((r["n_plants"] for r in rows), default=0)
+    fig, axes = plt.subplots(
+        len(regimes),
+        len(METRICS),
+        figsize=(15, 1.2 + 0.42 * len(ctrls) * len(regimes) + 0.6 * len(regimes)),
+        squeeze=False,
+    )
+    for i, regime in enumerate(regimes):
+        for j, (col, label, unit, _, scale) in enumerate(METRICS):
+            ax = axes[i][j]
+            reg = {r["controller"]: r for r in rows if r["regime"] == regime and r["metric"] == col}
+            if not reg:
+                ax.text(0.5, 0.5, "no cycle to suppress", ha="center", va="center", transform=ax.transAxes)
+                ax.set_yticks([])
+                ax.set_xticks([])
+                ax.set_title(f"{REGIMES[regime]}: {label}", fontsize=9)
+                continue
+
+            def shown(x: float, col: str = col, scale: float = scale) -> float:
+                if col == "suppression":
+                    return max(x, SUPPRESSION_FLOOR)
+                if col == "rms_error":
+                    return max(x, RMS_FLOOR)
+                return scale * x
+
+            for k, c in enumerate(ctrls):
+                y = len(ctrls) - 1 - k
+                r = reg.get(c)
+                if r is None:
+                    continue
+                col_c = COLORS.get(c, "gray")
+                vals = [shown(v) for v in r["per_plant"].values()]
+                ax.plot(vals, [y] * len(vals), "o", color="0.55", ms=3, alpha=0.7, zorder=2)
+                ax.plot([shown(r["mean"])] * 2, [y - 0.3, y + 0.3], "-", color=col_c, lw=2.5, zorder=3)
+                if math.isfinite(r["nominal"]):
+                    ax.plot(shown(r["nominal"]), y, "D", color=col_c, ms=6, mec="black", zorder=4)
+                if not r["spread"] or r["worst_plant"] == NOMINAL:
+                    continue  # the worst run is on the nominal plant, or all alike
+                ax.plot(shown(r["worst"]), y, "x", color="tab:red", ms=7, mew=2, zorder=5)
+                ax.annotate(
+                    f"{r['worst_plant']} {r['worst_voltage']:g} V",
+                    (shown(r["worst"]), y),
+                    xytext=(0, -9),
+                    textcoords="offset points",
+                    fontsize=6,
+                    ha="center",
+                    va="top",
+                    color="tab:red",
+                )
+            ax.set_yticks(range(len(ctrls)))
+            ax.set_yticklabels(ctrls[::-1], fontsize=8)
+            ax.set_ylim(-0.8, len(ctrls) - 0.4)
+            u = "" if unit == "-" else f" [{unit}]"
+            if col == "suppression":
+                ax.set_xlim(SUPPRESSION_FLOOR - 0.05, 1.05)
+                ax.axvline(1.0, color="gray", lw=0.8, ls=":")
+                ax.axvline(0.0, color="gray", lw=0.8)
+                xl = f"suppression{u} (below {SUPPRESSION_FLOOR:g} drawn at {SUPPRESSION_FLOOR:g})"
+            elif col == "rms_error":
+                ax.set_xscale("log")
+                xl = f"RMS speed error of x3{u} (log; below {RMS_FLOOR:g} drawn at it)"
+            else:
+                top = max([5.0] + [scale * r["worst"] for r in reg.values()])
+                ax.set_xlim(-0.03 * top, 1.1 * top)
+                xl = f"time with the lower disk stuck{u}"
+            ax.set_xlabel(xl, fontsize=8)
+            ax.set_title(f"{REGIMES[regime]}: {label}", fontsize=9)
+            ax.grid(alpha=0.3, axis="x")
+    fig.suptitle(
+        f"{preset}: every controller on {n_plants} plants, designed on the nominal model\n"
+        "grey dots: each plant's mean; bar: mean over plants; diamond: nominal plant; "
+        "red cross: worst single run (plant, voltage) where it is not on the nominal plant",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    path = Path(out) / f"robustness_{preset}.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
