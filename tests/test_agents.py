@@ -4,6 +4,7 @@ anti-windup at the 5 V limit, the linear design model, the tuning and the evalua
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -367,3 +368,38 @@ def test_a_missing_no_brake_policy_is_an_error_not_the_braked_rigs(tmp_path):
     assert policy_path("ppo", "brake", tmp_path) == tmp_path / "ppo" / "policy.zip"
     with pytest.raises(ValueError, match=r"preset 'no_brake' at .*ppo_no_brake/policy.zip"):
         policy_path("ppo", "no_brake", tmp_path)
+
+
+@pytest.mark.parametrize("name", ["ppo", "sac", "ppo_no_brake", "sac_no_brake", "v0/ppo", "v0/sac"])
+def test_the_numpy_forward_pass_is_sb3s_deterministic_predict(name):
+    from agents.rl import load_policy
+
+    policy = load_policy(Path(__file__).resolve().parents[1] / "results" / "agents" / name / "policy.zip")
+    assert policy._actor is not None  # the committed policies take the fast path
+    space = policy.model.observation_space
+    obs = (
+        np.random.default_rng(7).uniform(space.low, space.high, size=(300, space.shape[0])).astype(np.float32)
+    )
+    for o in obs:
+        fast, state = policy.predict(o)
+        ref, _ = policy.model.predict(o, deterministic=True)
+        assert state is None and fast.shape == ref.shape and fast.dtype == ref.dtype
+        np.testing.assert_allclose(fast, ref, rtol=0, atol=5e-5)  # float32 sums in another order
+    batch, _ = policy.predict(obs)
+    np.testing.assert_allclose(batch, policy.model.predict(obs, deterministic=True)[0], rtol=0, atol=1e-4)
+
+
+def test_a_policy_the_numpy_pass_does_not_cover_runs_through_sb3():
+    import gymnasium as gym
+    import torch
+    from stable_baselines3 import PPO
+
+    from agents.rl import SB3Policy
+
+    env = gym.make("DrillString-v1")
+    model = PPO("MlpPolicy", env, policy_kwargs={"activation_fn": torch.nn.ELU}, n_steps=64, device="cpu")
+    policy = SB3Policy(model, "ppo")
+    assert policy._actor is None
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(policy.predict(obs)[0], model.predict(obs, deterministic=True)[0])
+    env.close()
