@@ -40,7 +40,7 @@ import numpy as np
 from agents.evaluation import IDENTIFIED_SPEED, METRIC_COLUMNS, EpisodeSettings
 from agents.plants import NOMINAL, Plant
 from agents.registry import CONTROLLERS
-from agents.robustness import COLORS, ordered_controllers, robustness_figure, robustness_lines
+from agents.robustness import COLORS, REGIMES, ordered_controllers, robustness_figure, robustness_lines
 from drill_env.outputs import atomic_file, atomic_write_text, output_lock
 
 __all__ = [
@@ -82,11 +82,7 @@ QUICK_GRID: dict[str, tuple[float, ...]] = {
 }
 FULL_SEEDS = (0, 1, 2, 3, 4)
 QUICK_SEEDS = (0,)
-REGIME_TITLES = {
-    "equilibrium": "stable equilibrium",
-    "limit_cycle": "Hopf cycle without stick",
-    "stick_slip": "stick-slip",
-}
+REGIME_TITLES = REGIMES  # regime -> the title of its table
 
 
 @dataclass(frozen=True)
@@ -705,10 +701,8 @@ def summary_tables(
     ]
     for preset, plant in sections:
         sub = ok[(ok["preset"] == preset) & (ok["plant"] == plant)]
-        if (
-            plant == _plants_in(df[df["preset"] == preset])[0]
-            and len(_plants_in(df[df["preset"] == preset])) > 1
-        ):
+        names = _plants_in(df[df["preset"] == preset])
+        if plant == names[0] and len(names) > 1:
             lines += robustness_lines(df, preset, plants)
         if only_nominal:
             lines += [f"## {preset}", ""]

@@ -15,13 +15,11 @@ from their committed policies.
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from agents.base import Controller, ControllerSpec
+from agents.base import ControllerSpec
+from agents.gains import CLASSICAL, classical_controller, gains_path, load_gains
 
 __all__ = [
     "CLASSICAL",
@@ -36,57 +34,10 @@ __all__ = [
     "policy_path",
 ]
 
-CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi")
 LEARNED = ("ppo", "sac")
 CONTROLLERS = CLASSICAL + LEARNED
 
 _ROOT = Path(__file__).resolve().parent.parent
-
-
-def gains_path() -> Path:
-    """``configs/agents/controllers.yaml`` (in the source tree or the installed package)."""
-    for d in (_ROOT / "drill_env" / "_configs" / "agents", _ROOT / "configs" / "agents"):
-        p = d / "controllers.yaml"
-        if p.is_file():
-            return p
-    return _ROOT / "configs" / "agents" / "controllers.yaml"
-
-
-@functools.lru_cache(maxsize=8)
-def _load_gains_cached(path: str) -> dict[str, Any]:
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"gains: no such file {path!r}; run `drill-env tune --out {path}`")
-    data = yaml.safe_load(p.read_text()) or {}
-    if not isinstance(data, dict) or "presets" not in data:
-        raise ValueError(f"gains: {path} has no 'presets' mapping")
-    return data
-
-
-def load_gains(path: str | Path | None = None) -> dict[str, Any]:
-    """The tuned gains file (see :func:`agents.tuning.tune_all`)."""
-    return _load_gains_cached(str(Path(path) if path is not None else gains_path()))
-
-
-def classical_controller(
-    kind: str, spec: ControllerSpec, preset: str, gains_file: str | Path | None = None
-) -> Controller:
-    """A classical controller with the tuned gains of ``preset``."""
-    from agents.open_loop import OpenLoop
-    from agents.tuning import make_controller
-
-    if kind == "open_loop":
-        return OpenLoop(spec)
-    if kind not in CLASSICAL:
-        raise ValueError(f"controller: {kind!r} is not one of {list(CLASSICAL)}")
-    data = load_gains(gains_file)
-    presets = data["presets"]
-    if preset not in presets or kind not in presets[preset]:
-        raise ValueError(
-            f"gains: no tuned gains for {kind!r} on preset {preset!r} in {gains_file or gains_path()}; "
-            "run `drill-env tune`"
-        )
-    return make_controller(kind, spec, dict(presets[preset][kind]["gains"]))
 
 
 def default_agents_dir() -> Path:

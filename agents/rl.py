@@ -452,8 +452,8 @@ def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
     import gymnasium as gym
 
     from agents.base import ControllerSpec
+    from agents.gains import classical_controller
     from agents.open_loop import OpenLoop
-    from agents.registry import classical_controller
 
     env = gym.make(cfg.env_id, **cfg.env_kwargs)
     spec = ControllerSpec.from_env(env)
