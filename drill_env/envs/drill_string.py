@@ -23,6 +23,8 @@ from drill_env.envs.config import (
     EnvSettings,
     EpisodeSetup,
     RewardWeights,
+    check_seed,
+    numeric_action,
 )
 from drill_env.envs.task import VOLTAGE_LIMIT, TaskConfig
 from drill_env.kernel import STATUS_MESSAGES
@@ -292,7 +294,7 @@ class DrillStringEnv(gym.Env):
 
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))
         opts = self.settings.parse_options(options)
         setup = self.settings.draw_episode(self.np_random, opts)
         status = self._reset_rig(setup)
@@ -315,7 +317,7 @@ class DrillStringEnv(gym.Env):
         return self._obs.copy(), self._reset_info(setup)
 
     def step(self, action):
-        if type(action) is np.ndarray and action.shape == (1,):
+        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
             a = float(action[0])
         else:
             a = _scalar_action(action)
@@ -521,10 +523,7 @@ class DrillStringEnv(gym.Env):
 
 
 def _scalar_action(action: Any) -> float:
-    try:
-        arr = np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"action: expected a number or an array of shape (1,), got {action!r}") from None
+    arr = numeric_action(action, "action")
     if arr.size != 1:
         raise ValueError(f"action: expected shape (1,), got shape {arr.shape}")
     return float(arr.reshape(-1)[0])
