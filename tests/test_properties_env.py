@@ -141,6 +141,21 @@ def rollout(env, seed, options, acts):
     acts=st.lists(actions(), min_size=1, max_size=8),
 )
 def test_random_actions_and_options_give_valid_reproducible_rollouts(env_id, seed, options, acts):
+    check_rollouts(env_id, seed, options, acts)
+
+
+@pytest.mark.slow
+@given(
+    env_id=st.sampled_from(IDS),
+    seed=st.integers(0, 2**63 - 1),
+    options=reset_options(),
+    acts=st.lists(actions(), min_size=1, max_size=8),
+)
+def test_random_actions_and_options_give_valid_reproducible_rollouts_long(env_id, seed, options, acts):
+    check_rollouts(env_id, seed, options, acts)
+
+
+def check_rollouts(env_id, seed, options, acts):
     first = rollout(env_of(env_id), seed, options, acts)
     if first is None:
         return
@@ -181,6 +196,18 @@ def test_actions_that_are_not_real_numbers_are_refused(action):
     # nothing was simulated: the next step is the twin's first
     np.testing.assert_array_equal(env.step(0.2)[0], twin.step(0.2)[0])
     assert env.step(np.int64(1))[4]["voltage"] == 5.0  # an integer is a number
+
+
+@pytest.mark.parametrize("speed", [5e-324, 1e-65, 1e-12])
+def test_a_target_speed_too_small_for_float_voltages_gets_the_next_voltage_above_uc1(speed):
+    # Its nominal voltage rounds to uc1, the end of the allowed (open) voltage range; the
+    # request is valid (0 < speed), so it runs at the smallest voltage above uc1.
+    env = env_of("DrillString-v1")
+    uc1 = env.unwrapped.settings.params.uc1
+    obs, info = env.reset(seed=0, options={"target_speed": speed})
+    assert info["target_speed"] == speed
+    assert uc1 < info["nominal_voltage"] <= uc1 * (1.0 + 1e-9)
+    check_obs(env.observation_space, obs)
 
 
 # -- the native vector env --------------------------------------------------------------------------
@@ -235,6 +262,16 @@ def as_numpy_seed(seed):
 
 @given(script=vector_scripts())
 def test_vector_env_equals_sync_vector_under_random_steps_and_masked_resets(script):
+    check_vector_script(script)
+
+
+@pytest.mark.slow
+@given(script=vector_scripts())
+def test_vector_env_equals_sync_vector_under_random_steps_and_masked_resets_long(script):
+    check_vector_script(script)
+
+
+def check_vector_script(script):
     n, env_id, mode, max_steps, seed, ops = script
     native, sync = vector_pair(n, env_id, mode, max_steps)
     obs_n, _ = native.reset(seed=as_numpy_seed(seed))

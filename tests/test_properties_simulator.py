@@ -42,13 +42,16 @@ SCAN = 1e-4  # [s] grid of the reference's search for band exits while a disk st
 BREAKAWAY_TOL = 1e-9  # [s] a stuck disk starting to slip: located by root finding on both sides
 EVENT_TOL = 1e-8  # [s] a speed reaching zero: carries the integration error of the slip before it
 STATE_TOL = 1e-7  # [rad, rad/s] twist and speeds on the sample grid
-# Bounds that make "never hangs" testable. Stick-slip of these rigs has one stick phase per
-# torsional period (a few seconds); a reversal followed by a quick stop adds two events within
-# milliseconds. Over every example of the long profile the most seen were ~6 events and ~900
-# accepted steps per simulated second at these tolerances (the step cap is 2000 per second).
-EVENTS_PER_SECOND = 60
-EVENTS_PER_JUMP = 4  # a voltage jump can release both disks and reverse each once
-STEPS_PER_SECOND = 1500
+# Bounds that make "never hangs" testable: chattering (events piling up at one instant) or
+# a step size collapsing would exceed them by orders of magnitude. Stick-slip of these rigs
+# has one stick phase per torsional period (seconds); a voltage jump can release both disks
+# and each may reverse once. Measured over 700 examples of the two strategies below: at
+# most 12 events per simulated second in the short runs from band edges, 40 per second with
+# 0.05 s holds (two per hold), and 140 accepted steps per simulated second (the step cap of
+# simulate() is 2000 per second).
+EVENTS_PER_SECOND = 30
+EVENTS_PER_JUMP = 4
+STEPS_PER_SECOND = 1000
 
 SCALED_FIELDS = (
     "motor_constant",
@@ -114,6 +117,10 @@ def cases(draw):
     kth, km = p.string_stiffness, p.motor_constant
     edge = p.lower_static / kth
     speed = st.floats(-3.0, 3.0, allow_nan=False) | st.just(0.0)
+    # Leaving a band edge at a speed of round-off size is the second-order case below (the
+    # reference cannot resolve it). Below ~3 mrad/s, where the motion reverses within
+    # ~50 us, the simulator misses the breakaway: see test_lower_edge_start_moving_outward.
+    edge_speed = st.floats(0.02, 3.0) | st.just(0.0)
     if kind == "rest":
         x0 = (0.0, 0.0, 0.0)
     elif kind == "anywhere":
@@ -122,25 +129,27 @@ def cases(draw):
         # k_theta x1 == +-T_sl exactly: the lower disk at rest on the edge of its band
         sign = draw(st.sampled_from([1.0, -1.0]))
         x1 = nudge(sign * edge, sign * p.lower_static, lambda x: kth * x)
-        x0 = (x1, draw(speed), 0.0)
-        # With the upper disk at rest and slipping at once, the load leaves the edge at second
-        # order (x1' = 0, x1'' != 0) and the lower speed grows as t^3: the reference cannot
-        # resolve that at round-off (it chatters at t = 0). Checked against the leading-order
-        # solution instead, in test_lower_edge_start_with_the_upper_disk_breaking_away.
-        upper_load = km * schedule[0] - kth * x1
-        assume(x0[1] != 0.0 or -p.upper_static_neg <= upper_load <= p.upper_static_pos)
-        # With the twist moving inward the band-exit event function of the reference starts
-        # at exactly zero and solve_ivp takes the start for a crossing (it chatters at t = 0).
-        # Checked against a known answer instead, in test_lower_edge_start_moving_inward.
-        assume(x0[1] * sign >= 0.0)
+        x0 = (x1, sign * draw(edge_speed), 0.0)
+        # The twist moving outward breaks the lower disk away at t = 0. Not inward: then the
+        # band-exit event function of the reference starts at exactly zero and solve_ivp takes
+        # the start for a crossing (it chatters at t = 0); see test_lower_edge_start_moving_inward.
+        # With the upper disk at rest, any hold that breaks it away makes the twist leave the
+        # edge at second order (x1' = 0, x1'' != 0) and the lower speed grow as t^3, which the
+        # reference cannot resolve at round-off either; see
+        # test_lower_edge_start_with_the_upper_disk_breaking_away. Then every hold keeps the
+        # upper disk in its band and nothing may move.
+        if x0[1] == 0.0:
+            loads = km * np.asarray(schedule) - kth * x1
+            assume(np.all((-p.upper_static_neg <= loads) & (loads <= p.upper_static_pos)))
     elif kind == "upper_edge":
         # km u0 - k_theta x1 == T_sup (or -T_sun) exactly: the upper disk at rest on its edge
-        x1 = draw(st.floats(-edge, edge))
+        x1 = draw(st.floats(-edge, edge, exclude_min=True, exclude_max=True))  # not on the lower edge too
         upper = draw(st.sampled_from([p.upper_static_pos, -p.upper_static_neg]))
         schedule[0] = nudge((upper + kth * x1) / km, upper, lambda u: km * u - kth * x1)
         assume(abs(schedule[0]) <= 5.0)
-        x0 = (x1, 0.0, draw(speed))
-        assume(x0[2] * upper >= 0.0)  # not inward: as for the lower edge above
+        # the lower disk turning towards the outside of the upper band or at rest (not inward:
+        # as for the lower edge above)
+        x0 = (x1, 0.0, math.copysign(draw(edge_speed), upper))
     else:  # "uc1": at rest, the largest voltage at which the rig stays stuck (point A)
         schedule[0] = p.uc1
         x0 = (0.0, 0.0, 0.0)
@@ -186,12 +195,14 @@ def check_stick_is_exact(res) -> None:
     # a slipping disk moves in the direction of its mode (never backwards on its branch)
     assert np.all(res.x3[res.mode_l == 1] >= 0.0) and np.all(res.x3[res.mode_l == -1] <= 0.0)
     assert np.all(res.x2[res.mode_u == 1] >= 0.0) and np.all(res.x2[res.mode_u == -1] <= 0.0)
-    # the lower angle does not creep during a stick phase
-    stuck = np.concatenate([[False], res.stick_l, [False]])
-    starts = np.flatnonzero(~stuck[:-1] & stuck[1:])
-    ends = np.flatnonzero(stuck[:-1] & ~stuck[1:])
-    for a, b in zip(starts, ends, strict=True):
-        assert np.ptp(res.theta_l[a:b]) == 0.0
+    # the lower angle does not creep while it sticks: between two stuck samples with no
+    # event of the lower disk from the first to the second (a short slip may lie between)
+    lower_t = np.sort(res.events.t[res.events.disk == 1])
+    pairs = np.flatnonzero(res.stick_l[:-1] & res.stick_l[1:])
+    quiet = np.searchsorted(lower_t, res.t[pairs], "left") == np.searchsorted(
+        lower_t, res.t[pairs + 1], "right"
+    )
+    assert pairs.size == 0 or np.all(res.theta_l[pairs[quiet] + 1] == res.theta_l[pairs[quiet]])
     # an event into stick leaves that disk exactly at rest
     ev = res.events
     into_stick = ev.mode_after == 0
@@ -327,3 +338,32 @@ def test_lower_edge_start_moving_inward(sign, speed):
     moving = res.t < t_stop
     np.testing.assert_allclose(res.x1[moving], x1(res.t[moving]), rtol=0, atol=1e-10)
     assert np.ptp(res.x1[~moving]) == 0.0
+
+
+@pytest.mark.parametrize(
+    "speed",
+    [
+        0.01,
+        0.003,
+        pytest.param(
+            1e-3,
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="kernel: a disk starting on its band edge whose load moves outward but reverses "
+                "within ~50 us (here 43 us) is kept stuck; the closed band is left at t = 0",
+            ),
+        ),
+    ],
+)
+def test_lower_edge_start_moving_outward(speed):
+    # The lower load exactly on its band edge, the upper disk turning forward so that the
+    # twist grows, and -3 V braking the upper disk: the load leaves the closed band at once,
+    # so the lower disk slips from t = 0 (forward); the upper disk reverses where its speed
+    # reaches 0, the twist shrinks, and the lower disk sticks again. Against the reference.
+    p = PRESETS["brake"]
+    kth = p.string_stiffness
+    x1_0 = nudge(p.lower_static / kth, p.lower_static, lambda x: kth * x)
+    res, ora = run_both(p, [-3.0], 0.1, (x1_0, speed, 0.0))
+    assert res.events.kinds() == ["lower stick->slip+", "upper slip+->slip-", "lower slip+->stick"]
+    assert res.events.t[0] == 0.0
+    check_agreement(res, ora)
