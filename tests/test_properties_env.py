@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from gymnasium.error import ResetNeeded
 from gymnasium.vector import AutoresetMode
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import drill_env  # noqa: F401  (registers the envs)
@@ -134,6 +134,7 @@ def rollout(env, seed, options, acts):
 # -- the single env -------------------------------------------------------------------------------
 
 
+@settings(max_examples=40)  # cheap (~0.1 s each): more than the profile's default
 @given(
     env_id=st.sampled_from(IDS),
     seed=st.integers(0, 2**63 - 1),
@@ -260,6 +261,7 @@ def as_numpy_seed(seed):
     return [None if s is None else np.uint64(s) for s in seed]
 
 
+@settings(max_examples=40)
 @given(script=vector_scripts())
 def test_vector_env_equals_sync_vector_under_random_steps_and_masked_resets(script):
     check_vector_script(script)

@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import assume, given
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from oracle import oracle_simulate
 from scipy.optimize import brentq
@@ -223,6 +223,7 @@ def check_case(p, schedule, control_dt, x0) -> None:
     check_agreement(res, ora)
 
 
+@settings(max_examples=50)  # cheap (~0.1 s each): more than the profile's default
 @given(case=cases())
 def test_random_schedules_states_and_rigs_agree_with_the_reference(case):
     p, schedule, control_dt, x0, _ = case

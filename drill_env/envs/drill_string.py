@@ -70,7 +70,8 @@ class DrillStringEnv(gym.Env):
     The rig's amplifier accepts only ``[-5, 5] V`` (Sec. 2.1): any larger request (an
     action outside the box) is clipped to that range, as the rig does, and reported in
     ``info["voltage_clipped"]`` with the request in ``info["voltage_requested"]``. NaN or
-    infinite actions raise ``ValueError``.
+    infinite actions raise ``ValueError``, as do actions that are not real numbers (a bool,
+    a string such as ``"0.5"``, a complex value): they are never converted.
 
     ## Observation Space
 
@@ -201,6 +202,7 @@ class DrillStringEnv(gym.Env):
       does not have; training with ``"random"`` removes it. On the nominal model the angle
       changes nothing else (friction depends on it only with position-dependent effects).
 
+    ``reset(seed=...)`` takes None or an integer >= 0 (NumPy integers included).
     ``reset(options=...)`` may fix the operating point with ``target_speed`` [rad/s],
     ``nominal_voltage`` [V] or ``regime`` (one of them), and the start with ``start``.
 

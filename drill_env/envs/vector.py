@@ -7,6 +7,10 @@ with seed ``seed + i``: both run the same compiled code and draw from their own
 generator in the same order, so a ``SyncVectorEnv`` of N single environments returns the
 same observations, rewards and infos, step for step.
 
+Seeds: ``reset(seed=s)`` seeds rig i with ``s + i``; a sequence gives one seed (or None)
+per rig; NumPy integers count as integers. A masked reset (``options["reset_mask"]``) must
+select at least one rig, and ``step`` raises ``ResetNeeded`` until every rig was reset.
+
 Autoreset: Gymnasium 1.x ``AutoresetMode.NEXT_STEP`` by default (as ``SyncVectorEnv``):
 the step after a rig's episode ended resets that rig, ignores its action and returns its
 first observation with reward 0 and ``terminated = truncated = False``.
