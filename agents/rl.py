@@ -30,6 +30,13 @@ mean of the last ``fraction`` of them and Q_prev the mean of the ``fraction`` be
 training has converged if ``Q_last - Q_prev <= tolerance * |Q_last|``: the last stretch
 improved the return by less than ``tolerance`` (5 %) of the level it reached (and at least
 ``min_evaluations`` evaluations were made).
+
+Policy files are code: a stable-baselines3 ``.zip`` stores some of its objects (the spaces,
+the policy class and its arguments, the schedules) as pickles, and unpickling can run
+arbitrary code. :func:`load_policy` loads the policies committed under ``results/agents/``
+silently and warns (:class:`UntrustedPolicyWarning`) for any other file unless told
+``trusted=True``. :func:`policy_observation_version` reads only the zip's JSON and unpickles
+nothing.
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ import json
 import math
 import platform
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +64,9 @@ __all__ = [
     "SB3Policy",
     "load_config",
     "load_policy",
+    "COMMITTED_POLICY_DIR",
+    "UntrustedPolicyWarning",
+    "untrusted_policy_note",
     "policy_observation_version",
     "plateau",
     "train",
@@ -65,6 +76,8 @@ __all__ = [
 
 ALGOS = ("ppo", "sac")
 VEC_ENVS = ("native", "dummy")
+# The policies of the repository (reviewed with it); any other policy file is untrusted.
+COMMITTED_POLICY_DIR = Path(__file__).resolve().parent.parent / "results" / "agents"
 
 
 def _algo_class(algo: str):
@@ -315,12 +328,37 @@ class SB3Policy:
         return {"name": self.name, "path": self.path}
 
 
-def load_policy(path: str | Path, algo: str | None = None, name: str | None = None) -> SB3Policy:
+class UntrustedPolicyWarning(UserWarning):
+    """A policy file from outside ``results/agents/`` is loaded: loading it may run code."""
+
+
+def untrusted_policy_note(path: str | Path) -> str | None:
+    """Why loading ``path`` needs trust, or None for a policy committed under
+    ``results/agents/`` (symbolic links resolved: a link out of it is not committed)."""
+    resolved = Path(path).resolve()
+    if resolved.is_relative_to(COMMITTED_POLICY_DIR.resolve()):
+        return None
+    return (
+        f"policy: {path} is not one of the committed policies in results/agents/; loading a "
+        "stable-baselines3 .zip unpickles Python objects, which can run arbitrary code: load only "
+        "files you made or trust"
+    )
+
+
+def load_policy(
+    path: str | Path, algo: str | None = None, name: str | None = None, *, trusted: bool = False
+) -> SB3Policy:
     """Load a policy saved by :func:`train` (``policy.zip``); the algorithm is read from the
-    ``training_summary.json`` beside it unless given."""
+    ``training_summary.json`` beside it unless given.
+
+    A file outside ``results/agents/`` is loaded with an :class:`UntrustedPolicyWarning`
+    (loading unpickles objects stored in it) unless ``trusted=True`` (a file you made)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy: no such file {str(path)!r}")
+    note = None if trusted else untrusted_policy_note(path)
+    if note is not None:
+        warnings.warn(note, UntrustedPolicyWarning, stacklevel=2)
     if algo is None:
         summary = path.parent / "training_summary.json"
         if summary.is_file():

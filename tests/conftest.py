@@ -7,12 +7,14 @@ import sys
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, settings
+from hypothesis import HealthCheck, is_hypothesis_test, settings
 
-# Property-based tests: "ci" (the default) draws a fixed, reproducible set of a few
-# examples (derandomized: the same on every run); HYPOTHESIS_PROFILE=slow explores many
-# more, randomly (a longer fuzzing run). A test's own @settings(max_examples=...) overrides
-# the profile's count.
+# Property-based tests. "ci" (the default) draws a fixed, reproducible set of a few examples
+# (derandomized: the same on every run, so the default run stays short and never flaky);
+# "slow" explores many more, randomly (a longer fuzzing run). Tests marked slow get the
+# "slow" profile (see pytest_collection_modifyitems below); HYPOTHESIS_PROFILE=slow gives it
+# to every property test. A test's own @settings(max_examples=...) overrides the profile's
+# count.
 settings.register_profile(
     "ci",
     max_examples=12,
@@ -25,6 +27,19 @@ settings.register_profile(
     "slow", max_examples=500, deadline=None, print_blob=True, suppress_health_check=[HealthCheck.too_slow]
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+def pytest_collection_modifyitems(config, items):
+    """Property tests marked slow run with the "slow" profile (unless they set their own)."""
+    slow = settings.get_profile("slow")
+    for item in items:
+        test = getattr(item, "obj", None)
+        if item.get_closest_marker("slow") is None or test is None or not is_hypothesis_test(test):
+            continue
+        if getattr(test, "_hypothesis_internal_settings_applied", False):
+            continue  # the test's own @settings (or an earlier item of the same function)
+        settings(slow)(test)
+
 
 # The reference solver lives beside the tests (tests/oracle.py); the benchmarks import
 # it the same way.

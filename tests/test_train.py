@@ -74,7 +74,7 @@ def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
     assert json.loads((out / "training_summary.json").read_text())["seed"] == 3
     assert (tmp_path / "run" / "progress.csv").is_file()
     assert any(p.name.startswith("events.out.tfevents") for p in (tmp_path / "run").iterdir())
-    policy = load_policy(out / "policy.zip")
+    policy = load_policy(out / "policy.zip", trusted=True)  # made by this test
     env = make_env("brake", EpisodeSettings(), policy_observation_version(out / "policy.zip"))
     policy.check_env(env)
     a, _ = policy.predict(env.reset(seed=0)[0], deterministic=True)

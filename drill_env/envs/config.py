@@ -49,6 +49,8 @@ __all__ = [
     "observation_layout",
     "TRUE_STATE_NAMES",
     "REWARD_NAMES",
+    "check_seed",
+    "numeric_action",
 ]
 
 START_STATES = {"rest": C.START_REST, "equilibrium": C.START_EQUILIBRIUM, "open_loop": C.START_OPEN_LOOP}
@@ -171,6 +173,30 @@ def _number(name: str, value: Any, lo: float, hi: float = math.inf, *, lo_incl: 
         rb = "]" if math.isfinite(hi) else ")"
         raise ValueError(f"{name}: {value!r} is outside the allowed range {lb}{lo:g}, {hi:g}{rb}")
     return v
+
+
+def check_seed(seed: Any, name: str = "seed") -> int | None:
+    """A reset seed as Gymnasium takes it: None or an integer >= 0; NumPy integers count as
+    integers (Gymnasium itself accepts only Python ints), bools and floats are refused."""
+    if seed is None:
+        return None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"{name}: expected an integer >= 0 or None, got {seed!r}")
+    if seed < 0:
+        raise ValueError(f"{name}: expected an integer >= 0 or None, got {seed!r}")
+    return int(seed)
+
+
+def numeric_action(action: Any, name: str) -> np.ndarray:
+    """``action`` as a float64 array, refusing what is not a real number: bools, strings,
+    bytes, complex and object values (NumPy would convert ``True`` and ``"0.5"`` silently)."""
+    try:
+        arr = np.asarray(action)
+    except (TypeError, ValueError):  # ragged nesting
+        arr = np.asarray(None)
+    if arr.dtype.kind not in "iuf":
+        raise ValueError(f"{name}: expected real numbers (int or float), got {action!r} of dtype {arr.dtype}")
+    return arr.astype(np.float64)
 
 
 @dataclass(frozen=True)

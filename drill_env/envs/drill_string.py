@@ -23,6 +23,8 @@ from drill_env.envs.config import (
     EnvSettings,
     EpisodeSetup,
     RewardWeights,
+    check_seed,
+    numeric_action,
 )
 from drill_env.envs.task import VOLTAGE_LIMIT, TaskConfig
 from drill_env.kernel import STATUS_MESSAGES
@@ -68,7 +70,8 @@ class DrillStringEnv(gym.Env):
     The rig's amplifier accepts only ``[-5, 5] V`` (Sec. 2.1): any larger request (an
     action outside the box) is clipped to that range, as the rig does, and reported in
     ``info["voltage_clipped"]`` with the request in ``info["voltage_requested"]``. NaN or
-    infinite actions raise ``ValueError``.
+    infinite actions raise ``ValueError``, as do actions that are not real numbers (a bool,
+    a string such as ``"0.5"``, a complex value): they are never converted.
 
     ## Observation Space
 
@@ -199,6 +202,7 @@ class DrillStringEnv(gym.Env):
       does not have; training with ``"random"`` removes it. On the nominal model the angle
       changes nothing else (friction depends on it only with position-dependent effects).
 
+    ``reset(seed=...)`` takes None or an integer >= 0 (NumPy integers included).
     ``reset(options=...)`` may fix the operating point with ``target_speed`` [rad/s],
     ``nominal_voltage`` [V] or ``regime`` (one of them), and the start with ``start``.
 
@@ -292,7 +296,7 @@ class DrillStringEnv(gym.Env):
 
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))
         opts = self.settings.parse_options(options)
         setup = self.settings.draw_episode(self.np_random, opts)
         status = self._reset_rig(setup)
@@ -315,7 +319,7 @@ class DrillStringEnv(gym.Env):
         return self._obs.copy(), self._reset_info(setup)
 
     def step(self, action):
-        if type(action) is np.ndarray and action.shape == (1,):
+        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
             a = float(action[0])
         else:
             a = _scalar_action(action)
@@ -521,10 +525,7 @@ class DrillStringEnv(gym.Env):
 
 
 def _scalar_action(action: Any) -> float:
-    try:
-        arr = np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"action: expected a number or an array of shape (1,), got {action!r}") from None
+    arr = numeric_action(action, "action")
     if arr.size != 1:
         raise ValueError(f"action: expected shape (1,), got shape {arr.shape}")
     return float(arr.reshape(-1)[0])

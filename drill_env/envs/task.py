@@ -589,7 +589,8 @@ class OperatingPointSampler:
             raise ValueError(
                 f"target_speed: {speed!r} is outside the allowed range (0, {self.speed_max:.6g}] rad/s"
             )
-        u = min(nominal_voltage(self.params, w), self.u_max)
+        # A speed so small that its voltage rounds to uc1 gets the next voltage above uc1.
+        u = min(max(nominal_voltage(self.params, w), math.nextafter(self.uc1, math.inf)), self.u_max)
         return OperatingPoint(self.regimes.regime_of(u), u, w)
 
     def point_in_regime(self, regime: str, rng: np.random.Generator) -> OperatingPoint:

@@ -7,6 +7,10 @@ with seed ``seed + i``: both run the same compiled code and draw from their own
 generator in the same order, so a ``SyncVectorEnv`` of N single environments returns the
 same observations, rewards and infos, step for step.
 
+Seeds: ``reset(seed=s)`` seeds rig i with ``s + i``; a sequence gives one seed (or None)
+per rig; NumPy integers count as integers. A masked reset (``options["reset_mask"]``) must
+select at least one rig, and ``step`` raises ``ResetNeeded`` until every rig was reset.
+
 Autoreset: Gymnasium 1.x ``AutoresetMode.NEXT_STEP`` by default (as ``SyncVectorEnv``):
 the step after a rig's episode ended resets that rig, ignores its action and returns its
 first observation with reward 0 and ``terminated = truncated = False``.
@@ -21,13 +25,14 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from drill_env import _layout as L
 from drill_env.envs import _core as C
-from drill_env.envs.config import MAX_WARMUP_RETRIES, REWARD_NAMES, EnvSettings
+from drill_env.envs.config import MAX_WARMUP_RETRIES, REWARD_NAMES, EnvSettings, check_seed, numeric_action
 from drill_env.envs.task import VOLTAGE_LIMIT
 from drill_env.kernel import STATUS_MESSAGES
 
@@ -116,14 +121,14 @@ class DrillStringVectorEnv(VectorEnv):
         self._rngs: list[np.random.Generator | None] = [None] * n
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._done = np.zeros(n, dtype=bool)
-        self._was_reset = False
+        self._started = np.zeros(n, dtype=bool)  # rigs reset at least once
         self._ts = s.sensors.sample_period
         self._action_to_volts = s.action_to_volts
 
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None):
-        super().reset(seed=seed if isinstance(seed, (int, np.integer)) else None)
         n = self.num_envs
+        seeds = self._seeds(seed)
         mask = np.ones(n, dtype=bool)
         if options is not None and "reset_mask" in options:
             mask = np.asarray(options["reset_mask"])
@@ -131,14 +136,11 @@ class DrillStringVectorEnv(VectorEnv):
                 raise ValueError(
                     f"options['reset_mask']: expected a bool array of shape ({n},), got {options['reset_mask']!r}"
                 )
-        if seed is None:
-            seeds: list[int | None] = [None] * n
-        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            seeds = [int(seed) + i for i in range(n)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != n:
-                raise ValueError(f"seed: expected an int, None or {n} seeds, got {len(seeds)}")
+            if not mask.any():
+                raise ValueError(
+                    "options['reset_mask']: must select at least one rig (one True), got all False"
+                )
+        super().reset(seed=seeds[0] if isinstance(seed, (int, np.integer)) else None)
         opts = self.settings.parse_options(options)
         for i in np.flatnonzero(mask):
             if seeds[i] is not None or self._rngs[i] is None:
@@ -146,19 +148,20 @@ class DrillStringVectorEnv(VectorEnv):
         self._reset_rigs(mask, opts)
         self._elapsed[mask] = 0  # new episodes: truncation counts from this reset
         self._done[mask] = False
-        self._was_reset = True
+        self._started |= mask
         info = self._info_reset_only(mask)
         # masked reset: the rigs not reset report nothing (zeros, masks False), as SyncVectorEnv
         return self._OBS.copy(), info if mask.all() else _select(info, mask)
 
     def step(self, actions):
-        if not self._was_reset:
-            raise RuntimeError("step: call reset() before step()")
+        if not self._started.all():
+            never = np.flatnonzero(~self._started).tolist()
+            raise ResetNeeded(
+                "step: call reset() before step()"
+                + (f" (rigs {never} were never reset)" if len(never) < self.num_envs else "")
+            )
         n = self.num_envs
-        try:
-            a = np.asarray(actions, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"actions: expected an array of shape ({n}, 1), got {actions!r}") from None
+        a = numeric_action(actions, "actions")
         if a.size != n:
             raise ValueError(f"actions: expected shape ({n}, 1), got {a.shape}")
         a = a.reshape(n)
@@ -230,6 +233,23 @@ class DrillStringVectorEnv(VectorEnv):
         else:
             self._done = done
         return obs, rewards, terminated, truncated, info
+
+    def _seeds(self, seed: Any) -> list[int | None]:
+        """One seed (or None) per rig from ``reset(seed=...)``: an integer s gives s + i."""
+        n = self.num_envs
+        if seed is None:
+            return [None] * n
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+            first = check_seed(seed)
+            return [first + i for i in range(n)]
+        if isinstance(seed, (str, bytes, Mapping)) or not isinstance(seed, (Sequence, np.ndarray)):
+            raise ValueError(
+                f"seed: expected an integer >= 0, None or a sequence of {n} of them, got {seed!r}"
+            )
+        seeds = list(seed)
+        if len(seeds) != n:
+            raise ValueError(f"seed: expected an int, None or {n} seeds, got {len(seeds)}")
+        return [check_seed(x, f"seed[{i}]") for i, x in enumerate(seeds)]
 
     # -- extras ----------------------------------------------------------------------------------
     @property
