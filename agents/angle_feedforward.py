@@ -100,11 +100,14 @@ _LOWER_MEAN = 3  # row of the lower_speed_mean entry in SampledRig.H
 
 
 def _loop(rig: SampledRig, lqi: LQI) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(A, b, c): the nominal rig closed by the LQI, the input of a voltage added to the LQI's
-    output and the output lower_speed_mean, in deviations from the equilibrium."""
+    """(A, b, c): ``rig`` closed by the LQI, the input of a voltage added to the LQI's output
+    and the output lower_speed_mean, in deviations from the equilibrium. The LQI is affine
+    in the observation with gains scheduled on w*: its linear part, probed at the equilibrium
+    of its own (nominal) model at the rig's speed, holds on any rig turning at that speed."""
     from agents.tuning import closed_loop, controller_matrices
 
-    A, _, _, _ = closed_loop(rig, controller_matrices(lqi, rig.eq))
+    own = design_point(lqi.spec.params, speed=rig.speed)
+    A, _, _, _ = closed_loop(rig, controller_matrices(lqi, own))
     nc = A.shape[0] - rig.n
     b = np.concatenate([rig.G, np.zeros(nc)])
     c = np.concatenate([rig.H[_LOWER_MEAN], np.zeros(nc)])
