@@ -48,22 +48,37 @@ time invariant in ``W_h = C_h exp(j h theta_l)``::
 
 an internal model of the harmonics h w* (Bodson et al. 1994 show the equivalence). The
 closed loop of the linearised nominal rig, the LQI and this filter is an ordinary
-discrete linear system; :func:`feedforward_closed_loop` builds it and
-:func:`design_margin` gives its decay rate. Averaging explains why it is stable: with the
-adaptation slow against the closed loop's response at h w*, the coefficients see the
-steady-state error ``E_h = G_h C_h + D_h`` (``D_h``: the disturbance's share), and the
-update averages to ``C_h <- C_h - mu (G_true / G_h) (C_h + D_h / G_true)``: a first-order
-convergence with time constant ``adaptation_time`` wherever ``Re(G_true / G_h) > 0``, i.e. the
-rig's phase at h w* is within 90 deg of the nominal one; an 8 % error in J_l or 5 % in k_m
-moves it by a few degrees (:func:`phase_error`). At every design point of the envelope
-(:func:`agents.tuning.design_points`) the exact linear loop stays stable with
-``adaptation_time`` = 10 s (about 2.5 torsional periods), tested in
-``tests/test_angle_rejection.py``.
+discrete linear system; :func:`feedforward_closed_loop` builds it and :func:`design` reads
+its decay rate. Averaging explains why it is stable: with the adaptation slow against the
+closed loop's response at h w*, the coefficients see the steady-state error
+``E_h = G_true C_h + D_h`` (``D_h``: the disturbance's share), and the update averages to
+``C_h <- C_h - mu (G_true / G_h) (C_h + D_h / G_true)``: a first-order convergence with
+time constant ``adaptation_time`` wherever ``Re(G_true / G_h) > 0``, i.e. the rig's phase
+at h w* is within 90 deg of the nominal one. J_l +8 %, k_m -5 % and T_sl +10 % move it by
+at most 7 deg at 0.7-1.5 V (:func:`phase_error`). Where ``|G_h|`` is small (the string
+passes little of the motor's torque at h w*: high speeds, second harmonic) the gain 1/G_h
+is large and acts on the torsional mode as well; averaging then needs a slower
+adaptation, and it passes more of the encoder's quantisation noise. :func:`design`
+therefore picks, per operating point and harmonic, the shortest of 10, 20, 40, 80 s for
+which the exact linear loop keeps at least half of min(the LQI's decay rate, 1 / adaptation
+time) and the lower-disk speed's noise from quantisation (as :mod:`agents.tuning` bounds
+the voltage's) grows by at most 30 %, and leaves a harmonic out where none does or where it
+would not turn once per adaptation time (``h w* T < 2 pi``, a drift rather than a
+harmonic). The nominal loop is then stable at every design point of the envelope
+(:func:`agents.tuning.design_points`) of both rigs; with the brake at 0.7-1.5 V the first
+harmonic adapts in 10 s (the second in 10 s up to 1 V, 40 s at 1.25 V, not at 1.5 V),
+decay rate 0.025-0.12 1/s against the LQI's 0.10-0.15 (``tests/test_angle_rejection.py``,
+which also checks that the analysed matrix reproduces the controller's code on the
+sampled rig).
 
-The adaptation pauses while the amplifier is at its limit (the error then says nothing
-about the coefficients) and at target speeds whose harmonic the loop cannot move
-(``|G_h|`` below ``min_response``, where a cancellation would need volts of noise); the
-LQI is unchanged, with the tuned gains of ``configs/agents/controllers.yaml``.
+Away from the linear regime: the adaptation starts after ``hold_decays`` = 2 time
+constants 1/alpha of the LQI's loop (the switch-on transient, not locked to the angle,
+would otherwise be learnt as a harmonic: on the nominal rig at 1.5 V it drove C_2 to volts
+and the loop into stick-slip), sees the error clipped to +-0.25 w* (a sinusoidal error keeps
+its phase, only its first steps shrink) and pauses while the amplifier is at its limit (the
+error then says nothing about the coefficients). The LQI is unchanged, with the tuned gains
+of ``configs/agents/controllers.yaml``; nothing here is tuned on a plant other than the
+nominal model.
 """
 
 from __future__ import annotations
@@ -74,9 +89,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.linalg import solve_discrete_lyapunov
 
 from agents.base import ControllerSpec
-from agents.linear_model import SampledRig, decay_rate, design_point, sampled_rig
+from agents.linear_model import SampledRig, decay_rate, design_point, measurement_noise, sampled_rig
 from agents.lqi import LQI
 from agents.pi import _gain
 from drill_env.params import RigParams
@@ -96,22 +112,24 @@ ADAPTATION_TIME = 10.0  # [s]
 LADDER = 4  # adaptation times tried: ADAPTATION_TIME * 2**k, k < LADDER
 HOLD_DECAYS = 2.0  # the adaptation starts after this many time constants 1/alpha of rig + LQI
 ERROR_CLIP = 0.25  # the error the adaptation sees is clipped to +-ERROR_CLIP * w*
+NOISE_RATIO = 1.3  # the feedforward may raise the quantisation noise on x3 by this factor
 _LOWER_MEAN = 3  # row of the lower_speed_mean entry in SampledRig.H
 
 
-def _loop(rig: SampledRig, lqi: LQI) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(A, b, c): ``rig`` closed by the LQI, the input of a voltage added to the LQI's output
-    and the output lower_speed_mean, in deviations from the equilibrium. The LQI is affine
+def _loop(rig: SampledRig, lqi: LQI) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(A, b, c, Bn): ``rig`` closed by the LQI, the input of a voltage added to the LQI's
+    output, the output lower_speed_mean and the input of the measurement noise, in deviations
+    from the equilibrium. The LQI is affine
     in the observation with gains scheduled on w*: its linear part, probed at the equilibrium
     of its own (nominal) model at the rig's speed, holds on any rig turning at that speed."""
     from agents.tuning import closed_loop, controller_matrices
 
     own = design_point(lqi.spec.params, speed=rig.speed)
-    A, _, _, _ = closed_loop(rig, controller_matrices(lqi, own))
+    A, Bn, _, _ = closed_loop(rig, controller_matrices(lqi, own))
     nc = A.shape[0] - rig.n
     b = np.concatenate([rig.G, np.zeros(nc)])
     c = np.concatenate([rig.H[_LOWER_MEAN], np.zeros(nc)])
-    return A, b, c
+    return A, b, c, Bn
 
 
 def _response(A: np.ndarray, b: np.ndarray, c: np.ndarray, omega: float, dt: float) -> complex:
@@ -133,7 +151,7 @@ def voltage_to_lower_speed(
     dt = lqi.spec.control_dt
     if rig is None:
         rig = sampled_rig(params, design_point(params, speed=speed), dt, lqi.spec.sensors)
-    A, b, c = _loop(rig, lqi)
+    A, b, c, _ = _loop(rig, lqi)
     return np.array([_response(A, b, c, h * rig.speed, dt) for h in harmonics])
 
 
@@ -143,11 +161,21 @@ def feedforward_closed_loop(
     """The transition matrix of rig + LQI + the feedforward's linear-time-invariant form
     (module docstring) at the rig's equilibrium, the lower disk turning at ``rig.speed``;
     ``g`` the complex adaptation gains g_h (0: harmonic not adapted, left out)."""
-    A, b, c = _loop(rig, lqi)
+    return _feedforward_matrices(rig, lqi, g, harmonics)[0]
+
+
+def _feedforward_matrices(
+    rig: SampledRig, lqi: LQI, g: np.ndarray, harmonics: tuple[int, ...] = HARMONICS
+) -> tuple[np.ndarray, np.ndarray]:
+    """(M, B): :func:`feedforward_closed_loop` and the input of the measurement noise on the
+    six measured entries (the feedforward reads the lower_speed_mean one)."""
+    A, b, c, Bn = _loop(rig, lqi)
     on = [(h, gh) for h, gh in zip(harmonics, np.asarray(g, dtype=complex), strict=True) if gh != 0]
     n, m = A.shape[0], 2 * len(on)
     M = np.zeros((n + m, n + m))
     M[:n, :n] = A
+    B = np.zeros((n + m, Bn.shape[1]))
+    B[:n] = Bn
     for i, (h, gh) in enumerate(on):
         r, q = n + 2 * i, n + 2 * i + 1  # Re W_h, Im W_h
         M[:n, r] += b  # u_ff = sum Re W_h
@@ -156,7 +184,17 @@ def feedforward_closed_loop(
         # W <- rot (W - g e), e = c x
         M[[r, q], r : q + 1] = rot
         M[[r, q], :n] = -rot @ np.outer([gh.real, gh.imag], c)
-    return M
+        B[[r, q], _LOWER_MEAN] = -rot @ np.array([gh.real, gh.imag])
+    return M, B
+
+
+def _lower_speed_noise(M: np.ndarray, B: np.ndarray, sigma: np.ndarray) -> float:
+    """Std [rad/s] of the lower-disk speed x3 from measurement noise of std ``sigma`` (inf if
+    the loop is unstable)."""
+    if np.max(np.abs(np.linalg.eigvals(M))) >= 1.0:
+        return math.inf
+    X = solve_discrete_lyapunov(M, B @ np.diag(sigma**2) @ B.T)
+    return math.sqrt(max(float(X[2, 2]), 0.0))
 
 
 def adaptation_gains(G: np.ndarray, dt: float, adaptation_times: np.ndarray) -> np.ndarray:
@@ -179,6 +217,7 @@ class FeedforwardDesign:
     gains: np.ndarray  # g_h [V s/rad], complex
     lqi_decay_rate: float  # [1/s] rig + LQI
     decay_rate: float  # [1/s] rig + LQI + feedforward
+    noise_ratio: float  # [-] std of x3 from encoder quantisation, with / without feedforward
 
 
 def design(
@@ -192,27 +231,32 @@ def design(
 
     Harmonic by harmonic, the shortest of ``adaptation_time * 2**k`` (k = 0..3) for which the
     exact linear loop (rig + LQI + the harmonics chosen so far + this one) keeps a decay rate
-    of at least half of min(the LQI's, 1 / adaptation time), among those in which the
-    harmonic turns at least once (``h w* T >= 2 pi``); none: the harmonic is not adapted
-    there. (Where |G_h| is small, a fast adaptation needs a large gain 1/G_h that
-    acts on the torsional mode too.)
+    of at least half of min(the LQI's, 1 / adaptation time) and raises the lower-disk speed's
+    noise from encoder quantisation (:func:`agents.linear_model.measurement_noise`, through
+    a discrete Lyapunov equation as in :mod:`agents.tuning`) by at most ``NOISE_RATIO``,
+    among those in which the harmonic turns at least once (``h w* T >= 2 pi``); none: the
+    harmonic is not adapted there. (Where |G_h| is small, a fast adaptation needs a large
+    gain 1/G_h that acts on the torsional mode and passes the noise too.)
     """
     dt = lqi.spec.control_dt
     rig = sampled_rig(params, design_point(params, speed=speed), dt, lqi.spec.sensors)
-    A, b, c = _loop(rig, lqi)
+    A, b, c, Bn = _loop(rig, lqi)
     G = np.array([_response(A, b, c, h * rig.speed, dt) for h in harmonics])
     alpha0 = decay_rate(A, dt)
+    sigma = measurement_noise(lqi.spec.sensors, dt)
+    noise0 = _lower_speed_noise(A, Bn, sigma)
     times = np.full(len(harmonics), math.inf)
-    alpha = alpha0
+    alpha, ratio = alpha0, 1.0
     for i in range(len(harmonics)):
         for k in range(LADDER):
             trial = times.copy()
             trial[i] = adaptation_time * 2.0**k
             if harmonics[i] * rig.speed * trial[i] < 2.0 * math.pi:
                 continue  # not one period of the harmonic per adaptation time: a drift, not a harmonic
-            a = decay_rate(feedforward_closed_loop(rig, lqi, adaptation_gains(G, dt, trial), harmonics), dt)
-            if a >= 0.5 * min(alpha0, 1.0 / trial[i]):
-                times, alpha = trial, a
+            M, B = _feedforward_matrices(rig, lqi, adaptation_gains(G, dt, trial), harmonics)
+            a, r = decay_rate(M, dt), _lower_speed_noise(M, B, sigma) / noise0
+            if a >= 0.5 * min(alpha0, 1.0 / trial[i]) and r <= NOISE_RATIO:
+                times, alpha, ratio = trial, a, r
                 break
     return FeedforwardDesign(
         speed=float(rig.speed),
@@ -221,6 +265,7 @@ def design(
         gains=adaptation_gains(G, dt, times),
         lqi_decay_rate=alpha0,
         decay_rate=alpha,
+        noise_ratio=ratio,
     )
 
 
