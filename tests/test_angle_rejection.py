@@ -278,3 +278,28 @@ def test_cli_tune_params_writes_gains_designed_on_the_model(tmp_path):
     for kind in ("torque_feedback", "lqi"):
         new, old = data["presets"]["brake"][kind]["gains"], committed[kind]["gains"]
         assert any(abs(new[k] / old[k] - 1) > 0.01 for k in old), kind
+
+
+@pytest.mark.slow
+def test_cli_train_params_trains_on_the_model(tmp_path, monkeypatch):
+    from agents.rl import load_config
+
+    cfg = load_config(ROOT / "configs" / "agents" / "ppo.yaml").to_dict()
+    cfg.update(total_timesteps=128, n_envs=2)
+    cfg["evaluation"] = {"every_steps": 64, "episodes_per_regime": 1, "seed": 7}
+    cfg["env_kwargs"] = {"warmup_time": 2.0, "warmup_jitter": 0.5}
+    cfg["hyperparameters"].update(n_steps=32, batch_size=32, n_epochs=1)
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(cfg))
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out" / "ppo"
+    args = ["train", "--algo", "ppo", "--config", "tiny.yaml", "--no-progress", "--params", str(DETUNED)]
+    res = CliRunner().invoke(app, [*args, "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    written = yaml.safe_load((out / "config.yaml").read_text())
+    assert written["env_kwargs"]["params"] == str(DETUNED.resolve())
+    assert written["env_kwargs"]["warmup_time"] == 2.0  # the config's other arguments stay
+    # the environment it describes is the model's rig
+    import gymnasium as gym
+
+    env = gym.make(written["env_id"], **written["env_kwargs"])
+    assert env.unwrapped.settings.params.effects.lower_position_amp_1 == 0.15
