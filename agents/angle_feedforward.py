@@ -119,9 +119,9 @@ _LOWER_MEAN = 3  # row of the lower_speed_mean entry in SampledRig.H
 def _loop(rig: SampledRig, lqi: LQI) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(A, b, c, Bn): ``rig`` closed by the LQI, the input of a voltage added to the LQI's
     output, the output lower_speed_mean and the input of the measurement noise, in deviations
-    from the equilibrium. The LQI is affine
-    in the observation with gains scheduled on w*: its linear part, probed at the equilibrium
-    of its own (nominal) model at the rig's speed, holds on any rig turning at that speed."""
+    from the equilibrium. The LQI is affine in the observation with gains scheduled on w*:
+    its linear part, probed at the equilibrium of its own (nominal) model at the rig's speed,
+    holds on any rig turning at that speed."""
     from agents.tuning import closed_loop, controller_matrices
 
     own = design_point(lqi.spec.params, speed=rig.speed)
@@ -247,7 +247,7 @@ def design(
     noise0 = _lower_speed_noise(A, Bn, sigma)
     times = np.full(len(harmonics), math.inf)
     alpha, ratio = alpha0, 1.0
-    for i in range(len(harmonics)):
+    for i in range(len(harmonics) if alpha0 > 0 else 0):  # nothing to add to an unstable loop
         for k in range(LADDER):
             trial = times.copy()
             trial[i] = adaptation_time * 2.0**k
@@ -334,7 +334,7 @@ class LQIAngleFeedforward(LQI):
             d = self.design(w)
             s[i, 7 + 2 * nh : 7 + 4 * nh : 2] = d.gains.real
             s[i, 8 + 2 * nh : 7 + 4 * nh : 2] = d.gains.imag
-            s[i, -1] = self.hold_decays / d.lqi_decay_rate
+            s[i, -1] = self.hold_decays / max(d.lqi_decay_rate, 1e-3)
         if self._angle is None:
             s[:, 6] = -self.spec.control_dt * y[:, self._i_lower_mean]  # theta = 0 at the start
         return s
