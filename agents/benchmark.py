@@ -825,6 +825,7 @@ _MARKERS = {
     "pi_lower": "^",
     "torque_feedback": "s",
     "lqi": "D",
+    "lqi_angle_ff": "d",
     "ppo": "P",
     "sac": "X",
 }

@@ -1,5 +1,5 @@
 """The classical controllers with the gains ``drill-env tune`` wrote for a preset
-(``configs/agents/controllers.yaml``). Apart from :mod:`agents.registry` so that training
+(``configs/agents/controllers.yaml``); ``lqi_angle_ff`` uses the LQI's. Apart from :mod:`agents.registry` so that training
 (:mod:`agents.rl`) can build its reference controllers without the registry, which loads
 trained policies through :mod:`agents.rl`."""
 
@@ -13,9 +13,13 @@ import yaml
 
 from agents.base import Controller, ControllerSpec
 
-__all__ = ["CLASSICAL", "classical_controller", "gains_path", "load_gains"]
+__all__ = ["BUILT_ON", "CLASSICAL", "classical_controller", "gains_path", "load_gains"]
 
-CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi")
+CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi_angle_ff")
+# Controllers built on another's tuned gains: the LQI with angle-locked adaptive feedforward
+# is the tuned LQI plus an adaptation designed per operating point on the nominal model
+# (agents.angle_feedforward), with nothing tuned of its own.
+BUILT_ON = {"lqi_angle_ff": "lqi"}
 
 _ROOT = Path(__file__).resolve().parent.parent
 
@@ -58,9 +62,15 @@ def classical_controller(
         raise ValueError(f"controller: {kind!r} is not one of {list(CLASSICAL)}")
     data = load_gains(gains_file)
     presets = data["presets"]
-    if preset not in presets or kind not in presets[preset]:
+    tuned = BUILT_ON.get(kind, kind)
+    if preset not in presets or tuned not in presets[preset]:
         raise ValueError(
-            f"gains: no tuned gains for {kind!r} on preset {preset!r} in {gains_file or gains_path()}; "
+            f"gains: no tuned gains for {tuned!r} on preset {preset!r} in {gains_file or gains_path()}; "
             "run `drill-env tune`"
         )
-    return make_controller(kind, spec, dict(presets[preset][kind]["gains"]))
+    gains = dict(presets[preset][tuned]["gains"])
+    if kind == "lqi_angle_ff":
+        from agents.angle_feedforward import LQIAngleFeedforward
+
+        return LQIAngleFeedforward(spec, **gains)
+    return make_controller(kind, spec, gains)

@@ -140,17 +140,25 @@ class LQI(Controller):
         for i, w in enumerate(y[:, self._i_target]):
             K, x1 = self.gain(w)
             s[i, 1] = x1
-            s[i, 2:] = K
+            s[i, 2:6] = K
         return s
 
     def control(self, y: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        u, out, _ = self._step(y, state, 0.0)
+        return u, out
+
+    def _step(
+        self, y: np.ndarray, state: np.ndarray, u_add: np.ndarray | float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(u, next state, requested u) with ``u_add`` [V] added to the LQI's request before the
+        voltage limit (the anti-windup sees the sum). ``state`` holds the LQI's entries first."""
         dt, vmax = self.spec.control_dt, self.spec.voltage_limit
-        zeta, x1s, K = state[:, 0], state[:, 1], state[:, 2:]
+        zeta, x1s, K = state[:, 0], state[:, 1], state[:, 2:6]
         w = y[:, self._i_target]
         dx = np.stack(
             [y[:, self._i_twist] - x1s, y[:, self._i_upper] - w, y[:, self._i_lower] - w, zeta], axis=1
         )
-        u_req = y[:, self._i_unom] - np.einsum("ij,ij->i", K, dx)
+        u_req = y[:, self._i_unom] - np.einsum("ij,ij->i", K, dx) + u_add
         u = np.clip(u_req, -vmax, vmax)
         zeta_next = zeta + dt * (y[:, self._i_lower_mean] - w)
         if self.anti_windup:
@@ -159,7 +167,7 @@ class LQI(Controller):
             zeta_next = zeta_next + np.where(kz > 0, dt / (np.maximum(kz, 1e-12) * tt), 0.0) * (u_req - u)
         out = state.copy()
         out[:, 0] = zeta_next
-        return u, out
+        return u, out, u_req
 
     def describe(self) -> dict[str, Any]:
         return {

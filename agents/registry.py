@@ -4,6 +4,8 @@ from their committed policies.
 * ``open_loop``, ``pi_upper``, ``pi_lower``, ``torque_feedback``, ``lqi``: built on an
   environment's :class:`~agents.base.ControllerSpec` with the gains that
   ``drill-env tune`` wrote to ``configs/agents/controllers.yaml`` for the preset;
+* ``lqi_angle_ff``: that LQI plus adaptive feedforward on harmonics of the lower disk's
+  measured angle (:mod:`agents.angle_feedforward`), for friction locked to the bit's angle;
 * ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
   ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v1``, the braked rig)
   and ``results/agents/<algo>_no_brake/policy.zip`` (on ``DrillStringNoBrake-v1``); a

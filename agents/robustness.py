@@ -154,6 +154,7 @@ COLORS = {
     "pi_lower": "tab:orange",
     "torque_feedback": "tab:green",
     "lqi": "tab:blue",
+    "lqi_angle_ff": "tab:cyan",
     "ppo": "tab:purple",
     "sac": "tab:brown",
 }

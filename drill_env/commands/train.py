@@ -38,6 +38,12 @@ def register(app: typer.Typer) -> None:
             "the run folder's logs/, or OUT/../logs with an explicit --out).",
         ),
         total_timesteps: int | None = typer.Option(None, help="Override the config's total_timesteps."),
+        params: Path | None = typer.Option(
+            None,
+            "--params",
+            help="Train on this rig model instead of the config's: a rig YAML in the preset format "
+            "(effects included), e.g. a discrepancy result's model.yaml; sets env_kwargs.params.",
+        ),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
     ) -> None:
         """Train ALGO on the config's environment; learning curve every evaluation.
@@ -62,6 +68,18 @@ def register(app: typer.Typer) -> None:
             _fail(str(exc))
         if cfg.algo != algo:
             _fail(f"--algo {algo} does not match the config's algo {cfg.algo!r} ({config})")
+        if params is not None:
+            import dataclasses
+
+            from drill_env.params import load_params
+
+            if params.suffix not in (".yaml", ".yml") or not params.is_file():
+                _fail(f"--params: {params} is not a rig YAML file (the preset format)")
+            try:
+                load_params(params)
+            except ValueError as exc:
+                _fail(f"--params: {exc}")
+            cfg = dataclasses.replace(cfg, env_kwargs={**cfg.env_kwargs, "params": str(params.resolve())})
         from drill_env.envs import ENV_IDS, ENV_VERSIONS
 
         # laid out like results/agents: the current version's policies at the top, older

@@ -2,14 +2,43 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
+
+if TYPE_CHECKING:
+    from drill_env.params import RigParams
 
 
 def _fail(message: str) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code=2)
+
+
+def tune_on_model(
+    model: RigParams,
+    source: str,
+    preset: str,
+    control_dt: float = 0.05,
+    kinds: Sequence[str] | None = None,
+    progress: Callable[[str, str], None] | None = None,
+) -> dict[str, Any]:
+    """:func:`agents.tuning.tune_all` for one preset, designed on the rig ``model`` (a
+    ``RigParams`` read from ``source``) instead of the preset's parameters."""
+    from agents.base import ControllerSpec
+    from agents.tuning import TUNED_GAINS, tune, tune_all
+
+    data = tune_all(presets=(), control_dt=control_dt)
+    data["design_model"] = {"preset": preset, "params": source, "name": model.name}
+    spec = ControllerSpec(params=model, control_dt=control_dt)
+    data["presets"][preset] = {}
+    for kind in kinds or tuple(TUNED_GAINS):
+        if progress is not None:
+            progress(f"{preset} ({source})", kind)
+        data["presets"][preset][kind] = tune(kind, spec).to_dict()
+    return data
 
 
 def register(app: typer.Typer) -> None:
@@ -21,8 +50,20 @@ def register(app: typer.Typer) -> None:
             "runs/tune/controllers_TIME/controllers.yaml (use it with `drill-env benchmark --gains`); "
             "the committed configs/agents/controllers.yaml is regenerated only when named here.",
         ),
-        preset: str = typer.Option("brake,no_brake", help="Comma-separated rig preset(s) to tune for."),
+        preset: str | None = typer.Option(
+            None,
+            help="Comma-separated rig preset(s) to tune for (default: brake,no_brake; with --params "
+            "one preset, by default the one whose lower-disk friction is closest to the file's).",
+        ),
         control_dt: float = typer.Option(0.05, help="Control period of the environment [s]."),
+        params: Path | None = typer.Option(
+            None,
+            "--params",
+            help="Design on this rig model instead of the preset's parameters: a rig YAML in the "
+            "preset format, e.g. a discrepancy result's model.yaml. The gains are written under the "
+            "preset (its operating points and benchmark); effects in the file are not part of the "
+            "linearised design model.",
+        ),
     ) -> None:
         """Tune PI (upper, lower), torque feedback and LQI by the procedure of agents.tuning.
 
@@ -35,12 +76,28 @@ def register(app: typer.Typer) -> None:
         from agents.tuning import tune_all
         from drill_env.params import available_presets
 
-        presets = tuple(dict.fromkeys(p.strip() for p in preset.split(",") if p.strip()))
+        model = None
+        if params is not None:
+            from agents.plants import Plant
+            from drill_env.params import load_params
+
+            if params.suffix not in (".yaml", ".yml") or not params.is_file():
+                _fail(f"--params: {params} is not a rig YAML file (the preset format)")
+            try:
+                model = load_params(params)
+            except ValueError as exc:
+                _fail(f"--params: {exc}")
+            preset = preset if preset is not None else Plant(name="model", params=model).friction_family()
+        presets = tuple(
+            dict.fromkeys(p.strip() for p in (preset or "brake,no_brake").split(",") if p.strip())
+        )
         if not presets:
             _fail(f"--preset: expected one or more of {available_presets()}, got {preset!r}")
         for p in presets:
             if p not in available_presets():
                 _fail(f"--preset: {p!r} is not one of {available_presets()}")
+        if model is not None and len(presets) != 1:
+            _fail(f"--preset: with --params expected one preset to write the gains under, got {preset!r}")
         if not (0 < control_dt <= 1.0):
             _fail(f"--control-dt must lie in (0, 1] s, got {control_dt!r}")
 
@@ -51,7 +108,11 @@ def register(app: typer.Typer) -> None:
 
         if out is not None and out.is_dir():
             _fail(f"--out {out} is a directory; expected a YAML file path")
-        data = tune_all(presets=presets, control_dt=control_dt, progress=progress)
+        data = (
+            tune_all(presets=presets, control_dt=control_dt, progress=progress)
+            if model is None
+            else tune_on_model(model, str(params), presets[0], control_dt, progress=progress)
+        )
         try:
             if out is None:
                 out = fresh_run_folder(Path("runs") / "tune", "controllers") / "controllers.yaml"

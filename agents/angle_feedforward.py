@@ -1,0 +1,370 @@
+"""LQI with adaptive feedforward locked to the lower disk's angle: rejects friction that
+varies with where the bit is in its revolution, without a model of that variation.
+
+The problem
+-----------
+The paper's rig has a once-per-revolution variation of the lower-disk friction (Sec. 4.1,
+:class:`~drill_env.params.ModelEffects` ``lower_position_amp_1``): a torque
+``d(theta_l) = a1 T(x3) cos(theta_l + phi1)`` (+ a second harmonic) on the lower disk. At a
+steady lower-disk speed w* it is a sinusoid of frequency w* [rad/s], which for the braked
+rig at 0.7-1.5 V (w* = 1-2.5 rad/s) is at or next to the torsional resonance
+``sqrt(k_theta / J_l)`` = 1.55 rad/s: the LQI's damping of the mode does not stop it from
+being driven. The motor acts on the upper disk and the friction on the lower one
+(non-collocated): the disturbance cannot be cancelled where it enters, only through the
+string, whose phase at w* decides the sign of any correction.
+
+The design
+----------
+The feedforward is a sum of harmonics of the *measured* lower-disk angle theta_l (the
+encoder count: the environment's ``lower_angle_sin``/``lower_angle_cos`` in observation
+version 1, or the sum of the count differences ``lower_speed_mean * dt`` in version 0; the
+two differ by a constant angle, which the adapted coefficients absorb)::
+
+    u     = u_LQI + sum_h Re(C_h exp(j h theta_l(k)))                   h = 1, 2
+    C_h  <- C_h - g_h e(k) exp(-j h theta_l(k)),  g_h = 2 mu / G_h,  mu = dt / adaptation_time
+
+with ``e = lower_speed_mean - w*`` (the lower encoder counts over the period; its
+periodic part is what the feedforward should remove) and ``G_h`` the *nominal closed-loop*
+frequency response, at ``z = exp(j h w* dt)``, from a voltage added to the LQI's output to
+the measured lower speed: the nominal rig linearised at the slip equilibrium of w*, sampled
+with its zero-order hold and encoder chain (:func:`agents.linear_model.sampled_rig`), closed
+by the LQI's own update (probed by :func:`agents.tuning.controller_matrices`). ``G_h``
+carries the string's phase at the rotation frequency: the correction is pushed through the
+string with the phase that cancels, not the one that would feed the mode. This is adaptive
+feedforward cancellation (Bodson, Sacks & Khosla, *Harmonic generation in adaptive
+feedforward cancellation schemes*, IEEE TAC 39(9), 1994; Bodson, *Rejection of periodic
+disturbances of unknown and time-varying frequency*, Int. J. Adapt. Control Signal Process.
+19, 2005) with the regressor in the angle domain, as in angle-domain repetitive and
+harmonic control of rotating machines: the disturbance is locked to theta_l, so its phase is
+exact however the speed varies, and a friction that is not locked to theta_l leaves the
+coefficients at zero on average.
+
+Stability
+---------
+While the lower disk turns at w* (theta_l(k) = w* k dt + const), the update is linear and
+time invariant in ``W_h = C_h exp(j h theta_l)``::
+
+    W_h(k+1) = exp(j h w* dt) (W_h(k) - g_h e(k)),   u_ff(k) = sum_h Re W_h(k),
+
+an internal model of the harmonics h w* (Bodson et al. 1994 show the equivalence). The
+closed loop of the linearised nominal rig, the LQI and this filter is an ordinary
+discrete linear system; :func:`feedforward_closed_loop` builds it and :func:`design` reads
+its decay rate. Averaging explains why it is stable: with the adaptation slow against the
+closed loop's response at h w*, the coefficients see the steady-state error
+``E_h = G_true C_h + D_h`` (``D_h``: the disturbance's share), and the update averages to
+``C_h <- C_h - mu (G_true / G_h) (C_h + D_h / G_true)``: a first-order convergence with
+time constant ``adaptation_time`` wherever ``Re(G_true / G_h) > 0``, i.e. the rig's phase
+at h w* is within 90 deg of the nominal one. J_l +8 %, k_m -5 % and T_sl +10 % move it by
+at most 7 deg at 0.7-1.5 V (:func:`phase_error`). Where ``|G_h|`` is small (the string
+passes little of the motor's torque at h w*: high speeds, second harmonic) the gain 1/G_h
+is large and acts on the torsional mode as well; averaging then needs a slower
+adaptation, and it passes more of the encoder's quantisation noise. :func:`design`
+therefore picks, per operating point and harmonic, the shortest of 10, 20, 40, 80 s for
+which the exact linear loop keeps at least half of min(the LQI's decay rate, 1 / adaptation
+time) and the lower-disk speed's noise from quantisation (as :mod:`agents.tuning` bounds
+the voltage's) grows by at most 30 %, and leaves a harmonic out where none does or where it
+would not turn once per adaptation time (``h w* T < 2 pi``, a drift rather than a
+harmonic). The nominal loop is then stable at every design point of the envelope
+(:func:`agents.tuning.design_points`) of both rigs; with the brake at 0.7-1.5 V the first
+harmonic adapts in 10 s (the second in 10 s up to 1 V, 40 s at 1.25 V, not at 1.5 V),
+decay rate 0.025-0.12 1/s against the LQI's 0.10-0.15 (``tests/test_angle_rejection.py``,
+which also checks that the analysed matrix reproduces the controller's code on the
+sampled rig).
+
+Away from the linear regime: the adaptation starts after ``hold_decays`` = 2 time
+constants 1/alpha of the LQI's loop (the switch-on transient, not locked to the angle,
+would otherwise be learnt as a harmonic: on the nominal rig at 1.5 V it drove C_2 to volts
+and the loop into stick-slip), sees the error clipped to +-0.25 w* (a sinusoidal error keeps
+its phase, only its first steps shrink) and pauses while the amplifier is at its limit (the
+error then says nothing about the coefficients). The LQI is unchanged, with the tuned gains
+of ``configs/agents/controllers.yaml``; nothing here is tuned on a plant other than the
+nominal model.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.linalg import solve_discrete_lyapunov
+
+from agents.base import ControllerSpec
+from agents.linear_model import SampledRig, decay_rate, design_point, measurement_noise, sampled_rig
+from agents.lqi import LQI
+from agents.pi import _gain
+from drill_env.params import RigParams
+
+__all__ = [
+    "LQIAngleFeedforward",
+    "FeedforwardDesign",
+    "adaptation_gains",
+    "design",
+    "feedforward_closed_loop",
+    "phase_error",
+    "voltage_to_lower_speed",
+]
+
+HARMONICS = (1, 2)  # of the lower disk's revolution
+ADAPTATION_TIME = 10.0  # [s]
+LADDER = 4  # adaptation times tried: ADAPTATION_TIME * 2**k, k < LADDER
+HOLD_DECAYS = 2.0  # the adaptation starts after this many time constants 1/alpha of rig + LQI
+ERROR_CLIP = 0.25  # the error the adaptation sees is clipped to +-ERROR_CLIP * w*
+NOISE_RATIO = 1.3  # the feedforward may raise the quantisation noise on x3 by this factor
+_LOWER_MEAN = 3  # row of the lower_speed_mean entry in SampledRig.H
+
+
+def _loop(rig: SampledRig, lqi: LQI) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(A, b, c, Bn): ``rig`` closed by the LQI, the input of a voltage added to the LQI's
+    output, the output lower_speed_mean and the input of the measurement noise, in deviations
+    from the equilibrium. The LQI is affine in the observation with gains scheduled on w*:
+    its linear part, probed at the equilibrium of its own (nominal) model at the rig's speed,
+    holds on any rig turning at that speed."""
+    from agents.tuning import closed_loop, controller_matrices
+
+    own = design_point(lqi.spec.params, speed=rig.speed)
+    A, Bn, _, _ = closed_loop(rig, controller_matrices(lqi, own))
+    nc = A.shape[0] - rig.n
+    b = np.concatenate([rig.G, np.zeros(nc)])
+    c = np.concatenate([rig.H[_LOWER_MEAN], np.zeros(nc)])
+    return A, b, c, Bn
+
+
+def _response(A: np.ndarray, b: np.ndarray, c: np.ndarray, omega: float, dt: float) -> complex:
+    z = cmath.exp(1j * omega * dt)
+    return complex(c @ np.linalg.solve(z * np.eye(A.shape[0]) - A, b.astype(complex)))
+
+
+def voltage_to_lower_speed(
+    params: RigParams,
+    speed: float,
+    lqi: LQI,
+    harmonics: tuple[int, ...] = HARMONICS,
+    rig: SampledRig | None = None,
+) -> np.ndarray:
+    """G_h [rad/s per V]: the closed-loop (rig + ``lqi``) frequency response from a voltage
+    added to the LQI's output to the measured lower speed (``lower_speed_mean``) at
+    ``h * speed`` rad/s for each harmonic h, the rig linearised at the slip equilibrium of
+    lower-disk speed ``speed`` [rad/s] of ``params``."""
+    dt = lqi.spec.control_dt
+    if rig is None:
+        rig = sampled_rig(params, design_point(params, speed=speed), dt, lqi.spec.sensors)
+    A, b, c, _ = _loop(rig, lqi)
+    return np.array([_response(A, b, c, h * rig.speed, dt) for h in harmonics])
+
+
+def feedforward_closed_loop(
+    rig: SampledRig, lqi: LQI, g: np.ndarray, harmonics: tuple[int, ...] = HARMONICS
+) -> np.ndarray:
+    """The transition matrix of rig + LQI + the feedforward's linear-time-invariant form
+    (module docstring) at the rig's equilibrium, the lower disk turning at ``rig.speed``;
+    ``g`` the complex adaptation gains g_h (0: harmonic not adapted, left out)."""
+    return _feedforward_matrices(rig, lqi, g, harmonics)[0]
+
+
+def _feedforward_matrices(
+    rig: SampledRig, lqi: LQI, g: np.ndarray, harmonics: tuple[int, ...] = HARMONICS
+) -> tuple[np.ndarray, np.ndarray]:
+    """(M, B): :func:`feedforward_closed_loop` and the input of the measurement noise on the
+    six measured entries (the feedforward reads the lower_speed_mean one)."""
+    A, b, c, Bn = _loop(rig, lqi)
+    on = [(h, gh) for h, gh in zip(harmonics, np.asarray(g, dtype=complex), strict=True) if gh != 0]
+    n, m = A.shape[0], 2 * len(on)
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A
+    B = np.zeros((n + m, Bn.shape[1]))
+    B[:n] = Bn
+    for i, (h, gh) in enumerate(on):
+        r, q = n + 2 * i, n + 2 * i + 1  # Re W_h, Im W_h
+        M[:n, r] += b  # u_ff = sum Re W_h
+        phi = h * rig.speed * rig.dt
+        rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
+        # W <- rot (W - g e), e = c x
+        M[[r, q], r : q + 1] = rot
+        M[[r, q], :n] = -rot @ np.outer([gh.real, gh.imag], c)
+        B[[r, q], _LOWER_MEAN] = -rot @ np.array([gh.real, gh.imag])
+    return M, B
+
+
+def _lower_speed_noise(M: np.ndarray, B: np.ndarray, sigma: np.ndarray) -> float:
+    """Std [rad/s] of the lower-disk speed x3 from measurement noise of std ``sigma`` (inf if
+    the loop is unstable)."""
+    if np.max(np.abs(np.linalg.eigvals(M))) >= 1.0:
+        return math.inf
+    X = solve_discrete_lyapunov(M, B @ np.diag(sigma**2) @ B.T)
+    return math.sqrt(max(float(X[2, 2]), 0.0))
+
+
+def adaptation_gains(G: np.ndarray, dt: float, adaptation_times: np.ndarray) -> np.ndarray:
+    """g_h = 2 mu_h / G_h with mu_h = dt / adaptation_time_h; 0 where the time is inf."""
+    G = np.asarray(G, dtype=complex)
+    T = np.broadcast_to(np.asarray(adaptation_times, dtype=float), G.shape)
+    out = np.zeros(G.shape, dtype=complex)
+    on = np.isfinite(T)
+    out[on] = 2.0 * (dt / T[on]) / G[on]
+    return out
+
+
+@dataclass(frozen=True)
+class FeedforwardDesign:
+    """The feedforward at one operating point of the nominal model (see :func:`design`)."""
+
+    speed: float  # [rad/s] w*, the lower disk's target speed
+    response: np.ndarray  # G_h [rad/s per V], complex, per harmonic
+    adaptation_time: np.ndarray  # [s] per harmonic; inf: not adapted
+    gains: np.ndarray  # g_h [V s/rad], complex
+    lqi_decay_rate: float  # [1/s] rig + LQI
+    decay_rate: float  # [1/s] rig + LQI + feedforward
+    noise_ratio: float  # [-] std of x3 from encoder quantisation, with / without feedforward
+
+
+def design(
+    params: RigParams,
+    speed: float,
+    lqi: LQI,
+    adaptation_time: float = ADAPTATION_TIME,
+    harmonics: tuple[int, ...] = HARMONICS,
+) -> FeedforwardDesign:
+    """The feedforward's adaptation at lower-disk speed ``speed`` [rad/s] on ``params``.
+
+    Harmonic by harmonic, the shortest of ``adaptation_time * 2**k`` (k = 0..3) for which the
+    exact linear loop (rig + LQI + the harmonics chosen so far + this one) keeps a decay rate
+    of at least half of min(the LQI's, 1 / adaptation time) and raises the lower-disk speed's
+    noise from encoder quantisation (:func:`agents.linear_model.measurement_noise`, through
+    a discrete Lyapunov equation as in :mod:`agents.tuning`) by at most ``NOISE_RATIO``,
+    among those in which the harmonic turns at least once (``h w* T >= 2 pi``); none: the
+    harmonic is not adapted there. (Where |G_h| is small, a fast adaptation needs a large
+    gain 1/G_h that acts on the torsional mode and passes the noise too.)
+    """
+    dt = lqi.spec.control_dt
+    rig = sampled_rig(params, design_point(params, speed=speed), dt, lqi.spec.sensors)
+    A, b, c, Bn = _loop(rig, lqi)
+    G = np.array([_response(A, b, c, h * rig.speed, dt) for h in harmonics])
+    alpha0 = decay_rate(A, dt)
+    sigma = measurement_noise(lqi.spec.sensors, dt)
+    noise0 = _lower_speed_noise(A, Bn, sigma)
+    times = np.full(len(harmonics), math.inf)
+    alpha, ratio = alpha0, 1.0
+    for i in range(len(harmonics) if alpha0 > 0 else 0):  # nothing to add to an unstable loop
+        for k in range(LADDER):
+            trial = times.copy()
+            trial[i] = adaptation_time * 2.0**k
+            if harmonics[i] * rig.speed * trial[i] < 2.0 * math.pi:
+                continue  # not one period of the harmonic per adaptation time: a drift, not a harmonic
+            M, B = _feedforward_matrices(rig, lqi, adaptation_gains(G, dt, trial), harmonics)
+            a, r = decay_rate(M, dt), _lower_speed_noise(M, B, sigma) / noise0
+            if a >= 0.5 * min(alpha0, 1.0 / trial[i]) and r <= NOISE_RATIO:
+                times, alpha, ratio = trial, a, r
+                break
+    return FeedforwardDesign(
+        speed=float(rig.speed),
+        response=G,
+        adaptation_time=times,
+        gains=adaptation_gains(G, dt, times),
+        lqi_decay_rate=alpha0,
+        decay_rate=alpha,
+        noise_ratio=ratio,
+    )
+
+
+def phase_error(nominal: RigParams, true: RigParams, speed: float, lqi: LQI) -> np.ndarray:
+    """The angle of G_true / G_nominal [rad] per harmonic at lower-disk speed ``speed``: the
+    averaged adaptation converges while it is within +-pi/2."""
+    return np.angle(voltage_to_lower_speed(true, speed, lqi) / voltage_to_lower_speed(nominal, speed, lqi))
+
+
+class LQIAngleFeedforward(LQI):
+    """The tuned LQI plus adaptive feedforward on harmonics of the lower disk's measured
+    angle (see the module docstring).
+
+    Args:
+        spec: the environment's :class:`~agents.base.ControllerSpec`.
+        adaptation_time: time constant of the averaged adaptation [s], > 0 (the shortest
+            one :func:`design` tries at each operating point).
+        **lqi_gains: the LQI's gains (:class:`~agents.lqi.LQI`).
+    """
+
+    name = "lqi_angle_ff"
+    harmonics = HARMONICS
+    # LQI (6), the lower angle [rad], then per harmonic Re C_h, Im C_h [V], then per
+    # harmonic Re g_h, Im g_h (constant per episode, scheduled on w* like K), then the time
+    # left before the adaptation starts [s]
+    state_size = 6 + 1 + 4 * len(HARMONICS) + 1
+
+    def __init__(
+        self,
+        spec: ControllerSpec,
+        adaptation_time: float = ADAPTATION_TIME,
+        hold_decays: float = HOLD_DECAYS,
+        error_clip: float = ERROR_CLIP,
+        **lqi_gains: Any,
+    ):
+        super().__init__(spec, **lqi_gains)
+        self.lqi = LQI(spec, **lqi_gains)  # the feedback alone: what G_h is computed with
+        self.adaptation_time = _gain("adaptation_time", adaptation_time, positive=True)
+        self.hold_decays = _gain("hold_decays", hold_decays)
+        self.error_clip = _gain("error_clip", error_clip, positive=True)
+        names = spec.observation_names
+        self._angle = (
+            (spec.index("lower_angle_sin"), spec.index("lower_angle_cos"))
+            if "lower_angle_sin" in names and "lower_angle_cos" in names
+            else None
+        )
+        self._designs: dict[float, FeedforwardDesign] = {}
+
+    def design(self, speed: float) -> FeedforwardDesign:
+        """The feedforward's design at a target speed [rad/s] (cached)."""
+        w = float(speed)
+        if w not in self._designs:
+            self.gain(w)  # validates the speed
+            self._designs[w] = design(self.spec.params, w, self.lqi, self.adaptation_time, self.harmonics)
+        return self._designs[w]
+
+    def _lower_angle(self, y: np.ndarray, state: np.ndarray) -> np.ndarray:
+        if self._angle is not None:
+            return np.arctan2(y[:, self._angle[0]], y[:, self._angle[1]])
+        return state[:, 6] + self.spec.control_dt * y[:, self._i_lower_mean]
+
+    def initial_state(self, y: np.ndarray) -> np.ndarray:
+        s = super().initial_state(y)  # the LQI's entries, zeros after them
+        nh = len(self.harmonics)
+        for i, w in enumerate(y[:, self._i_target]):
+            d = self.design(w)
+            s[i, 7 + 2 * nh : 7 + 4 * nh : 2] = d.gains.real
+            s[i, 8 + 2 * nh : 7 + 4 * nh : 2] = d.gains.imag
+            s[i, -1] = self.hold_decays / max(d.lqi_decay_rate, 1e-3)
+        if self._angle is None:
+            s[:, 6] = -self.spec.control_dt * y[:, self._i_lower_mean]  # theta = 0 at the start
+        return s
+
+    def control(self, y: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nh = len(self.harmonics)
+        theta = self._lower_angle(y, state)
+        coef = state[:, 7 : 7 + 2 * nh]
+        C = coef[:, 0::2] + 1j * coef[:, 1::2]  # (n, nh)
+        g = state[:, 7 + 2 * nh : 7 + 4 * nh : 2] + 1j * state[:, 8 + 2 * nh : 7 + 4 * nh : 2]
+        rot = np.exp(1j * np.outer(theta, self.harmonics))
+        u_ff = np.sum((C * rot).real, axis=1)
+        u, out, u_req = self._step(y, state, u_ff)
+        w = y[:, self._i_target]
+        e = np.clip(y[:, self._i_lower_mean] - w, -self.error_clip * w, self.error_clip * w)
+        # adapt after the hold and off the voltage limit
+        free = ((u_req == u) & (state[:, -1] <= 0.0))[:, None]
+        C_next = C - np.where(free, g * e[:, None] * np.conj(rot), 0.0)
+        out[:, -1] = np.maximum(state[:, -1] - self.spec.control_dt, 0.0)
+        out[:, 6] = theta
+        out[:, 7 : 7 + 2 * nh : 2] = C_next.real
+        out[:, 8 : 8 + 2 * nh : 2] = C_next.imag
+        return u, out
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d.update(
+            name=self.name,
+            adaptation_time=self.adaptation_time,
+            hold_decays=self.hold_decays,
+            error_clip=self.error_clip,
+        )
+        return d
