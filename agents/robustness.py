@@ -241,13 +241,48 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
             ax.set_xlabel(xl, fontsize=8)
             ax.set_title(f"{REGIMES[regime]}: {label}", fontsize=9)
             ax.grid(alpha=0.3, axis="x")
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D(
+            [],
+            [],
+            color="0.55",
+            marker="o",
+            ls="none",
+            ms=3,
+            alpha=0.7,
+            label="one plant: mean over its runs",
+        ),
+        Line2D([], [], color="0.2", marker="|", ls="none", ms=10, mew=2.5, label="mean over plants"),
+        Line2D(
+            [],
+            [],
+            color="0.5",
+            marker="D",
+            ls="none",
+            ms=6,
+            mec="black",
+            label="nominal plant (the design model)",
+        ),
+        Line2D(
+            [],
+            [],
+            color="tab:red",
+            marker="x",
+            ls="none",
+            ms=7,
+            mew=2,
+            label="worst single run, with its plant and voltage (not drawn when on the nominal plant)",
+        ),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle(
-        f"{preset}: every controller on {n_plants} plants, designed on the nominal model\n"
-        "grey dots: each plant's mean; bar: mean over plants; diamond: nominal plant; "
-        "red cross: worst single run (plant, voltage) where it is not on the nominal plant",
+        f"{preset}: every controller on {n_plants} plants, designed on the nominal model "
+        "(per regime of the nominal model; colour: controller)",
         fontsize=10,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.4 / fig.get_figheight(), 1, 1))
     path = Path(out) / f"robustness_{preset}.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
