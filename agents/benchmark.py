@@ -851,13 +851,25 @@ def bifurcation_figure(df, preset: str, out: Path) -> Path:
     x3 joined by a bar. Runs beyond the common scale end in a triangle at the panel's edge;
     their range is written under the panel's title."""
     import matplotlib.pyplot as plt
+
+    fig = draw_bifurcation_figure(df, preset)
+    p = out / f"bifurcation_{preset}.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    return p
+
+
+def draw_bifurcation_figure(df, preset: str, diagram=None):
+    """The figure of :func:`bifurcation_figure` (``diagram``: the nominal model's to 5 V,
+    computed if not given); returns the matplotlib figure."""
+    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
     from drill_env.analysis import bifurcation_diagram
     from drill_env.analysis.plots import plot_bifurcation
 
     ctrls = ordered_controllers(df["controller"])
-    diagram = bifurcation_diagram(preset, u_max=5.0)
+    diagram = diagram if diagram is not None else bifurcation_diagram(preset, u_max=5.0)
     tops = [float(np.max([c.x3_max for c in seg.cycles])) for seg in diagram.periodic_segments]
     tops += [float(np.max(b.x3)) for b in diagram.equilibrium_branches]
     y_hi = 1.15 * max(tops + [1.0])
@@ -936,10 +948,7 @@ def bifurcation_figure(df, preset: str, out: Path) -> Path:
     )
     legend_rows = -(-len(handles) // ncol_legend)
     fig.tight_layout(rect=(0, (0.3 + 0.2 * legend_rows) / fig.get_figheight(), 1, 1))
-    p = out / f"bifurcation_{preset}.png"
-    fig.savefig(p, dpi=100)
-    plt.close(fig)
-    return p
+    return fig
 
 
 def _regime_handles(preset: str) -> list:
