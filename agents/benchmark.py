@@ -1000,6 +1000,9 @@ def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False) -> Non
         floored += [(float(vv), float(mm), c) for vv, mm in zip(v, mean, strict=True) if mm < Y_FLOOR]
     ax.axhline(0.0, color="gray", lw=0.8)
     ax.axhline(1.0, color="gray", lw=0.8, ls=":")
+    from drill_env.analysis.plots import AMPLIFIER_LIMIT_V
+
+    ax.axvline(AMPLIFIER_LIMIT_V, color="tab:purple", lw=1.0, ls="-.", zorder=1)
     lo_y = (
         min(-0.5, float(np.nanmin(cyc["suppression"])) - 0.05) if cyc["suppression"].notna().any() else -0.5
     )
@@ -1043,6 +1046,7 @@ def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls) -> list[P
     handles += [
         Line2D([], [], color="gray", lw=0.8, ls=":", label="1: cycle removed"),
         Line2D([], [], color="gray", lw=0.8, label="0: amplitude as open loop"),
+        Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="amplifier limit 5 V"),
         *_regime_handles(preset),
     ]
     if any(t.get_text() for t in ax.texts):
@@ -1095,6 +1099,7 @@ def _plants_figure(df, preset: str, out: Path, plants: Sequence[str]) -> Path:
     handles += [
         Line2D([], [], color="gray", lw=0.8, ls=":", label="1: cycle removed"),
         Line2D([], [], color="gray", lw=0.8, label="0: amplitude as open loop"),
+        Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="amplifier limit 5 V"),
         *_regime_handles(preset),
     ]
     fig.suptitle(

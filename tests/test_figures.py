@@ -283,6 +283,7 @@ def test_suppression_markers_sit_at_their_voltage_and_floored_values_are_readabl
     assert all(t.get_text().startswith("-") and float(t.get_text()) < Y_FLOOR for t in texts)
     assert all(t.xy[1] < Y_FLOOR for t in texts)  # in the band under the floor, clear of lines
     assert ax.get_ylim()[0] == pytest.approx(Y_FLOOR - FLOOR_BAND)
+    assert _vertical_at(ax, 5.0)  # where the amplifier leaves no headroom
     plt.close(fig)
 
 
