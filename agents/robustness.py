@@ -174,6 +174,9 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     regimes = [g for g in REGIMES if any(r["regime"] == g for r in rows)]
     ctrls = ordered_controllers({r["controller"] for r in rows})
     n_plants = max((r["n_plants"] for r in rows), default=0)
+    from drill_env.analysis.plots import Label, place_labels
+
+    pending: dict[int, tuple[Any, list]] = {}
     fig, axes = plt.subplots(
         len(regimes),
         len(METRICS),
@@ -212,15 +215,8 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
                 if not r["spread"] or r["worst_plant"] == NOMINAL:
                     continue  # the worst run is on the nominal plant, or all alike
                 ax.plot(shown(r["worst"]), y, "x", color="tab:red", ms=7, mew=2, zorder=5)
-                ax.annotate(
-                    f"{r['worst_plant']} {r['worst_voltage']:g} V",
-                    (shown(r["worst"]), y),
-                    xytext=(0, -9),
-                    textcoords="offset points",
-                    fontsize=6,
-                    ha="center",
-                    va="top",
-                    color="tab:red",
+                pending.setdefault(id(ax), (ax, []))[1].append(
+                    Label(f"{r['worst_plant']} {r['worst_voltage']:g} V", shown(r["worst"]), y, "tab:red", 6)
                 )
             ax.set_yticks(range(len(ctrls)))
             ax.set_yticklabels(ctrls[::-1], fontsize=8)
@@ -283,6 +279,8 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
         fontsize=10,
     )
     fig.tight_layout(rect=(0, 0.4 / fig.get_figheight(), 1, 1))
+    for ax, labels in pending.values():  # once the layout is final: clear of every marker
+        place_labels(ax, labels)
     path = Path(out) / f"robustness_{preset}.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -126,9 +126,15 @@ def timeseries_figures(
             t0 = _switch_on(tr)
             ol = open_loop[q.name]
             t_ol = _switch_on(ol)
-            ax.plot(
-                ol.window_t - t_ol, ol.window_lower_speed, color="0.7", lw=0.8, label="open loop: lower disk"
-            )
+            reference = c != "open_loop"  # the open-loop run drawn under the controller's
+            if reference:
+                ax.plot(
+                    ol.window_t - t_ol,
+                    ol.window_lower_speed,
+                    color="0.7",
+                    lw=0.8,
+                    label="open loop: lower disk",
+                )
             for a, b in _spans(tr.window_t - t0, tr.window_lower_stuck.astype(bool)):
                 ax.axvspan(a, b, color="tab:red", alpha=0.15, lw=0)
             col = COLORS.get(c, "tab:blue")
@@ -154,16 +160,18 @@ def timeseries_figures(
             ax.set_title(textwrap.fill(f"plant {q.name}: {what}", 80), fontsize=9)
             ax.grid(alpha=0.3)
             stuck_any = stuck_any or bool(tr.window_lower_stuck.any())
-            axu.plot(ol.t - t_ol, ol.voltage, color="0.7", lw=0.8, label="open loop")
+            if reference:
+                axu.plot(ol.t - t_ol, ol.voltage, color="0.7", lw=0.8, label="open loop")
             axu.plot(tr.t - t0, tr.voltage, color=col, lw=1.0, label=c)
             axu.axhline(
                 AMPLIFIER_LIMIT_V,
                 color="tab:red",
                 lw=0.6,
                 ls="--",
-                label=f"amplifier limit {AMPLIFIER_LIMIT_V:g} V",
+                label=f"amplifier limits +-{AMPLIFIER_LIMIT_V:g} V",
             )
-            axu.set_ylim(min(-0.2, float(np.min(tr.voltage)) - 0.2), 5.4)
+            axu.axhline(-AMPLIFIER_LIMIT_V, color="tab:red", lw=0.6, ls="--")  # seen when u goes there
+            axu.set_ylim(min(-0.2, float(np.min(tr.voltage)) - 0.4), 5.4)
             axu.set_ylabel("applied voltage u [V]")
             axu.set_xlabel("time since the controller was switched on [s]")
             axu.grid(alpha=0.3)
@@ -186,7 +194,8 @@ def timeseries_figures(
             labels.append(f"{c}: lower disk stuck")
         fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
         fig.suptitle(
-            f"{preset}: {c} at {voltage:g} V (seed {seed}) on each plant, against the open loop on the same plant",
+            f"{preset}: {c} at {voltage:g} V (seed {seed}) on each plant"
+            + (", against the open loop on the same plant (grey)" if c != "open_loop" else ""),
             fontsize=10,
         )
         fig.tight_layout(rect=(0, (0.25 + 0.18 * -(-len(handles) // 4)) / fig.get_figheight(), 1, 1))

@@ -103,7 +103,7 @@ class Label:
 
 _OFFSETS = [
     (dx, dy)
-    for r in (5, 9, 14, 20)
+    for r in (5, 9, 14, 20, 28)
     for dx, dy in ((r, r), (-r, r), (r, -r), (-r, -r), (0, r), (0, -r), (r, 0), (-r, 0))
 ]
 
@@ -157,6 +157,10 @@ def _obstacles(ax) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(pts), np.concatenate(rad)
 
 
+# a light backing keeps a label readable even where no clear place was found
+_LABEL_BOX = {"boxstyle": "square,pad=0.05", "fc": "white", "ec": "none", "alpha": 0.75}
+
+
 def place_labels(ax, labels: Sequence[Label]) -> list:
     """Write each label next to its point where it covers the fewest lines, markers and
     other labels and stays inside the axes; returns the text artists. Call it after
@@ -183,6 +187,7 @@ def place_labels(ax, labels: Sequence[Label]) -> list:
             fontsize=lab.fontsize,
             color=lab.color,
             zorder=7,
+            bbox=_LABEL_BOX,
             annotation_clip=False,
         )
         ext = txt.get_window_extent(renderer)
@@ -234,6 +239,7 @@ def place_labels(ax, labels: Sequence[Label]) -> list:
                 fontsize=lab.fontsize,
                 color=lab.color,
                 zorder=7,
+                bbox=_LABEL_BOX,
                 annotation_clip=False,
                 arrowprops={"arrowstyle": "-", "lw": 0.6, "color": lab.color, "shrinkA": 0, "shrinkB": 3},
             )
