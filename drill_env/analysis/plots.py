@@ -324,6 +324,12 @@ def _style_handles(eq: set[bool], cyc: set[bool], points: bool) -> list:
     return h
 
 
+def _room_for_labels(ax, frac: float = 0.06) -> None:
+    """Widen the y range a little, so that a label fits beside a curve along an edge."""
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo - frac * (hi - lo), hi + frac * (hi - lo))
+
+
 def _finish(
     ax,
     handles: list,
@@ -436,6 +442,7 @@ def plot_equilibria(diagram: BifurcationDiagram, ax=None):
     for a in ax:
         _set_u_range(a, diagram)
         a.grid(alpha=0.3)
+        _room_for_labels(a)
     if own:
         fig = ax_a.figure
         fig.legend(handles=handles, fontsize=8, loc="lower center", ncol=3)
@@ -516,6 +523,8 @@ def plot_bifurcation(
         ax.indicate_inset_zoom(inset, edgecolor="0.4")
         names = {"A", "B", "D", "e1", "e2", "p1"}
         labels = [lab for lab in labels if not (lab.text in names and lab.x <= zoom[0][1])]
+    if annotate:
+        _room_for_labels(ax)
     if own or legend or annotate:
         _finish(ax, handles if legend else [], labels if annotate else [], own)
     if inset is not None:
@@ -646,6 +655,7 @@ def plot_period(diagram: BifurcationDiagram, ax=None):
     ax.set_ylabel("period [s]")
     ax.set_title(f"period of the limit cycles, {diagram.preset}")
     ax.grid(alpha=0.3)
+    _room_for_labels(ax)
     _finish(ax, handles, labels, own)
     return ax
 
