@@ -175,6 +175,9 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     regimes = [g for g in REGIMES if any(r["regime"] == g for r in rows)]
     ctrls = ordered_controllers({r["controller"] for r in rows})
     n_plants = max((r["n_plants"] for r in rows), default=0)
+    from drill_env.analysis.plots import Label, place_labels
+
+    pending: dict[int, tuple[Any, list]] = {}
     fig, axes = plt.subplots(
         len(regimes),
         len(METRICS),
@@ -213,15 +216,8 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
                 if not r["spread"] or r["worst_plant"] == NOMINAL:
                     continue  # the worst run is on the nominal plant, or all alike
                 ax.plot(shown(r["worst"]), y, "x", color="tab:red", ms=7, mew=2, zorder=5)
-                ax.annotate(
-                    f"{r['worst_plant']} {r['worst_voltage']:g} V",
-                    (shown(r["worst"]), y),
-                    xytext=(0, -9),
-                    textcoords="offset points",
-                    fontsize=6,
-                    ha="center",
-                    va="top",
-                    color="tab:red",
+                pending.setdefault(id(ax), (ax, []))[1].append(
+                    Label(f"{r['worst_plant']} {r['worst_voltage']:g} V", shown(r["worst"]), y, "tab:red", 6)
                 )
             ax.set_yticks(range(len(ctrls)))
             ax.set_yticklabels(ctrls[::-1], fontsize=8)
@@ -242,13 +238,50 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
             ax.set_xlabel(xl, fontsize=8)
             ax.set_title(f"{REGIMES[regime]}: {label}", fontsize=9)
             ax.grid(alpha=0.3, axis="x")
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D(
+            [],
+            [],
+            color="0.55",
+            marker="o",
+            ls="none",
+            ms=3,
+            alpha=0.7,
+            label="one plant: mean over its runs",
+        ),
+        Line2D([], [], color="0.2", marker="|", ls="none", ms=10, mew=2.5, label="mean over plants"),
+        Line2D(
+            [],
+            [],
+            color="0.5",
+            marker="D",
+            ls="none",
+            ms=6,
+            mec="black",
+            label="nominal plant (the design model)",
+        ),
+        Line2D(
+            [],
+            [],
+            color="tab:red",
+            marker="x",
+            ls="none",
+            ms=7,
+            mew=2,
+            label="worst single run, with its plant and voltage (not drawn when on the nominal plant)",
+        ),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle(
-        f"{preset}: every controller on {n_plants} plants, designed on the nominal model\n"
-        "grey dots: each plant's mean; bar: mean over plants; diamond: nominal plant; "
-        "red cross: worst single run (plant, voltage) where it is not on the nominal plant",
+        f"{preset}: every controller on {n_plants} plants, designed on the nominal model "
+        "(per regime of the nominal model; colour: controller)",
         fontsize=10,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.4 / fig.get_figheight(), 1, 1))
+    for ax, labels in pending.values():  # once the layout is final: clear of every marker
+        place_labels(ax, labels)
     path = Path(out) / f"robustness_{preset}.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -87,6 +87,9 @@ def timeseries_figures(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    from drill_env.analysis.plots import AMPLIFIER_LIMIT_V, IDENTIFIED_SPEED_RAD_S
 
     episode = episode or EpisodeSettings()
     out = Path(out)
@@ -117,14 +120,21 @@ def timeseries_figures(
             squeeze=False,
             gridspec_kw={"height_ratios": [2.2, 1]},
         )
+        stuck_any = False
         for j, (q, tr) in enumerate(zip(plants, traces, strict=True)):
             ax, axu = axes[0][j], axes[1][j]
             t0 = _switch_on(tr)
             ol = open_loop[q.name]
             t_ol = _switch_on(ol)
-            ax.plot(
-                ol.window_t - t_ol, ol.window_lower_speed, color="0.7", lw=0.8, label="open loop: lower disk"
-            )
+            reference = c != "open_loop"  # the open-loop run drawn under the controller's
+            if reference:
+                ax.plot(
+                    ol.window_t - t_ol,
+                    ol.window_lower_speed,
+                    color="0.7",
+                    lw=0.8,
+                    label="open loop: lower disk",
+                )
             for a, b in _spans(tr.window_t - t0, tr.window_lower_stuck.astype(bool)):
                 ax.axvspan(a, b, color="tab:red", alpha=0.15, lw=0)
             col = COLORS.get(c, "tab:blue")
@@ -141,24 +151,54 @@ def timeseries_figures(
             w = float(tr.reset_info["target_speed"])
             ax.axhline(w, color="black", lw=0.6, ls=":", label=f"target w* = {w:.2f} rad/s")
             ax.set_ylabel("disk speed [rad/s]")
+            if IDENTIFIED_SPEED_RAD_S.get(preset, np.inf) < ax.get_ylim()[1]:
+                w_id = IDENTIFIED_SPEED_RAD_S[preset]
+                ax.axhline(
+                    w_id, color="tab:brown", lw=0.8, ls=":", label=f"friction identified up to {w_id:g} rad/s"
+                )
             what = "nominal model (the design model)" if q.is_nominal else (q.description or q.name)
             ax.set_title(textwrap.fill(f"plant {q.name}: {what}", 80), fontsize=9)
             ax.grid(alpha=0.3)
-            if j == 0:
-                ax.legend(fontsize=7, loc="upper right")
-            axu.plot(ol.t - t_ol, ol.voltage, color="0.7", lw=0.8, label="open loop")
+            stuck_any = stuck_any or bool(tr.window_lower_stuck.any())
+            if reference:
+                axu.plot(ol.t - t_ol, ol.voltage, color="0.7", lw=0.8, label="open loop")
             axu.plot(tr.t - t0, tr.voltage, color=col, lw=1.0, label=c)
-            axu.axhline(5.0, color="tab:red", lw=0.6, ls="--")
-            axu.set_ylim(min(-0.2, float(np.min(tr.voltage)) - 0.2), 5.4)
+            axu.axhline(
+                AMPLIFIER_LIMIT_V,
+                color="tab:red",
+                lw=0.6,
+                ls="--",
+                label=f"amplifier limits +-{AMPLIFIER_LIMIT_V:g} V",
+            )
+            axu.axhline(-AMPLIFIER_LIMIT_V, color="tab:red", lw=0.6, ls="--")  # seen when u goes there
+            axu.set_ylim(min(-0.2, float(np.min(tr.voltage)) - 0.4), 5.4)
             axu.set_ylabel("applied voltage u [V]")
             axu.set_xlabel("time since the controller was switched on [s]")
             axu.grid(alpha=0.3)
+        # one legend for all panels, below them, so that it covers no trace
+        handles, labels = [], []
+        for a in (axes[0][0], axes[1][0]):
+            for h, lab in zip(*a.get_legend_handles_labels(), strict=True):
+                if lab not in labels:
+                    handles.append(h)
+                    labels.append(
+                        lab if a is axes[0][0] or lab.startswith("amplifier") else f"{lab}: voltage"
+                    )
+        for a in axes[0][1:]:  # the identified range may be reached on another plant only
+            for h, lab in zip(*a.get_legend_handles_labels(), strict=True):
+                if lab not in labels:
+                    handles.append(h)
+                    labels.append(lab)
+        if stuck_any:
+            handles.append(Patch(color="tab:red", alpha=0.15))
+            labels.append(f"{c}: lower disk stuck")
+        fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
         fig.suptitle(
-            f"{preset}, {c} at {voltage:g} V (seed {seed}): lower-disk stuck phases shaded red; "
-            "grey: open loop on the same plant; red dashed: the 5 V amplifier limit",
+            f"{preset}: {c} at {voltage:g} V (seed {seed}) on each plant"
+            + (", against the open loop on the same plant (grey)" if c != "open_loop" else ""),
             fontsize=10,
         )
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, (0.25 + 0.18 * -(-len(handles) // 4)) / fig.get_figheight(), 1, 1))
         p = out / f"timeseries_{preset}_{c}.png"
         fig.savefig(p, dpi=100)
         plt.close(fig)
