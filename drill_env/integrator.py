@@ -65,6 +65,8 @@ ERR_MASK = np.array([1.0, 1.0, 1.0, 0.0, 1.0, 1.0])
 # tolerances either integrator runs at. A narrower bracket would not even be
 # representable late in a run (doubles near t = 1e4 s are 1.8e-12 s apart).
 EVENT_TIME_TOL = 1e-12  # [s]
+MAX_EVENTS_AT_ONE_INSTANT = 12  # more switches in a row at one instant are chattering
+H_MIN = 1e-12  # [s] smallest step size
 MAX_BRACKET_ITERATIONS = 200
 GOLDEN = 0.6180339887498949  # (sqrt(5) - 1) / 2
 DIP_WIDTH = 1e-13  # fraction of a step to which the bottom of a speed dip is bracketed
@@ -200,6 +202,16 @@ def dense_eval(theta, y, F, n, out):
 # Callers whose indicator needs the model (a stuck disk's torques, a section, an
 # extremum) loop over illinois_point / illinois_update themselves; a slipping disk's
 # indicator is its speed, a dense component, and is handled here whole.
+
+
+@nb.njit(**_INLINE)
+def events_at_instant(t_ev, last_event_t, count):
+    """Number of switches in a row at one instant (within 10 EVENT_TIME_TOL of each
+    other), after a switch at t_ev; the previous one was at last_event_t, ``count`` before
+    it. Above MAX_EVENTS_AT_ONE_INSTANT the integration stops (chattering)."""
+    if t_ev - last_event_t <= 10.0 * EVENT_TIME_TOL:
+        return count + 1
+    return 0
 
 
 @nb.njit(**_INLINE)

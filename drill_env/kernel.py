@@ -46,8 +46,10 @@ from drill_env.integrator import (
     ERR_MASK,
     EVENT_TIME_TOL,
     GOLDEN,
+    H_MIN,
     INTERP,
     MAX_BRACKET_ITERATIONS,
+    MAX_EVENTS_AT_ONE_INSTANT,
     N_EXT,
     N_STAGES,
     ORDER_EXP,
@@ -55,6 +57,7 @@ from drill_env.integrator import (
     bracket_closed,
     dense_component,
     dense_eval,
+    events_at_instant,
     growth_factor,
     illinois_point,
     illinois_update,
@@ -86,8 +89,6 @@ ST_STEPS, ST_REJECTED, ST_RHS, ST_EVENTS, ST_STATUS, ST_H, ST_T, ST_LOGGED, ST_B
 N_STATS = 9
 
 SIMULTANEOUS_TOL = 1e-10  # [s] events closer than this are handled at one instant
-MAX_EVENTS_AT_ONE_INSTANT = 12
-H_MIN = 1e-12  # [s]
 H_MAX = 1.0  # [s]
 # While a disk sticks under a time-varying input or torque (a function u(t), the external
 # torque effect, friction drift), the vector field can be zero and the error control
@@ -656,16 +657,13 @@ def run_ws(p, y, modes, inputs, u_func, control, samples, log, stats, work):
                 do_u = th_u <= 1.0 and (th_u - th) * abs(h) <= SIMULTANEOUS_TOL
                 do_l = th_l <= 1.0 and (th_l - th) * abs(h) <= SIMULTANEOUS_TOL
                 mu, ml = _switch(p, t_ev, y_ev, u_ev, mu, ml, do_u, do_l, log, stats)
-                if t_ev - last_event_t <= EVENT_TIME_TOL * 10.0:
-                    events_here += 1
-                    if events_here > MAX_EVENTS_AT_ONE_INSTANT:
-                        status = 3
-                        for j in range(L.NY):
-                            y[j] = y_ev[j]
-                        t = t_ev
-                        break
-                else:
-                    events_here = 0
+                events_here = events_at_instant(t_ev, last_event_t, events_here)
+                if events_here > MAX_EVENTS_AT_ONE_INSTANT:
+                    status = 3
+                    for j in range(L.NY):
+                        y[j] = y_ev[j]
+                    t = t_ev
+                    break
                 last_event_t = t_ev
                 for j in range(L.NY):
                     y[j] = y_ev[j]

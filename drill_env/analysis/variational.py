@@ -38,9 +38,10 @@ import numpy as np
 from drill_env import _layout as L
 from drill_env.dynamics import hump
 from drill_env.integrator import (
-    EVENT_TIME_TOL,
+    H_MIN,
     INTERP,
     MAX_BRACKET_ITERATIONS,
+    MAX_EVENTS_AT_ONE_INSTANT,
     N_EXT,
     N_EXTRA,
     N_STAGES,
@@ -48,6 +49,7 @@ from drill_env.integrator import (
     dense_coefficients,
     dense_eval,
     error_norm,
+    events_at_instant,
     extra_stage_state,
     growth_factor,
     illinois_point,
@@ -99,8 +101,6 @@ FLOW_STATUS = {
     5: "too many steps",
 }
 
-H_MIN = 1e-12  # [s]
-MAX_EVENTS_AT_ONE_INSTANT = 12
 
 # Every component of the augmented state is under error control.
 ERR_MASK = np.ones(NZ)
@@ -536,16 +536,13 @@ def flow(z, u, p, modes, t_max, to_section, rtol, atol, h_max, max_steps, info, 
             mu = new
         else:
             ml = new
-        if t_ev - last_event_t <= 10.0 * EVENT_TIME_TOL:
-            events_here += 1
-            if events_here > MAX_EVENTS_AT_ONE_INSTANT:
-                status = 3
-                for j in range(NZ):
-                    z[j] = zev[j]
-                t = t_ev
-                break
-        else:
-            events_here = 0
+        events_here = events_at_instant(t_ev, last_event_t, events_here)
+        if events_here > MAX_EVENTS_AT_ONE_INSTANT:
+            status = 3
+            for j in range(NZ):
+                z[j] = zev[j]
+            t = t_ev
+            break
         last_event_t = t_ev
         for j in range(NZ):
             z[j] = zev[j]
