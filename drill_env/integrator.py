@@ -2,9 +2,10 @@
 
 The method and its coefficients are those of Hairer, Norsett & Wanner, *Solving
 Ordinary Differential Equations I* (DOP853), tabulated in :mod:`drill_env._dop853` in
-SciPy's arrangement so that the two implementations can be compared one to one. Within one friction mode the rig's
-vector field is analytic, so a high-order method takes long steps; the dense output
-serves both the sampling of the solution and the location of switching events.
+SciPy's arrangement so that the two implementations can be compared one to one.
+Within one friction mode the rig's vector field is analytic, so a high-order method
+takes long steps; the dense output serves both the sampling of the solution and the
+location of switching events.
 
 This module is the one numerical core of the two integrators of the package, the
 simulator's kernel (:mod:`drill_env.kernel`, the rig's vector field) and the flow with
@@ -12,13 +13,13 @@ sensitivities of the analysis (:mod:`drill_env.analysis.variational`, the augmen
 field). Everything that does not evaluate a vector field lives here, once: the stage
 states, the 8th-order solution, the error norm, the step-size factors, the dense-output
 coefficients and their evaluation, and event location on the dense output -- the
-Illinois bracket with its one time tolerance, and the rules for the two grazing cases
-of a slipping disk (a dip of its speed to zero inside a step, a step that starts with
-the disk at rest). Each integrator keeps only its loop over the stages, which calls its
-own field: a stage loop taking the field as a function argument would not be loaded
-from numba's on-disk cache when called from Python (the cache index holds the function
-object), and the simulator's input function (``None`` or a C function) cannot travel in
-a tuple of field arguments without defeating numba's compile-time pruning of ``None``.
+Illinois bracket with its one time tolerance, the rule for chattering, and the rules
+for the two grazing cases of a slipping disk (a dip of its speed to zero inside a step,
+a step that starts with the disk at rest). Each integrator keeps only its loop over the
+stages, which calls its own field. One stage loop taking the field as a function
+argument would defeat numba's on-disk cache: a compiled function that passes a field to
+it is refused by the cache ("uses dynamic globals"), and one called from Python with a
+function argument is compiled afresh in every process.
 """
 
 from __future__ import annotations
