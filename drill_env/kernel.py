@@ -14,6 +14,9 @@ which its indicator changes sign:
 A slipping disk's speed can also touch zero and recover inside one step (next to a
 grazing orbit), with the same sign at both ends: when the speed falls at the start of a
 step and rises at its end, the bottom of that dip is searched on the dense output too.
+The step, the dense output, the event bracket and these grazing rules are the shared
+numerical core of :mod:`drill_env.integrator`; this module adds the rig's switching
+logic, the input segments and the sampling.
 
 The two disks decouple at zero speed (a stuck disk's acceleration is zero), so each
 disk's decision needs only the state, never the other disk's friction.
@@ -41,15 +44,28 @@ from drill_env.dynamics import (
 )
 from drill_env.integrator import (
     ERR_MASK,
+    EVENT_TIME_TOL,
+    GOLDEN,
+    H_MIN,
     INTERP,
+    MAX_BRACKET_ITERATIONS,
+    MAX_EVENTS_AT_ONE_INSTANT,
     N_EXT,
     N_STAGES,
     ORDER_EXP,
     C,
+    bracket_closed,
     dense_component,
     dense_eval,
+    events_at_instant,
+    growth_factor,
+    illinois_point,
+    illinois_update,
     input_at,
     prepare_dense,
+    shrink_factor,
+    speed_dip,
+    speed_zero,
     step,
 )
 
@@ -72,10 +88,7 @@ STATUS_MESSAGES = {
 ST_STEPS, ST_REJECTED, ST_RHS, ST_EVENTS, ST_STATUS, ST_H, ST_T, ST_LOGGED, ST_BAD_T = range(9)
 N_STATS = 9
 
-EVENT_TIME_TOL = 1e-12  # [s] width of the bracket that locates an event
 SIMULTANEOUS_TOL = 1e-10  # [s] events closer than this are handled at one instant
-MAX_EVENTS_AT_ONE_INSTANT = 12
-H_MIN = 1e-12  # [s]
 H_MAX = 1.0  # [s]
 # While a disk sticks under a time-varying input or torque (a function u(t), the external
 # torque effect, friction drift), the vector field can be zero and the error control
@@ -129,49 +142,8 @@ def _violation(disk, p, t, y, u, mu, ml):
 
 
 @nb.njit(**_JIT)
-def _speed_dip(j, mode, y, F, ytmp):
-    """Fraction of the step at which the speed ``mode * y[j]`` of a slipping disk is least,
-    if it reaches zero there, else 2.0.
-
-    Called when the speed falls at the start of the step and rises at its end, so that it
-    has one minimum inside; golden-section search on the dense output.
-    """
-    g = 0.6180339887498949
-    a = 0.0
-    b = 1.0
-    c = b - g * (b - a)
-    d = a + g * (b - a)
-    dense_eval(c, y, F, ytmp)
-    fc = mode * ytmp[j]
-    dense_eval(d, y, F, ytmp)
-    fd = mode * ytmp[j]
-    for _ in range(80):
-        if fc <= 0.0:
-            return c
-        if fd <= 0.0:
-            return d
-        if b - a < 1e-13:
-            break
-        if fc < fd:
-            b = d
-            d = c
-            fd = fc
-            c = b - g * (b - a)
-            dense_eval(c, y, F, ytmp)
-            fc = mode * ytmp[j]
-        else:
-            a = c
-            c = d
-            fc = fd
-            d = a + g * (b - a)
-            dense_eval(d, y, F, ytmp)
-            fd = mode * ytmp[j]
-    return 2.0
-
-
-@nb.njit(**_JIT)
 def _stuck_violation(disk, p, t, h, c, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp):
-    dense_eval(c, y, F, ytmp)
+    dense_eval(c, y, F, L.NY, ytmp)
     tc = t + c * h
     return _violation(disk, p, tc, ytmp, input_at(tc, u_seg, u_func, use_func, u_limit), mu, ml)
 
@@ -206,7 +178,7 @@ def _stuck_exit(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, y
         g_prev = g
     if i_best == 0 or i_best == n or best + 2.0 * rise < 0.0:
         return 2.0  # the largest value is at an end of the step, or far inside the band
-    gr = 0.6180339887498949
+    gr = GOLDEN
     a = (i_best - 1) / n
     b = (i_best + 1) / n
     c = b - gr * (b - a)
@@ -249,67 +221,29 @@ def _bad_input_time(t, h, us, u_func, use_func, u_limit):
 
 @nb.njit(**_JIT)
 def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp, b0):
-    """Fraction of the step at which ``disk``'s violation first becomes >= 0 (Illinois).
+    """Fraction of the step at which ``disk``'s violation first becomes >= 0.
 
     The violation is >= 0 at fraction ``b0`` (the end of the step, or the bottom of a dip
-    of the speed inside it).
+    of the speed inside it). A slipping disk's event is its speed's return to zero
+    (:func:`~drill_env.integrator.speed_zero`); a stuck disk's, its load's exit from the
+    static band, bracketed on the dense output by the Illinois method.
     """
+    mode = mu if disk == 0 else ml
+    if mode != 0:
+        return speed_zero(L.X2 if disk == 0 else L.X3, mode, y, F, h, b0)
     a = 0.0
     b = b0
     ga = _violation(disk, p, t, y, input_at(t, u_seg, u_func, use_func, u_limit), mu, ml)
-    dense_eval(b, y, F, ytmp)
-    tb = t + b * h
-    gb = _violation(disk, p, tb, ytmp, input_at(tb, u_seg, u_func, use_func, u_limit), mu, ml)
-    if ga > 0.0 or (ga == 0.0 and (mu if disk == 0 else ml) == 0):
-        return 0.0
-    if ga == 0.0:
-        # The step started on the surface: a disk just set in motion from rest or just
-        # reversed. Its speed first moves into the slip direction (violation < 0); the
-        # event is where it comes back to zero, not the start. Walk out geometrically
-        # to bracket the end of that first excursion.
-        found = False
-        c = 2.0**-50
-        while c < b0:
-            dense_eval(c, y, F, ytmp)
-            tc = t + c * h
-            gc = _violation(disk, p, tc, ytmp, input_at(tc, u_seg, u_func, use_func, u_limit), mu, ml)
-            if gc < 0.0:
-                a = c
-                ga = gc
-                found = True
-            elif found:
-                b = c
-                gb = gc
-                break
-            c *= 2.0
-        if not found:
-            return 0.0  # it never left the surface: switch at once
+    if ga >= 0.0:
+        return 0.0  # outside the band already at the start: switch at once
+    gb = _stuck_violation(disk, p, t, h, b, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
     side = 0
-    for _ in range(200):
-        if (b - a) * abs(h) <= EVENT_TIME_TOL:
+    for _ in range(MAX_BRACKET_ITERATIONS):
+        if bracket_closed(a, b, h):
             break
-        c = (a * gb - b * ga) / (gb - ga)
-        if (
-            not (a < c < b)
-            or (c - a) * abs(h) < 0.25 * EVENT_TIME_TOL
-            or (b - c) * abs(h) < 0.25 * EVENT_TIME_TOL
-        ):
-            c = 0.5 * (a + b)
-        dense_eval(c, y, F, ytmp)
-        tc = t + c * h
-        gc = _violation(disk, p, tc, ytmp, input_at(tc, u_seg, u_func, use_func, u_limit), mu, ml)
-        if gc >= 0.0:
-            b = c
-            gb = gc
-            if side == -1:
-                ga *= 0.5
-            side = -1
-        else:
-            a = c
-            ga = gc
-            if side == 1:
-                gb *= 0.5
-            side = 1
+        c = illinois_point(a, b, ga, gb, h)
+        gc = _stuck_violation(disk, p, t, h, c, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+        a, b, ga, gb, side = illinois_update(a, b, ga, gb, side, c, gc)
     return b
 
 
@@ -349,8 +283,9 @@ def _initial_step(t, y, f0, us, u_func, use_func, u_limit, p, mu, ml, rtol, atol
 
 
 @nb.njit(**_INLINE)
-def _emit(k, theta, y, F, n, mu, ml, u, Y_out, M_out, U_out):
+def _emit(k, theta, y, F, n, mu, ml, u, samples):
     """Write sample k from the dense output of the current step (n evolving components)."""
+    _, Y_out, M_out, U_out = samples
     for j in range(n):
         Y_out[k, j] = dense_component(theta, y, F, j)
     for j in range(n, L.NY):
@@ -361,7 +296,51 @@ def _emit(k, theta, y, F, n, mu, ml, u, Y_out, M_out, U_out):
 
 
 @nb.njit(**_JIT)
-def _log_event(t, disk, old, new, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats):
+def _held_samples(k, t, y, mu, ml, u, samples):
+    """Samples at or before ``t`` (the start of a segment) are the state there; returns the
+    next sample."""
+    t_out, Y_out, M_out, U_out = samples
+    while k < t_out.shape[0] and t_out[k] <= t:
+        for j in range(L.NY):
+            Y_out[k, j] = y[j]
+        M_out[k, 0] = mu
+        M_out[k, 1] = ml
+        U_out[k] = u
+        k += 1
+    return k
+
+
+@nb.njit(**_INLINE)
+def _step_samples(k, t_end, closed, t, h, y, F, n, mu, ml, u_hold, us, u_func, use_func, u_limit, samples):
+    """Samples before ``t_end`` (also at it when ``closed``) from the dense output of the
+    step of size h from t. Returns the next sample and NaN, or the sample time at which
+    the input was not finite."""
+    t_out = samples[0]
+    while k < t_out.shape[0] and (t_out[k] < t_end or (closed and t_out[k] == t_end)):
+        uk = input_at(t_out[k], us, u_func, use_func, u_limit) if use_func else u_hold
+        if not math.isfinite(uk):
+            return k, t_out[k]
+        _emit(k, (t_out[k] - t) / h, y, F, n, mu, ml, uk, samples)
+        k += 1
+    return k, math.nan
+
+
+@nb.njit(**_JIT)
+def _final_samples(k, y, mu, ml, status, samples):
+    """Samples past a premature stop keep the last state (flagged by the status)."""
+    t_out, Y_out, M_out, U_out = samples
+    while k < t_out.shape[0]:
+        for j in range(L.NY):
+            Y_out[k, j] = y[j]
+        M_out[k, 0] = mu
+        M_out[k, 1] = ml
+        U_out[k] = np.nan if status != 0 else U_out[k - 1] if k > 0 else 0.0
+        k += 1
+
+
+@nb.njit(**_JIT)
+def _log_event(t, disk, old, new, y, log, stats):
+    ev_t, ev_disk, ev_from, ev_to, ev_y = log
     i = int(stats[ST_EVENTS])
     if i < ev_t.shape[0]:
         ev_t[i] = t
@@ -372,6 +351,119 @@ def _log_event(t, disk, old, new, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
             ev_y[i, j] = y[j]
         stats[ST_LOGGED] = i + 1
     stats[ST_EVENTS] = i + 1
+
+
+@nb.njit(**_JIT)
+def _segment_modes(p, t, y, u, mu, ml, first, log, stats):
+    """Modes at the start of an input segment, from the state: a moving disk slips, a disk
+    at rest is decided by its torque balance (this is also where an input jump releases a
+    stuck disk). Changes are logged, except at the very start."""
+    new_mu = _sign_mode(y[L.X2])
+    if new_mu == 0:
+        new_mu = decide_upper(p, y, u)
+    new_ml = _sign_mode(y[L.X3])
+    if new_ml == 0:
+        new_ml = decide_lower(p, t, y)
+    if not first and new_mu != mu:
+        _log_event(t, 0, mu, new_mu, y, log, stats)
+    if not first and new_ml != ml:
+        _log_event(t, 1, ml, new_ml, y, log, stats)
+    return new_mu, new_ml
+
+
+@nb.njit(**_INLINE)
+def _events_in_step(
+    t, h, t_new, y, y_new, f0, p, mu, ml, frozen_when_stuck, us, u_func, use_func, u_limit, scratch, stats
+):
+    """First switching event of each disk inside an accepted step from t to t_new = t + h,
+    as fractions of the step (th_u, th_l; 2.0 for none), and whether the dense output has
+    been prepared. ``scratch`` = (K, F, ytmp, ytmp2): the step's stages, the dense-output
+    coefficients and two state-sized vectors."""
+    K, F, ytmp, ytmp2 = scratch
+    u_end = input_at(t_new, us, u_func, use_func, u_limit)
+    vu = _violation_upper(p, y_new, u_end, mu)
+    vl = _violation_lower(p, t_new, y_new, ml)
+    ev_up = vu > 0.0 if mu == 0 else vu >= 0.0
+    ev_lo = vl > 0.0 if ml == 0 else vl >= 0.0
+    # A slipping disk whose speed falls at the start of the step and rises at its end
+    # may touch zero and recover inside the step, with no sign change at the ends: look
+    # for the bottom of that dip on the dense output.
+    dip_u = not ev_up and mu != 0 and mu * f0[L.X2] < 0.0 and mu * K[N_STAGES, L.X2] > 0.0
+    dip_l = not ev_lo and ml != 0 and ml * f0[L.X3] < 0.0 and ml * K[N_STAGES, L.X3] > 0.0
+    b_u = 1.0
+    b_l = 1.0
+    dense = False
+    if dip_u or dip_l:
+        prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
+        stats[ST_RHS] += 3
+        dense = True
+        if dip_u:
+            b_u = speed_dip(L.X2, mu, y, F)
+            ev_up = b_u <= 1.0
+        if dip_l:
+            b_l = speed_dip(L.X3, ml, y, F)
+            ev_lo = b_l <= 1.0
+    # A stuck disk's load may leave its band inside the step and come back before its
+    # end (the other disk swings, the input or a torque changes with time).
+    mon_u = mu == 0 and not ev_up
+    mon_l = ml == 0 and not ev_lo
+    if (mon_u or mon_l) and not (frozen_when_stuck and mu == 0 and ml == 0):
+        if not dense:
+            prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
+            stats[ST_RHS] += 3
+            dense = True
+        if mon_u:
+            b_u = _stuck_exit(0, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
+            ev_up = b_u <= 1.0
+        if mon_l:
+            b_l = _stuck_exit(1, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
+            ev_lo = b_l <= 1.0
+    th_u = 2.0
+    th_l = 2.0
+    if ev_up or ev_lo:
+        if not dense:
+            prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
+            stats[ST_RHS] += 3
+            dense = True
+        if ev_up:
+            th_u = _locate(0, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp, b_u)
+        if ev_lo:
+            th_l = _locate(1, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp, b_l)
+    return th_u, th_l, dense
+
+
+@nb.njit(**_JIT)
+def _switch(p, t_ev, y_ev, u_ev, mu, ml, do_u, do_l, log, stats):
+    """New modes of the disks switching at t_ev (state y_ev, voltage u_ev); logs them.
+
+    A slipping disk that reached zero speed is put exactly at rest first, so that both
+    decisions see the state at the switching instant. A stuck disk breaks away towards
+    the side of its band its load left by.
+    """
+    if do_u and mu != 0:
+        y_ev[L.X2] = 0.0
+    if do_l and ml != 0:
+        y_ev[L.X3] = 0.0
+    nmu = mu
+    nml = ml
+    if do_u:
+        if mu != 0:
+            nmu = decide_upper(p, y_ev, u_ev)
+        else:
+            need = upper_required(p, y_ev, u_ev)
+            lo, hi = upper_band(p, y_ev)
+            nmu = 1 if need - hi >= lo - need else -1
+    if do_l:
+        if ml != 0:
+            nml = decide_lower(p, t_ev, y_ev)
+        else:
+            need = lower_required(p, t_ev, y_ev)
+            nml = 1 if need >= 0.0 else -1
+    if do_u:
+        _log_event(t_ev, 0, mu, nmu, y_ev, log, stats)
+    if do_l:
+        _log_event(t_ev, 1, ml, nml, y_ev, log, stats)
+    return nmu, nml
 
 
 # Rows of the scratch array of :func:`run_ws`: RK stages, interpolation coefficients and
@@ -409,63 +501,40 @@ def run(
     ``modes`` (int64[2]) receives the final modes. ``t_out`` must be sorted within
     ``[seg_t[0], seg_t[-1]]``; row k of Y_out/M_out/U_out is the state, modes and
     applied voltage at t_out[k]. Allocates its scratch space; callers that integrate
-    many short intervals pass their own to :func:`run_ws`.
+    many short intervals pass their own to :func:`run_ws`, which takes the same
+    arguments grouped.
     """
     work = np.empty((WORK_ROWS, L.NY))
     return run_ws(
         p,
         y,
         modes,
-        seg_t,
-        seg_u,
+        (seg_t, seg_u, use_func, u_limit),
         u_func,
-        use_func,
-        u_limit,
-        t_out,
-        rtol,
-        atol,
-        h_init,
-        max_steps,
-        Y_out,
-        M_out,
-        U_out,
-        ev_t,
-        ev_disk,
-        ev_from,
-        ev_to,
-        ev_y,
+        (rtol, atol, h_init, max_steps),
+        (t_out, Y_out, M_out, U_out),
+        (ev_t, ev_disk, ev_from, ev_to, ev_y),
         stats,
         work,
     )
 
 
 @nb.njit(**_JIT)
-def run_ws(
-    p,
-    y,
-    modes,
-    seg_t,
-    seg_u,
-    u_func,
-    use_func,
-    u_limit,
-    t_out,
-    rtol,
-    atol,
-    h_init,
-    max_steps,
-    Y_out,
-    M_out,
-    U_out,
-    ev_t,
-    ev_disk,
-    ev_from,
-    ev_to,
-    ev_y,
-    stats,
-    work,
-):
-    """:func:`run` with a caller-owned scratch array ``work`` of shape (WORK_ROWS, NY)."""
+def run_ws(p, y, modes, inputs, u_func, control, samples, log, stats, work):
+    """:func:`run` with its arguments grouped and a caller-owned scratch array.
+
+    * ``inputs`` = (seg_t, seg_u, use_func, u_limit): the input segments and their held
+      voltages, whether ``u_func`` (a C function float64(float64), or None; passed on its
+      own so that numba prunes it when it is None) gives the voltage instead, and the
+      voltage limit;
+    * ``control`` = (rtol, atol, h_init, max_steps);
+    * ``samples`` = (t_out, Y_out, M_out, U_out): the output grid and its rows;
+    * ``log`` = (ev_t, ev_disk, ev_from, ev_to, ev_y): the event log;
+    * ``work``: scratch of shape (WORK_ROWS, NY).
+    """
+    seg_t, seg_u, use_func, u_limit = inputs
+    rtol, atol, h_init, max_steps = control
+    t_out = samples[0]
     K = work[:N_EXT]
     F = work[N_EXT : N_EXT + INTERP]
     f0 = work[N_EXT + INTERP]
@@ -473,13 +542,13 @@ def run_ws(
     ytmp = work[N_EXT + INTERP + 2]
     y_ev = work[N_EXT + INTERP + 3]
     ytmp2 = work[N_EXT + INTERP + 4]
+    scratch = (K, F, ytmp, ytmp2)
     for j in range(N_STATS):
         stats[j] = 0.0
     n_act = n_active(p)
     n_out = t_out.shape[0]
     k = 0
     h_prop = h_init if h_init > 0.0 else 1e-3  # proposed size before truncation to a segment end
-    h = h_prop
     mu = modes[0]
     ml = modes[1]
     first = True
@@ -497,38 +566,18 @@ def run_ws(
     frozen_when_stuck = not time_varying and n_act == 4
 
     for seg in range(seg_t.shape[0] - 1):
-        ta = seg_t[seg]
         tb = seg_t[seg + 1]
         us = seg_u[seg]
-        t = ta
+        t = seg_t[seg]
         u = input_at(t, us, u_func, use_func, u_limit)
         u_hold = u  # the held voltage of this segment (a zero-order hold)
         if not math.isfinite(u):
             status = 4
             bad_t = t
             break
-        # Modes follow from the state: a moving disk slips, a disk at rest is decided
-        # by its torque balance (this is also where an input jump releases a stuck disk).
-        new_mu = _sign_mode(y[L.X2])
-        if new_mu == 0:
-            new_mu = decide_upper(p, y, u)
-        new_ml = _sign_mode(y[L.X3])
-        if new_ml == 0:
-            new_ml = decide_lower(p, t, y)
-        if not first and new_mu != mu:
-            _log_event(t, 0, mu, new_mu, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
-        if not first and new_ml != ml:
-            _log_event(t, 1, ml, new_ml, y, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
-        mu = new_mu
-        ml = new_ml
+        mu, ml = _segment_modes(p, t, y, u, mu, ml, first, log, stats)
         first = False
-        while k < n_out and t_out[k] <= t:
-            for j in range(L.NY):
-                Y_out[k, j] = y[j]
-            M_out[k, 0] = mu
-            M_out[k, 1] = ml
-            U_out[k] = u
-            k += 1
+        k = _held_samples(k, t, y, mu, ml, u, samples)
         rhs(t, y, u, p, mu, ml, f0)
         stats[ST_RHS] += 1
 
@@ -557,10 +606,7 @@ def run_ws(
                         status = 4
                         bad_t = tb_bad
                         break
-                if math.isfinite(err):
-                    h_prop = h * max(0.2, 0.9 * err ** (-ORDER_EXP))
-                else:
-                    h_prop = h * 0.2
+                h_prop = h * shrink_factor(err)
                 if not (h_prop >= H_MIN):  # also catches NaN
                     status = 2
                     break
@@ -570,68 +616,39 @@ def run_ws(
                 status = 2
                 break
             n_steps += 1
-            u_end = input_at(t_new, us, u_func, use_func, u_limit)
-            vu = _violation_upper(p, y_new, u_end, mu)
-            vl = _violation_lower(p, t_new, y_new, ml)
-            ev_up = vu > 0.0 if mu == 0 else vu >= 0.0
-            ev_lo = vl > 0.0 if ml == 0 else vl >= 0.0
-            # A slipping disk whose speed falls at the start of the step and rises at its
-            # end may touch zero and recover inside the step, with no sign change at the
-            # ends: look for the bottom of that dip on the dense output.
-            dip_u = not ev_up and mu != 0 and mu * f0[L.X2] < 0.0 and mu * K[12, L.X2] > 0.0
-            dip_l = not ev_lo and ml != 0 and ml * f0[L.X3] < 0.0 and ml * K[12, L.X3] > 0.0
-            b_u = 1.0
-            b_l = 1.0
-            dense = False
-            if dip_u or dip_l:
+            th_u, th_l, dense = _events_in_step(
+                t,
+                h,
+                t_new,
+                y,
+                y_new,
+                f0,
+                p,
+                mu,
+                ml,
+                frozen_when_stuck,
+                us,
+                u_func,
+                use_func,
+                u_limit,
+                scratch,
+                stats,
+            )
+            th = min(th_u, th_l)
+            if not dense and k < n_out and t_out[k] <= t_new:
                 prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
                 stats[ST_RHS] += 3
-                dense = True
-                if dip_u:
-                    b_u = _speed_dip(L.X2, mu, y, F, ytmp)
-                    ev_up = b_u <= 1.0
-                if dip_l:
-                    b_l = _speed_dip(L.X3, ml, y, F, ytmp)
-                    ev_lo = b_l <= 1.0
-            # A stuck disk's load may leave its band inside the step and come back before
-            # its end (the other disk swings, the input or a torque changes with time).
-            mon_u = mu == 0 and not ev_up
-            mon_l = ml == 0 and not ev_lo
-            if (mon_u or mon_l) and not (frozen_when_stuck and mu == 0 and ml == 0):
-                if not dense:
-                    prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
-                    stats[ST_RHS] += 3
-                    dense = True
-                if mon_u:
-                    b_u = _stuck_exit(0, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
-                    ev_up = b_u <= 1.0
-                if mon_l:
-                    b_l = _stuck_exit(1, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp)
-                    ev_lo = b_l <= 1.0
-            has_event = ev_up or ev_lo
-            if not dense and (has_event or (k < n_out and t_out[k] <= t_new)):
-                prepare_dense(t, y, y_new, h, us, u_func, use_func, u_limit, p, mu, ml, K, F, ytmp, ytmp2)
-                stats[ST_RHS] += 3
-            if has_event:
-                th_u = 2.0
-                th_l = 2.0
-                if ev_up:
-                    th_u = _locate(0, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp, b_u)
-                if ev_lo:
-                    th_l = _locate(1, p, t, h, y, F, mu, ml, us, u_func, use_func, u_limit, ytmp, b_l)
-                th = min(th_u, th_l)
+            if th <= 1.0:
+                # A switching event inside the step: the samples before it, then the
+                # switch, then a restart from the event.
                 t_ev = t + th * h
-                while k < n_out and t_out[k] < t_ev:
-                    uk = input_at(t_out[k], us, u_func, use_func, u_limit) if use_func else u_hold
-                    if not math.isfinite(uk):
-                        status = 4
-                        bad_t = t_out[k]
-                        break
-                    _emit(k, (t_out[k] - t) / h, y, F, n_act, mu, ml, uk, Y_out, M_out, U_out)
-                    k += 1
-                if status != 0:
+                k, bad_t = _step_samples(
+                    k, t_ev, False, t, h, y, F, n_act, mu, ml, u_hold, us, u_func, use_func, u_limit, samples
+                )
+                if math.isfinite(bad_t):
+                    status = 4
                     break
-                dense_eval(th, y, F, y_ev)
+                dense_eval(th, y, F, L.NY, y_ev)
                 u_ev = input_at(t_ev, us, u_func, use_func, u_limit)
                 if not math.isfinite(u_ev):
                     status = 4
@@ -639,43 +656,14 @@ def run_ws(
                     break
                 do_u = th_u <= 1.0 and (th_u - th) * abs(h) <= SIMULTANEOUS_TOL
                 do_l = th_l <= 1.0 and (th_l - th) * abs(h) <= SIMULTANEOUS_TOL
-                # A slipping disk that reached zero speed is put exactly at rest first,
-                # so that both decisions see the state at the switching instant.
-                if do_u and mu != 0:
-                    y_ev[L.X2] = 0.0
-                if do_l and ml != 0:
-                    y_ev[L.X3] = 0.0
-                nmu = mu
-                nml = ml
-                if do_u:
-                    if mu != 0:
-                        nmu = decide_upper(p, y_ev, u_ev)
-                    else:
-                        need = upper_required(p, y_ev, u_ev)
-                        lo, hi = upper_band(p, y_ev)
-                        nmu = 1 if need - hi >= lo - need else -1
-                if do_l:
-                    if ml != 0:
-                        nml = decide_lower(p, t_ev, y_ev)
-                    else:
-                        need = lower_required(p, t_ev, y_ev)
-                        nml = 1 if need >= 0.0 else -1
-                if do_u:
-                    _log_event(t_ev, 0, mu, nmu, y_ev, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
-                if do_l:
-                    _log_event(t_ev, 1, ml, nml, y_ev, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
-                mu = nmu
-                ml = nml
-                if t_ev - last_event_t <= EVENT_TIME_TOL * 10.0:
-                    events_here += 1
-                    if events_here > MAX_EVENTS_AT_ONE_INSTANT:
-                        status = 3
-                        for j in range(L.NY):
-                            y[j] = y_ev[j]
-                        t = t_ev
-                        break
-                else:
-                    events_here = 0
+                mu, ml = _switch(p, t_ev, y_ev, u_ev, mu, ml, do_u, do_l, log, stats)
+                events_here = events_at_instant(t_ev, last_event_t, events_here)
+                if events_here > MAX_EVENTS_AT_ONE_INSTANT:
+                    status = 3
+                    for j in range(L.NY):
+                        y[j] = y_ev[j]
+                    t = t_ev
+                    break
                 last_event_t = t_ev
                 for j in range(L.NY):
                     y[j] = y_ev[j]
@@ -689,45 +677,30 @@ def run_ws(
                 stats[ST_RHS] += 2
                 rejected = False
                 continue  # the restart chose its own step size
-            else:
-                # A sample on the end of an input segment belongs to the next segment:
-                # the zero-order hold switches at that instant (except at the very end).
-                held = last and seg < seg_t.shape[0] - 2
-                while k < n_out and (t_out[k] < t_new or (t_out[k] == t_new and not held)):
-                    uk = input_at(t_out[k], us, u_func, use_func, u_limit) if use_func else u_hold
-                    if not math.isfinite(uk):
-                        status = 4
-                        bad_t = t_out[k]
-                        break
-                    _emit(k, (t_out[k] - t) / h, y, F, n_act, mu, ml, uk, Y_out, M_out, U_out)
-                    k += 1
-                if status != 0:
-                    break
-                for j in range(L.NY):
-                    y[j] = y_new[j]
-                    f0[j] = K[12, j]
-                t = t_new
-            # Step-size control after an accepted step.
-            if err == 0.0:
-                fac = 10.0
-            else:
-                fac = min(10.0, max(0.2, 0.9 * err ** (-ORDER_EXP)))
-            if rejected:  # no growth right after a rejection (Hairer's DOP853)
+            # A sample on the end of an input segment belongs to the next segment: the
+            # zero-order hold switches at that instant (except at the very end).
+            held = last and seg < seg_t.shape[0] - 2
+            k, bad_t = _step_samples(
+                k, t_new, not held, t, h, y, F, n_act, mu, ml, u_hold, us, u_func, use_func, u_limit, samples
+            )
+            if math.isfinite(bad_t):
+                status = 4
+                break
+            for j in range(L.NY):
+                y[j] = y_new[j]
+                f0[j] = K[N_STAGES, j]
+            t = t_new
+            # Step-size control after an accepted step: no growth right after a rejection
+            # (Hairer's DOP853); a step shortened to end a segment does not shrink the proposal.
+            fac = growth_factor(err)
+            if rejected:
                 fac = min(fac, 1.0)
                 rejected = False
-            # A step shortened to end a segment does not shrink the proposal.
             h_prop = min(max(h * fac, h_prop if last else 0.0), H_MAX)
         if status != 0:
             break
 
-    # Samples past a premature stop keep the last state (flagged by the status).
-    while k < n_out:
-        for j in range(L.NY):
-            Y_out[k, j] = y[j]
-        M_out[k, 0] = mu
-        M_out[k, 1] = ml
-        U_out[k] = np.nan if status != 0 else U_out[k - 1] if k > 0 else 0.0
-        k += 1
+    _final_samples(k, y, mu, ml, status, samples)
     modes[0] = mu
     modes[1] = ml
     stats[ST_STEPS] = n_steps

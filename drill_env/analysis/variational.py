@@ -15,12 +15,14 @@ new field has zero acceleration of that disk, so the jump is the projection that
 removes the stuck speed (``I - e3 e3^T`` at the lower disk); at break-away the friction
 is continuous (``T_fl(0+) = T_sl``), so ``f+ = f-`` and nothing jumps.
 
-The integrator is the DOP853 method of :mod:`drill_env.integrator` (same tableau) on
-the augmented 15-component system, with its own event location on the dense output:
-the same switching rules as the simulator's kernel (:mod:`drill_env.kernel`), a return
-to a Poincare section, extrema of the speeds and the twist, and a dip of a slipping
-disk's speed below zero that starts and ends inside one step (grazing), which the
-sign test at the step ends alone would miss.
+The integrator is the numerical core of :mod:`drill_env.integrator` -- the DOP853 step,
+its error norm and step-size factors, the dense output, the Illinois bracket with its
+one time tolerance and the grazing rules of a slipping disk (a dip of its speed to zero
+inside one step, which the sign test at the step ends alone would miss; a step that
+starts with the disk at rest) -- shared with the simulator's kernel
+(:mod:`drill_env.kernel`) and run here on the augmented 15-component system with its
+own stage loop. The switching rules are the kernel's; this module adds the return to a
+Poincare section and the extrema of the speeds and the twist.
 
 Only the paper's model (no :class:`~drill_env.params.ModelEffects`) is covered: the
 lower angle does not feed back and is not carried.
@@ -35,7 +37,29 @@ import numpy as np
 
 from drill_env import _layout as L
 from drill_env.dynamics import hump
-from drill_env.integrator import A_EXTRA, E3, E5, INTERP, N_EXT, N_STAGES, ORDER_EXP, A, B, D
+from drill_env.integrator import (
+    H_MIN,
+    INTERP,
+    MAX_BRACKET_ITERATIONS,
+    MAX_EVENTS_AT_ONE_INSTANT,
+    N_EXT,
+    N_EXTRA,
+    N_STAGES,
+    bracket_closed,
+    dense_coefficients,
+    dense_eval,
+    error_norm,
+    events_at_instant,
+    extra_stage_state,
+    growth_factor,
+    illinois_point,
+    illinois_update,
+    shrink_factor,
+    solution,
+    speed_dip,
+    speed_zero,
+    stage_state,
+)
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
@@ -77,9 +101,9 @@ FLOW_STATUS = {
     5: "too many steps",
 }
 
-EVENT_TIME_TOL = 1e-13  # [s]
-H_MIN = 1e-12  # [s]
-MAX_EVENTS_AT_ONE_INSTANT = 12
+
+# Every component of the augmented state is under error control.
+ERR_MASK = np.ones(NZ)
 
 # Event-log codes: the kind of switch and which disk.
 EV_UPPER, EV_LOWER = 0, 1
@@ -170,71 +194,20 @@ def _step(z, f0, h, u, p, mu, ml, K, z_new, ztmp, rtol, atol):
     for j in range(NZ):
         K[0, j] = f0[j]
     for s in range(1, N_STAGES):
-        for j in range(NZ):
-            acc = 0.0
-            for r in range(s):
-                acc += A[s, r] * K[r, j]
-            ztmp[j] = z[j] + h * acc
+        stage_state(s, z, K, h, NZ, ztmp)
         aug_rhs(ztmp, u, p, mu, ml, K[s])
-    for j in range(NZ):
-        acc = 0.0
-        for r in range(N_STAGES):
-            acc += B[r] * K[r, j]
-        z_new[j] = z[j] + h * acc
+    solution(z, K, h, NZ, z_new)
     aug_rhs(z_new, u, p, mu, ml, K[N_STAGES])
-    err5 = 0.0
-    err3 = 0.0
-    for j in range(NZ):
-        sc = atol + rtol * max(abs(z[j]), abs(z_new[j]))
-        e5 = 0.0
-        e3 = 0.0
-        for r in range(N_STAGES + 1):
-            e5 += E5[r] * K[r, j]
-            e3 += E3[r] * K[r, j]
-        e5 /= sc
-        e3 /= sc
-        err5 += e5 * e5
-        err3 += e3 * e3
-    if err5 == 0.0 and err3 == 0.0:
-        return 0.0
-    return abs(h) * err5 / math.sqrt((err5 + 0.01 * err3) * NZ)
+    return error_norm(z, z_new, K, h, NZ, ERR_MASK, rtol, atol)
 
 
 @nb.njit(**_JIT)
 def _prepare_dense(z, z_new, h, u, p, mu, ml, K, F, ztmp):
-    for k in range(A_EXTRA.shape[0]):
-        s = N_STAGES + 1 + k
-        for j in range(NZ):
-            acc = 0.0
-            for r in range(s):
-                acc += A_EXTRA[k, r] * K[r, j]
-            ztmp[j] = z[j] + h * acc
-        aug_rhs(ztmp, u, p, mu, ml, K[s])
-    for j in range(NZ):
-        dzj = z_new[j] - z[j]
-        F[0, j] = dzj
-        F[1, j] = h * K[0, j] - dzj
-        F[2, j] = 2.0 * dzj - h * (K[N_STAGES, j] + K[0, j])
-        for i in range(D.shape[0]):
-            acc = 0.0
-            for r in range(N_EXT):
-                acc += D[i, r] * K[r, j]
-            F[3 + i, j] = h * acc
-
-
-@nb.njit(**_JIT)
-def _dense(theta, z, F, out, n):
-    """First ``n`` components of the state at fraction ``theta`` of the step."""
-    x = theta
-    x1 = 1.0 - theta
-    for j in range(n):
-        acc = F[6, j] * x + F[5, j]
-        acc = acc * x1 + F[4, j]
-        acc = acc * x + F[3, j]
-        acc = acc * x1 + F[2, j]
-        acc = acc * x + F[1, j]
-        acc = acc * x1 + F[0, j]
-        out[j] = z[j] + acc * x
+    """The extra stages of the interpolant and its coefficients F."""
+    for k in range(N_EXTRA):
+        extra_stage_state(k, z, K, h, NZ, ztmp)
+        aug_rhs(ztmp, u, p, mu, ml, K[N_STAGES + 1 + k])
+    dense_coefficients(z, z_new, K, h, NZ, F)
 
 
 # -- indicators: functions of the state whose sign changes mark events -------------------
@@ -278,33 +251,20 @@ def _indicator(kind, z, u, p, mu, ml):
 def _locate(kind, sgn, a, b, ga, gb, h, z, F, u, p, mu, ml, ztmp):
     """First fraction in [a, b] where sgn * indicator >= 0, given ga < 0 <= gb (Illinois)."""
     side = 0
-    for _ in range(200):
-        if (b - a) * abs(h) <= EVENT_TIME_TOL:
+    for _ in range(MAX_BRACKET_ITERATIONS):
+        if bracket_closed(a, b, h):
             break
-        c = (a * gb - b * ga) / (gb - ga)
-        if not (a < c < b):
-            c = 0.5 * (a + b)
-        _dense(c, z, F, ztmp, NX)
+        c = illinois_point(a, b, ga, gb, h)
+        dense_eval(c, z, F, NX, ztmp)
         gc = sgn * _indicator(kind, ztmp, u, p, mu, ml)
-        if gc >= 0.0:
-            b = c
-            gb = gc
-            if side == -1:
-                ga *= 0.5
-            side = -1
-        else:
-            a = c
-            ga = gc
-            if side == 1:
-                gb *= 0.5
-            side = 1
+        a, b, ga, gb, side = illinois_update(a, b, ga, gb, side, c, gc)
     return b
 
 
 @nb.njit(**_JIT)
 def _extremum(comp, theta, z, F, u, p, mu, ml, ztmp, info):
     """Record the value of component ``comp`` at fraction ``theta`` in its min/max slots."""
-    _dense(theta, z, F, ztmp, NX)
+    dense_eval(theta, z, F, NX, ztmp)
     v = ztmp[comp]
     lo = I_X1MIN + 2 * comp
     if v < info[lo]:
@@ -328,64 +288,19 @@ def _track_extrema(theta_end, h, z, F, d0, d1, u, p, mu, ml, ztmp, info):
 
 
 @nb.njit(**_JIT)
-def _dip(disk, h, z, F, d0, d1, u, p, mu, ml, ztmp):
+def _dip(disk, h, z, F, d0, d1, mu, ml):
     """Fraction at which a slipping disk's speed first reaches zero inside a step whose ends
     both have it moving (a grazing dip), or 2.0 when there is none."""
     m = mu if disk == 0 else ml
     if m == 0:
         return 2.0
     c = 1 + disk  # speed component
-    a0 = m * d0[c]
-    a1 = m * d1[c]
-    if not (a0 < 0.0 and a1 > 0.0):  # |speed| must have a minimum inside the step
+    if not (m * d0[c] < 0.0 and m * d1[c] > 0.0):  # |speed| must have a minimum inside the step
         return 2.0
-    th_min = _locate(K_F2 + disk, m * 1.0, 0.0, 1.0, a0, a1, h, z, F, u, p, mu, ml, ztmp)
-    _dense(th_min, z, F, ztmp, NX)
-    if m * ztmp[c] > 0.0:
+    b0 = speed_dip(c, m, z, F)
+    if b0 > 1.0:
         return 2.0
-    g0 = -m * z[c]
-    gm = -m * ztmp[c]
-    if g0 >= 0.0:
-        return 0.0
-    return _locate(K_UPPER + disk, 1.0, 0.0, th_min, g0, gm, h, z, F, u, p, mu, ml, ztmp)
-
-
-@nb.njit(**_JIT)
-def _back_at_rest(disk, h, z, F, g1, u, p, mu, ml, ztmp):
-    """A disk that starts the step at rest in a slip mode and ends it at rest or behind:
-    the fraction at which it is back at zero speed after a short excursion in its
-    direction, or 0.0 when it never moved that way (the step is then cut at once)."""
-    kind = K_UPPER + disk
-    # Golden-section search for the most negative violation (the largest excursion).
-    gr = 0.5 * (math.sqrt(5.0) - 1.0)
-    a = 0.0
-    b = 1.0
-    c = b - gr * (b - a)
-    d = a + gr * (b - a)
-    _dense(c, z, F, ztmp, NX)
-    gc = _indicator(kind, ztmp, u, p, mu, ml)
-    _dense(d, z, F, ztmp, NX)
-    gd = _indicator(kind, ztmp, u, p, mu, ml)
-    for _ in range(60):
-        if gc < gd:
-            b = d
-            d = c
-            gd = gc
-            c = b - gr * (b - a)
-            _dense(c, z, F, ztmp, NX)
-            gc = _indicator(kind, ztmp, u, p, mu, ml)
-        else:
-            a = c
-            c = d
-            gc = gd
-            d = a + gr * (b - a)
-            _dense(d, z, F, ztmp, NX)
-            gd = _indicator(kind, ztmp, u, p, mu, ml)
-    th = c if gc < gd else d
-    gm = min(gc, gd)
-    if gm >= 0.0:
-        return 0.0
-    return _locate(kind, 1.0, th, 1.0, gm, g1, h, z, F, u, p, mu, ml, ztmp)
+    return speed_zero(c, m, z, F, h, b0)
 
 
 @nb.njit(**_JIT)
@@ -507,7 +422,7 @@ def flow(z, u, p, modes, t_max, to_section, rtol, atol, h_max, max_steps, info, 
         if not (err <= 1.0):
             n_rej += 1
             rejected = True
-            h *= max(0.2, 0.9 * err ** (-ORDER_EXP)) if math.isfinite(err) else 0.2
+            h *= shrink_factor(err)
             if h < H_MIN:
                 status = 2
                 break
@@ -524,25 +439,25 @@ def flow(z, u, p, modes, t_max, to_section, rtol, atol, h_max, max_steps, info, 
         gu0 = _upper_violation(z, u, p, mu)
         gu1 = _upper_violation(z_new, u, p, mu)
         if (gu1 > 0.0) if mu == 0 else (gu1 >= 0.0):
-            if gu0 < 0.0:
+            if mu != 0:
+                th_u = speed_zero(1, mu, z, F, h, 1.0)
+            elif gu0 < 0.0:
                 th_u = _locate(K_UPPER, 1.0, 0.0, 1.0, gu0, gu1, h, z, F, u, p, mu, ml, ztmp)
-            elif mu != 0:
-                th_u = _back_at_rest(0, h, z, F, gu1, u, p, mu, ml, ztmp)
             else:
                 th_u = 0.0
         else:
-            th_u = _dip(0, h, z, F, d0, d1, u, p, mu, ml, ztmp)
+            th_u = _dip(0, h, z, F, d0, d1, mu, ml)
         gl0 = _lower_violation(z, p, ml)
         gl1 = _lower_violation(z_new, p, ml)
         if (gl1 > 0.0) if ml == 0 else (gl1 >= 0.0):
-            if gl0 < 0.0:
+            if ml != 0:
+                th_l = speed_zero(2, ml, z, F, h, 1.0)
+            elif gl0 < 0.0:
                 th_l = _locate(K_LOWER, 1.0, 0.0, 1.0, gl0, gl1, h, z, F, u, p, mu, ml, ztmp)
-            elif ml != 0:
-                th_l = _back_at_rest(1, h, z, F, gl1, u, p, mu, ml, ztmp)
             else:
                 th_l = 0.0
         else:
-            th_l = _dip(1, h, z, F, d0, d1, u, p, mu, ml, ztmp)
+            th_l = _dip(1, h, z, F, d0, d1, mu, ml)
         if to_section and armed:
             s0 = z[1] - z[2]
             s1 = z_new[1] - z_new[2]
@@ -567,7 +482,7 @@ def flow(z, u, p, modes, t_max, to_section, rtol, atol, h_max, max_steps, info, 
                     info[I_X1MAX + 2 * c] = _v
             if z[1] - z[2] > 0.0:
                 armed = True
-            fac = 10.0 if err == 0.0 else min(10.0, max(0.2, 0.9 * err ** (-ORDER_EXP)))
+            fac = growth_factor(err)
             if rejected:
                 fac = min(fac, 1.0)
                 rejected = False
@@ -576,7 +491,7 @@ def flow(z, u, p, modes, t_max, to_section, rtol, atol, h_max, max_steps, info, 
             continue
         # An event at fraction th: move there.
         _track_extrema(th, h, z, F, d0, d1, u, p, mu, ml, ztmp, info)
-        _dense(th, z, F, zev, NZ)
+        dense_eval(th, z, F, NZ, zev)
         if mu == 0:
             info[I_STICK_U] += th * h
         if ml == 0:
@@ -621,16 +536,13 @@ def flow(z, u, p, modes, t_max, to_section, rtol, atol, h_max, max_steps, info, 
             mu = new
         else:
             ml = new
-        if t_ev - last_event_t <= 10.0 * EVENT_TIME_TOL:
-            events_here += 1
-            if events_here > MAX_EVENTS_AT_ONE_INSTANT:
-                status = 3
-                for j in range(NZ):
-                    z[j] = zev[j]
-                t = t_ev
-                break
-        else:
-            events_here = 0
+        events_here = events_at_instant(t_ev, last_event_t, events_here)
+        if events_here > MAX_EVENTS_AT_ONE_INSTANT:
+            status = 3
+            for j in range(NZ):
+                z[j] = zev[j]
+            t = t_ev
+            break
         last_event_t = t_ev
         for j in range(NZ):
             z[j] = zev[j]
