@@ -68,9 +68,11 @@ def _reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
-def _check_parent(path: Path, option: str) -> None:
-    """The folder that will hold ``path``: a folder (created if missing) we can write a file in."""
+def _check_parent(path: Path, option: str, shown: Path | None = None) -> None:
+    """The folder that will hold ``path``: a folder (created if missing) we can write a file in.
+    Messages name ``shown`` (default ``path``)."""
     parent = path.parent
+    path = shown if shown is not None else path
     probe = parent
     while not probe.exists():  # the nearest existing ancestor decides
         if probe.is_symlink():
@@ -116,7 +118,7 @@ def check_output_folder(path: str | os.PathLike[str], option: str = "--out") -> 
         raise OutputFolderError(f"{option} {path}: exists and is not a folder")
     if path.is_symlink() and not path.exists():
         raise OutputFolderError(f"{option} {path}: is a dangling link")
-    _check_parent(path / ".probe", option)
+    _check_parent(path / ".probe", option, shown=path)
     return path
 
 

@@ -209,8 +209,10 @@ def _load_meta(folder: Path) -> dict[str, Any]:
         raise DatasetError(
             f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}"
         ) from None
-    except RecursionError:
-        raise DatasetError(f"{path}: not valid JSON (nested too deeply)") from None
+    except (ValueError, RecursionError) as exc:  # an integer of thousands of digits, deep nesting
+        raise DatasetError(
+            f"{path}: not valid JSON ({' '.join(str(exc).split()) or 'nested too deeply'})"
+        ) from None
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: expected a JSON object, got {type(meta).__name__}")
     for key in ("preset", "encoder_counts_per_rev"):
@@ -259,16 +261,18 @@ def _lines_of_rows(raw: bytes) -> tuple[bytes, np.ndarray]:
     return b"\n".join(lines[i] for i in keep) + b"\n", np.asarray(keep, dtype=np.int64) + 1
 
 
-def _print_quantum(raw: bytes, col: str, tmax: float) -> float:
+def _print_quantum(raw: bytes, col: int, tmax: float) -> float:
     """The rounding step of the printed numbers of column ``col`` near ``tmax`` [same unit].
 
     A writer prints a fixed number of decimals (``%.6f``) or of significant digits
     (``%.12g``, trailing zeros dropped); the most decimals and the most significant digits
-    seen bound the rounding of every value: one unit in the last printed place.
+    seen bound the rounding of every value: one unit in the last printed place. ``col``
+    is the column's position.
     """
     import pandas as pd
 
-    text = pd.read_csv(io.BytesIO(raw), usecols=[col], dtype=str, na_filter=False, skipinitialspace=True)[col]
+    df = pd.read_csv(io.BytesIO(raw), usecols=[col], dtype=str, na_filter=False, skipinitialspace=True)
+    text = df.iloc[:, 0].astype(str)
     parts = text.str.strip().str.extract(r"^[-+]?(\d*)(?:\.(\d*))?(?:[eE]([-+]?\d+))?$")
     whole = parts[0].fillna("")
     frac = parts[1].fillna("")
@@ -278,7 +282,10 @@ def _print_quantum(raw: bytes, col: str, tmax: float) -> float:
     if not (math.isfinite(decimals) and math.isfinite(digits)):
         return math.inf
     mag = math.floor(math.log10(tmax)) if tmax > 0 else 0
-    return max(10.0 ** (-decimals), 10.0 ** (mag + 1 - max(digits, 1.0)))
+    try:
+        return max(10.0 ** (-decimals), 10.0 ** (mag + 1 - max(digits, 1.0)))
+    except OverflowError:
+        return math.inf
 
 
 def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> MeasuredRun:
@@ -359,13 +366,12 @@ def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> M
     if uneven.any():
         # Time stamps are printed to a fixed number of digits: an epoch time at 10 kHz, or
         # 2048 Hz written with 6 decimals, steps by +-1 unit of the last digit.
-        quantum = _print_quantum(raw, "t", tmax)
-        tol = max(tol, 2.02 * quantum + 8.0 * float(np.spacing(tmax)))
-        if tol > 0.1 * period:
-            raise DatasetError(
-                f"{name}: column 't': the time stamps are printed to {quantum:.3g} s, too coarse for the "
-                f"sample period {period:.6g} s; write them with more digits"
-            )
+        # (Digits that cannot resolve a tenth of the period do not widen the tolerance: the
+        # steps then show the coarse print themselves, and the first odd one is named.)
+        quantum = _print_quantum(raw, cols.index("t"), tmax)
+        print_tol = 2.02 * quantum + 8.0 * float(np.spacing(tmax))
+        if print_tol <= 0.1 * period:
+            tol = max(tol, print_tol)
         uneven = np.abs(d - period) > tol
     if uneven.any():
         i = _first(uneven) + 1
@@ -408,11 +414,13 @@ def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> M
                 "angles must be unwrapped (cumulative)"
             )
     for col in ("theta_u", "theta_l"):
-        _check_encoder_grid(name, col, data[col], raw, counts_per_rev, line)
+        _check_encoder_grid(name, col, data[col], raw, cols.index(col), counts_per_rev, line)
     return MeasuredRun(name=path.stem, t=t, u=u, theta_u=data["theta_u"], theta_l=data["theta_l"], path=path)
 
 
-def _check_encoder_grid(name: str, col: str, theta: np.ndarray, raw: bytes, counts: int, line) -> None:
+def _check_encoder_grid(
+    name: str, col: str, theta: np.ndarray, raw: bytes, position: int, counts: int, line
+) -> None:
     """Encoder angles are whole counts, ``k 2 pi / counts``: a wrong count does not fit them."""
     step = 2.0 * math.pi / counts
     k = theta / step
@@ -421,7 +429,7 @@ def _check_encoder_grid(name: str, col: str, theta: np.ndarray, raw: bytes, coun
     tol = _GRID_TOL + 8.0 * float(np.spacing(amax)) / step
     if not (off > tol).any():
         return
-    quantum = _print_quantum(raw, col, amax)  # the angles' printed digits
+    quantum = _print_quantum(raw, position, amax)  # the angles' printed digits
     tol = max(tol, (0.51 * quantum + 8.0 * float(np.spacing(amax))) / step)
     if tol > 0.1:
         return  # printed too coarsely to tell whole counts: nothing to check against
