@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import io
 import json
 import math
 import os
@@ -330,6 +331,34 @@ def load_results(path: str | Path):
     return df
 
 
+def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any] | None:
+    """Check, writing nothing, that the benchmark in ``out_dir`` (if any) can be resumed with
+    ``cfg``: its settings record and results file are readable and the episode settings and
+    plants agree. Returns the settings record (None: nothing to resume); raises ValueError
+    naming the file otherwise."""
+    out = Path(out_dir)
+    csv_path = out / "benchmark.csv"
+    cfg_path = out / "benchmark_config.json"
+    if not (cfg_path.is_file() and csv_path.is_file()):
+        return None
+    record = cfg.settings_record()
+    old = _read_settings(cfg_path)
+    _done_keys(csv_path)
+    if old.get("episode") != json.loads(json.dumps(record["episode"])):
+        raise ValueError(
+            f"out: {out} holds a benchmark with other episode settings ({old.get('episode')}); "
+            "use another directory or --fresh to start over"
+        )
+    before = {q["name"]: q for q in old.get("plants", [])}
+    for q in json.loads(json.dumps(record.get("plants", []))):
+        if q["name"] in before and before[q["name"]] != q:
+            raise ValueError(
+                f"plant: {q['name']!r} in {out} was run with other parameters; rename the plant "
+                "file, use another directory or --fresh to start over"
+            )
+    return old
+
+
 def _drop_partial_row(csv_path: Path) -> None:
     """Cut a last row that an interrupted run left without its line end (it is run again)."""
     if not csv_path.is_file():
@@ -350,8 +379,12 @@ def _drop_partial_row(csv_path: Path) -> None:
 def _done_keys(csv_path: Path) -> set[tuple[str, str, float, int]]:
     if not csv_path.is_file():
         return set()
+    data = csv_path.read_bytes()
+    source: Path | io.BytesIO = csv_path
+    if data and not data.endswith(b"\n"):  # an interrupted run's last row: run it again
+        source = io.BytesIO(data[: data.rfind(b"\n") + 1])
     try:
-        df = load_results(csv_path)
+        df = load_results(source)
         ok = df[df["error"] == ""]
         return {_key_of_row(r) for r in ok.to_dict("records")}
     except (ValueError, KeyError) as exc:  # pandas' parser and cast errors are ValueErrors
@@ -468,21 +501,10 @@ def _run_benchmark(
         for p in (csv_path, cfg_path, *report):
             if p.is_file():
                 p.unlink()
+    old = check_resumable(cfg, out)
     _drop_partial_row(csv_path)
-    if cfg_path.is_file() and csv_path.is_file():
-        old = _read_settings(cfg_path)
-        if old.get("episode") != json.loads(json.dumps(record["episode"])):
-            raise ValueError(
-                f"out: {out} holds a benchmark with other episode settings ({old.get('episode')}); "
-                "use another directory or --fresh to start over"
-            )
+    if old is not None:
         before = {q["name"]: q for q in old.get("plants", [])}
-        for q in json.loads(json.dumps(record.get("plants", []))):
-            if q["name"] in before and before[q["name"]] != q:
-                raise ValueError(
-                    f"plant: {q['name']!r} in {out} was run with other parameters; rename the plant "
-                    "file, use another directory or --fresh to start over"
-                )
         record = (
             dict(
                 record,

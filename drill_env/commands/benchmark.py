@@ -194,6 +194,13 @@ def register(app: typer.Typer) -> None:
         from drill_env.outputs import OutputFolderError, check_output_folder, output_lock
 
         check_output_folder(out, "--out")
+        if not fresh:
+            from agents.benchmark import check_resumable
+
+            try:
+                check_resumable(cfg, out)  # a damaged folder is named before anything runs
+            except ValueError as exc:
+                _fail(str(exc))
 
         held = ExitStack()
         try:
