@@ -134,6 +134,8 @@ def _finite(name: str, value: Any) -> float:
 
 
 def _check_positive(name: str, value: Any) -> float:
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"{name}: expected a number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
