@@ -343,7 +343,6 @@ def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any]
         return None
     record = cfg.settings_record()
     old = _read_settings(cfg_path)
-    _done_keys(csv_path)
     if old.get("episode") != json.loads(json.dumps(record["episode"])):
         raise ValueError(
             f"out: {out} holds a benchmark with other episode settings ({old.get('episode')}); "
@@ -356,6 +355,7 @@ def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any]
                 f"plant: {q['name']!r} in {out} was run with other parameters; rename the plant "
                 "file, use another directory or --fresh to start over"
             )
+    _done_keys(csv_path)
     return old
 
 
@@ -387,7 +387,7 @@ def _done_keys(csv_path: Path) -> set[tuple[str, str, float, int]]:
         df = load_results(source)
         ok = df[df["error"] == ""]
         return {_key_of_row(r) for r in ok.to_dict("records")}
-    except (ValueError, KeyError) as exc:  # pandas' parser and cast errors are ValueErrors
+    except (ValueError, KeyError, IndexError) as exc:  # pandas' parser and cast errors are ValueErrors
         detail = " ".join(str(exc).split())
         raise ValueError(
             f"{csv_path}: cannot resume from it ({detail}); repair or remove the file, or start over with "

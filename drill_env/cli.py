@@ -139,6 +139,7 @@ def simulate(
         df = res.to_pandas()
         df["stick_u"] = df["stick_u"].astype(int)
         df["stick_l"] = df["stick_l"].astype(int)
+        out.parent.mkdir(parents=True, exist_ok=True)
         with atomic_file(out, "w", newline="") as f:
             df.to_csv(f, index=False, float_format="%.10g")
     win = res.window(min(summary_window, duration))

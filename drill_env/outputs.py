@@ -69,32 +69,38 @@ def _reason(exc: OSError) -> str:
 
 
 def _check_parent(path: Path, option: str, shown: Path | None = None) -> None:
-    """The folder that will hold ``path``: a folder (created if missing) we can write a file in.
-    Messages name ``shown`` (default ``path``)."""
+    """The folder that will hold ``path`` can be created and written in: tried, then undone
+    (folders this check creates are removed again). Messages name ``shown`` (default ``path``)."""
     parent = path.parent
     path = shown if shown is not None else path
+    missing: list[Path] = []
     probe = parent
     while not probe.exists():  # the nearest existing ancestor decides
         if probe.is_symlink():
             raise OutputFolderError(f"{option} {path}: {probe} is a dangling link")
+        missing.append(probe)
         probe = probe.parent
     if not probe.is_dir():
         raise OutputFolderError(f"{option} {path}: {probe} is not a folder")
     try:
         parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=parent, prefix=".drill-env-probe.", suffix=".tmp")
+        os.close(fd)
+        os.unlink(tmp)
     except OSError as exc:
         raise OutputFolderError(f"{option} {path}: cannot write in {parent}: {_reason(exc)}") from None
-    os.close(fd)
-    os.unlink(tmp)
+    finally:
+        for folder in missing:  # innermost first
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 def check_output_file(path: str | os.PathLike[str], option: str = "--out") -> Path:
     """Check, before any work, that a result file can be written at ``path``.
 
     ``path`` must not be a folder or another special file (an existing regular file is
-    replaced); its folder is created if missing and must be writable. Raises
-    :class:`OutputFolderError` naming ``option`` and the path.
+    replaced); its folder must exist or be creatable, and writable (tried, and undone).
+    Raises :class:`OutputFolderError` naming ``option`` and the path.
     """
     path = Path(path)
     if path.is_dir():
@@ -110,8 +116,8 @@ def check_output_file(path: str | os.PathLike[str], option: str = "--out") -> Pa
 def check_output_folder(path: str | os.PathLike[str], option: str = "--out") -> Path:
     """Check, before any work, that ``path`` is (or can be created as) a writable folder.
 
-    Creates the folder if it is missing. Raises :class:`OutputFolderError` naming
-    ``option`` and the path.
+    Leaves nothing behind (a folder created to try is removed). Raises
+    :class:`OutputFolderError` naming ``option`` and the path.
     """
     path = Path(path)
     if path.exists() and not path.is_dir():

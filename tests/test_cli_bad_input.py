@@ -78,6 +78,21 @@ def _benchmark_folder(d: Path, csv_text: str, config_text: str) -> str:
     return str(out)
 
 
+def _benchmark_settings() -> str:
+    """The settings record of the benchmark BENCH describes, as a resumable folder holds it."""
+    from agents.benchmark import BenchmarkConfig
+    from agents.evaluation import EpisodeSettings
+
+    cfg = BenchmarkConfig(
+        presets=("brake",),
+        controllers=("open_loop",),
+        voltages={"brake": (1.0,)},
+        seeds=(0,),
+        episode=EpisodeSettings(duration=2.0, window=1.0, warmup_time=0.0),
+    )
+    return json.dumps(cfg.settings_record())
+
+
 def _benchmark_csv() -> str:
     from agents.benchmark import COLUMNS
 
@@ -213,9 +228,16 @@ CASES = [
         lambda d: [
             *BENCH,
             "--out",
-            _benchmark_folder(d, _benchmark_csv() + "open_loop,brake,nominal,1,zero\n", '{"episode": {}}'),
+            _benchmark_folder(
+                d, _benchmark_csv() + "open_loop,brake,nominal,1,zero\n", _benchmark_settings()
+            ),
         ],
-        ["benchmark.csv", "--fresh"],
+        ["benchmark.csv", "cannot resume", "--fresh"],
+    ),
+    (
+        "benchmark-resume-csv-no-columns",
+        lambda d: [*BENCH, "--out", _benchmark_folder(d, "x\n", _benchmark_settings())],
+        ["benchmark.csv", "cannot resume", "--fresh"],
     ),
     ("tune-control-dt", lambda d: ["tune", "--control-dt", "0.0505"], ["--control-dt", "sensor periods"]),
     ("tune-out-folder", lambda d: ["tune", "--out", _folder(d)], ["--out", "dir"]),
@@ -389,3 +411,20 @@ def test_a_row_cut_by_an_interrupted_run_is_run_again(tmp_path):
     cols = ["controller", "voltage", "seed", "amplitude", "mean_speed", "stick_fraction"]
     pd_testing = pytest.importorskip("pandas.testing")
     pd_testing.assert_frame_equal(again[cols], whole[cols])
+
+
+def test_output_checks_leave_nothing_behind(tmp_path):
+    from drill_env.outputs import OutputFolderError, check_output_file, check_output_folder
+
+    check_output_file(tmp_path / "a" / "b" / "run.csv")
+    check_output_folder(tmp_path / "c" / "d")
+    assert list(tmp_path.iterdir()) == []  # tried, then undone
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(OutputFolderError, match=r"--out .*f/g/run.csv: .*f is not a folder"):
+        check_output_file(tmp_path / "f" / "g" / "run.csv")
+    with pytest.raises(OutputFolderError, match=r"--here .*f: exists and is not a folder"):
+        check_output_folder(tmp_path / "f", "--here")
+    (tmp_path / "link").symlink_to(tmp_path / "gone")
+    with pytest.raises(OutputFolderError, match="dangling link"):
+        check_output_file(tmp_path / "link")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f", "link"]

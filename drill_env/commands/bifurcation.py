@@ -141,6 +141,7 @@ def register(app: typer.Typer) -> None:
         comp = rig_comparison(preset)
         text = comp.to_markdown()
         if out is not None:
+            out.parent.mkdir(parents=True, exist_ok=True)
             comp.save(out)
         typer.echo(text)
         if out is not None:
