@@ -409,7 +409,7 @@ def available_presets() -> list[str]:
 def load_params(name_or_path: str | Path, **overrides: Any) -> RigParams:
     """Load a preset by name (``brake``, ``no_brake``) or a YAML file by path."""
     path = Path(name_or_path)
-    if path.suffix not in (".yaml", ".yml"):
+    if path.suffix.lower() not in (".yaml", ".yml"):
         for d in _preset_dirs():
             candidate = d / f"{name_or_path}.yaml"
             if candidate.is_file():

@@ -167,14 +167,15 @@ def test_bad_metadata_files_are_named(folder, make, words):
 # -- line numbers ------------------------------------------------------------------------------
 
 
-def test_blank_lines_keep_the_line_numbers_of_the_file(folder):
+@pytest.mark.parametrize("end", ["\n", "\r\n"])
+def test_blank_lines_keep_the_line_numbers_of_the_file(folder, end):
     p = folder / "run01.csv"
     lines = p.read_text().splitlines()
     lines[20] = lines[20].replace(",1.5,", ",7.5,")  # line 21 of the file as written
     lines.insert(5, "")
-    lines.insert(9, "   ")
+    lines.insert(9, " \t ")
     lines.insert(0, "")
-    p.write_text("\r\n".join(lines) + "\r\n")  # CRLF line ends as well
+    p.write_bytes((end.join(lines) + end + "  " + end).encode())
     msg = _error(folder)
     assert "line 24, column 'u'" in msg and "7.5 V" in msg
 

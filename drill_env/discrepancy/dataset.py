@@ -26,6 +26,7 @@ import io
 import json
 import math
 import os
+import re
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -250,6 +251,10 @@ def _lines_of_rows(raw: bytes) -> tuple[bytes, np.ndarray]:
     Blank lines are allowed anywhere; a message still names the line of the file. Line
     ends may be LF, CRLF or CR.
     """
+    body = raw[:-1] if raw.endswith(b"\n") else raw
+    if b"\r" not in raw and re.search(rb"(?:^|\n)[ \t\f\v]*(?:\n|$)", body) is None:
+        # the usual file: no blank line, LF line ends; not split into a list of lines
+        return raw, np.arange(1, body.count(b"\n") + 2)
     if b"\r" in raw:
         raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     lines = raw.split(b"\n")
