@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import csv
 import functools
+import io
 import json
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -329,12 +331,87 @@ def load_results(path: str | Path):
     return df
 
 
+def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any] | None:
+    """Check, writing nothing, that the benchmark in ``out_dir`` (if any) can be resumed with
+    ``cfg``: its settings record and results file are readable and the episode settings and
+    plants agree. Returns the settings record (None: nothing to resume); raises ValueError
+    naming the file otherwise."""
+    out = Path(out_dir)
+    csv_path = out / "benchmark.csv"
+    cfg_path = out / "benchmark_config.json"
+    if not (cfg_path.is_file() and csv_path.is_file()):
+        return None
+    record = cfg.settings_record()
+    old = _read_settings(cfg_path)
+    if old.get("episode") != json.loads(json.dumps(record["episode"])):
+        raise ValueError(
+            f"out: {out} holds a benchmark with other episode settings ({old.get('episode')}); "
+            "use another directory or --fresh to start over"
+        )
+    before = {q["name"]: q for q in old.get("plants", [])}
+    for q in json.loads(json.dumps(record.get("plants", []))):
+        if q["name"] in before and before[q["name"]] != q:
+            raise ValueError(
+                f"plant: {q['name']!r} in {out} was run with other parameters; rename the plant "
+                "file, use another directory or --fresh to start over"
+            )
+    _done_keys(csv_path)
+    return old
+
+
+def _drop_partial_row(csv_path: Path) -> None:
+    """Cut a last row that an interrupted run left without its line end (it is run again)."""
+    if not csv_path.is_file():
+        return
+    data = csv_path.read_bytes()
+    if not data or data.endswith(b"\n"):
+        return
+    keep = data.rfind(b"\n") + 1
+    warnings.warn(
+        f"{csv_path}: the last row is incomplete (an interrupted run); it is dropped and run again",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+    with open(csv_path, "r+b") as f:
+        f.truncate(keep)
+
+
 def _done_keys(csv_path: Path) -> set[tuple[str, str, float, int]]:
     if not csv_path.is_file():
         return set()
-    df = load_results(csv_path)
-    ok = df[df["error"] == ""]
-    return {_key_of_row(r) for r in ok.to_dict("records")}
+    data = csv_path.read_bytes()
+    source: Path | io.BytesIO = csv_path
+    if data and not data.endswith(b"\n"):  # an interrupted run's last row: run it again
+        source = io.BytesIO(data[: data.rfind(b"\n") + 1])
+    try:
+        df = load_results(source)
+        ok = df[df["error"] == ""]
+        return {_key_of_row(r) for r in ok.to_dict("records")}
+    except (ValueError, KeyError, IndexError) as exc:  # pandas' parser and cast errors are ValueErrors
+        detail = " ".join(str(exc).split())
+        raise ValueError(
+            f"{csv_path}: cannot resume from it ({detail}); repair or remove the file, or start over with "
+            "--fresh"
+        ) from None
+
+
+def _read_settings(cfg_path: Path) -> dict[str, Any]:
+    """The settings record of the benchmark in a folder, or an error naming the file."""
+    try:
+        old = json.loads(cfg_path.read_text(encoding="utf-8"))
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        detail = " ".join(str(exc).split())
+        raise ValueError(
+            f"{cfg_path}: not a valid settings record ({detail}); it is needed to resume the benchmark "
+            f"in {cfg_path.parent}: repair it, or start over with --fresh"
+        ) from None
+    plants = old.get("plants", []) if isinstance(old, dict) else None
+    if not isinstance(plants, list) or not all(isinstance(q, dict) and "name" in q for q in plants):
+        raise ValueError(
+            f"{cfg_path}: not a valid settings record (expected a JSON object with 'episode'); "
+            "repair it, or start over with --fresh"
+        )
+    return old
 
 
 class _Writer:
@@ -424,20 +501,10 @@ def _run_benchmark(
         for p in (csv_path, cfg_path, *report):
             if p.is_file():
                 p.unlink()
-    if cfg_path.is_file() and csv_path.is_file():
-        old = json.loads(cfg_path.read_text())
-        if old.get("episode") != json.loads(json.dumps(record["episode"])):
-            raise ValueError(
-                f"out: {out} holds a benchmark with other episode settings ({old.get('episode')}); "
-                "use another directory or --fresh to start over"
-            )
+    old = check_resumable(cfg, out)
+    _drop_partial_row(csv_path)
+    if old is not None:
         before = {q["name"]: q for q in old.get("plants", [])}
-        for q in json.loads(json.dumps(record.get("plants", []))):
-            if q["name"] in before and before[q["name"]] != q:
-                raise ValueError(
-                    f"plant: {q['name']!r} in {out} was run with other parameters; rename the plant "
-                    "file, use another directory or --fresh to start over"
-                )
         record = (
             dict(
                 record,

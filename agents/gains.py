@@ -9,9 +9,8 @@ import functools
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from agents.base import Controller, ControllerSpec
+from drill_env.params import load_yaml
 
 __all__ = ["BUILT_ON", "CLASSICAL", "classical_controller", "gains_path", "load_gains"]
 
@@ -38,7 +37,7 @@ def _load_gains_cached(path: str) -> dict[str, Any]:
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"gains: no such file {path!r}; run `drill-env tune --out {path}`")
-    data = yaml.safe_load(p.read_text()) or {}
+    data = load_yaml(p, what="gains file (written by drill-env tune)", error=ValueError) or {}
     if not isinstance(data, dict) or "presets" not in data:
         raise ValueError(f"gains: {path} has no 'presets' mapping")
     return data

@@ -57,6 +57,7 @@ import yaml
 
 from drill_env.envs import ENV_IDS
 from drill_env.envs.task import REGIMES
+from drill_env.params import load_yaml
 
 __all__ = [
     "ALGOS",
@@ -198,7 +199,7 @@ def load_config(path: str | Path, **overrides: Any) -> TrainConfig:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"config: no such file {str(path)!r}")
-    data = yaml.safe_load(path.read_text()) or {}
+    data = load_yaml(path, what="training config", error=ValueError) or {}
     if not isinstance(data, Mapping):
         raise ValueError(f"config: {path} must hold a YAML mapping")
     data = dict(data)

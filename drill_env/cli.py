@@ -2,6 +2,12 @@
 
 Each command is a thin shell over the Python API; heavy modules are imported inside
 the command so that ``drill-env --help`` stays quick.
+
+Bad input ends a command with one line ``error: ...`` on stderr and exit code 2, never
+a traceback: each command checks its options, and the errors the library raises for bad
+input (:data:`EXPECTED_ERRORS` below: a rig or config file, a measured dataset, an
+output path) are caught once, around every command, by :class:`_Commands`. Any other
+exception is a bug and keeps its traceback. Work that ran and failed exits with code 1.
 """
 
 from __future__ import annotations
@@ -10,10 +16,44 @@ import math
 from pathlib import Path
 
 import typer
+from typer.core import TyperGroup
+
+# At most this many output samples from `drill-env simulate` (about 0.6 GB in memory and
+# 1.5 GB of CSV); a larger request is refused before it starts, naming --dt and --duration.
+MAX_SIMULATE_ROWS = 10_000_000
+
+
+def _expected_errors() -> tuple[type[BaseException], ...]:
+    """The library's errors for bad input: shown as one line, never as a traceback."""
+    from drill_env.discrepancy.dataset import DatasetError
+    from drill_env.outputs import OutputFolderError
+    from drill_env.params import ParameterError
+    from drill_env.simulator import InputFunctionError, OutputSizeError
+
+    return (ParameterError, DatasetError, OutputFolderError, InputFunctionError, OutputSizeError, OSError)
+
+
+def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    text = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    return text or type(exc).__name__
+
+
+class _Commands(TyperGroup):
+    """Every command runs inside one handler for the expected error types."""
+
+    def invoke(self, ctx):  # noqa: ANN001, ANN201 (click's signature)
+        try:
+            return super().invoke(ctx)
+        except _expected_errors() as exc:  # evaluated only when an exception propagates
+            _fail(_one_line(exc))
+
 
 # Plain help text (no rich markup): units in brackets such as "[s]" stay visible, switches show
 # as flags and long values wrap instead of being cut at the terminal width.
 app = typer.Typer(
+    cls=_Commands,
     add_completion=False,
     no_args_is_help=True,
     rich_markup_mode=None,
@@ -26,12 +66,13 @@ def _root() -> None:
     """drill-env: the torsional stick-slip rig of Mihajlovic et al. (2004)."""
 
 
-RIG_VOLTAGE_LIMIT = 5.0  # [V] the amplifier input range of the rig, Sec. 2.1
-
-
 def _fail(message: str) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code=2)
+
+
+def _warn(message: str) -> None:
+    typer.secho(f"warning: {message}", fg=typer.colors.YELLOW, err=True)
 
 
 @app.command()
@@ -54,31 +95,53 @@ def simulate(
         _fail(f"--voltage must be finite, got {voltage!r}")
     if dt > duration:
         _fail(f"--dt ({dt:g} s) must not exceed --duration ({duration:g} s)")
+    rows = math.floor(duration / dt * (1 + 1e-12) + 1e-9) + 1
+    if rows > MAX_SIMULATE_ROWS:
+        _fail(
+            f"--duration {duration:g} s at --dt {dt:g} s makes {rows:.4g} output samples (about "
+            f"{rows * 58 / 2**30:.3g} GiB in memory, {rows * 150 / 2**30:.3g} GiB of CSV); the limit is "
+            f"{MAX_SIMULATE_ROWS:.0e}: raise --dt to at least {duration / (MAX_SIMULATE_ROWS - 1):.3g} s "
+            "or shorten --duration"
+        )
 
     from drill_env.metrics import stick_slip_metrics
-    from drill_env.params import ParameterError, resolve_params
+    from drill_env.outputs import atomic_file, check_output_file
+    from drill_env.params import RIG_VOLTAGE_LIMIT, resolve_params, validity_warnings
     from drill_env.simulator import simulate as run_simulation
 
-    try:
-        params = resolve_params(preset)
-    except ParameterError as exc:
-        _fail(str(exc))
+    params = resolve_params(preset)
+    if out is not None:
+        check_output_file(out, "--out")  # before the run, not after it
     applied = voltage
     if not no_voltage_limit and abs(voltage) > RIG_VOLTAGE_LIMIT:
         applied = math.copysign(RIG_VOLTAGE_LIMIT, voltage)
+        _warn(
+            f"--voltage {voltage:g} V is outside the rig's +-{RIG_VOLTAGE_LIMIT:g} V "
+            f"amplifier range; clipped to {applied:g} V (use --no-voltage-limit to lift it)"
+        )
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a failed run is reported below
+        res = run_simulation(params, applied, duration, dt=dt)
+    if res.status != 0:
         typer.secho(
-            f"warning: --voltage {voltage:g} V is outside the rig's +-{RIG_VOLTAGE_LIMIT:g} V "
-            f"amplifier range; clipped to {applied:g} V (use --no-voltage-limit to lift it)",
-            fg=typer.colors.YELLOW,
+            f"error: the simulation at u = {applied:g} V failed: {res.message.rstrip('.')} (status {res.status}); "
+            "nothing written",
+            fg=typer.colors.RED,
             err=True,
         )
-    res = run_simulation(params, applied, duration, dt=dt)
+        raise typer.Exit(code=1)
+    notes = validity_warnings(params.name, voltages=(applied, applied), max_speed=float(abs(res.x3).max()))
+    for note in notes:
+        _warn(note)
     if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
         df = res.to_pandas()
         df["stick_u"] = df["stick_u"].astype(int)
         df["stick_l"] = df["stick_l"].astype(int)
-        df.to_csv(out, index=False, float_format="%.10g")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_file(out, "w", newline="") as f:
+            df.to_csv(f, index=False, float_format="%.10g")
     win = res.window(min(summary_window, duration))
     m = stick_slip_metrics(win.t, win.x3, win.stick_l)
     stick_u = float(win.stick_u.mean())

@@ -46,6 +46,8 @@ __all__ = [
     "atomic_write_text",
     "atomic_write_bytes",
     "fresh_run_folder",
+    "check_output_file",
+    "check_output_folder",
 ]
 
 LOCK_NAME = ".drill-env.lock"
@@ -57,6 +59,73 @@ class OutputFolderError(ValueError):
 
 class OutputFolderBusy(OutputFolderError):
     """Another run is writing into the output folder."""
+
+
+# -- output paths checked before any work ----------------------------------------------------------
+
+
+def _reason(exc: OSError) -> str:
+    return exc.strerror or str(exc)
+
+
+def _check_parent(path: Path, option: str, shown: Path | None = None) -> None:
+    """The folder that will hold ``path`` can be created and written in: tried, then undone
+    (folders this check creates are removed again). Messages name ``shown`` (default ``path``)."""
+    parent = path.parent
+    path = shown if shown is not None else path
+    missing: list[Path] = []
+    probe = parent
+    while not probe.exists():  # the nearest existing ancestor decides
+        if probe.is_symlink():
+            raise OutputFolderError(f"{option} {path}: {probe} is a dangling link")
+        missing.append(probe)
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputFolderError(f"{option} {path}: {probe} is not a folder")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=parent, prefix=".drill-env-probe.", suffix=".tmp")
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise OutputFolderError(f"{option} {path}: cannot write in {parent}: {_reason(exc)}") from None
+    finally:
+        for folder in missing:  # innermost first
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+
+
+def check_output_file(path: str | os.PathLike[str], option: str = "--out") -> Path:
+    """Check, before any work, that a result file can be written at ``path``.
+
+    ``path`` must not be a folder or another special file (an existing regular file is
+    replaced); its folder must exist or be creatable, and writable (tried, and undone).
+    Raises :class:`OutputFolderError` naming ``option`` and the path.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputFolderError(f"{option} {path}: is a folder; expected a file path")
+    if path.exists() and not path.is_file():
+        raise OutputFolderError(f"{option} {path}: exists and is not a regular file")
+    if path.is_symlink() and not path.exists():
+        raise OutputFolderError(f"{option} {path}: is a dangling link")
+    _check_parent(path, option)
+    return path
+
+
+def check_output_folder(path: str | os.PathLike[str], option: str = "--out") -> Path:
+    """Check, before any work, that ``path`` is (or can be created as) a writable folder.
+
+    Leaves nothing behind (a folder created to try is removed). Raises
+    :class:`OutputFolderError` naming ``option`` and the path.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputFolderError(f"{option} {path}: exists and is not a folder")
+    if path.is_symlink() and not path.exists():
+        raise OutputFolderError(f"{option} {path}: is a dangling link")
+    _check_parent(path / ".probe", option, shown=path)
+    return path
 
 
 # -- one writer per folder -------------------------------------------------------------------------

@@ -26,11 +26,50 @@ __all__ = [
     "available_presets",
     "load_params",
     "resolve_params",
+    "load_yaml",
+    "MAX_YAML_BYTES",
+    "RIG_VOLTAGE_LIMIT",
+    "IDENTIFIED_SPEED_RAD_S",
+    "validity_warnings",
 ]
 
 
 class ParameterError(ValueError):
     """A rig parameter is missing, unknown or outside its allowed range."""
+
+
+RIG_VOLTAGE_LIMIT = 5.0  # [V] the amplifier input range of the rig, Sec. 2.1
+# [rad/s] the lower-disk speed up to which a preset's friction was identified from rig data:
+# the brake's measured friction reached about 12.6 rad/s (Sec. 4 of the paper); the no-brake
+# friction has no stated limit.
+IDENTIFIED_SPEED_RAD_S: dict[str, float] = {"brake": 12.6}
+
+
+def validity_warnings(
+    preset: str, *, voltages: tuple[float, float] | None = None, max_speed: float | None = None
+) -> list[str]:
+    """Where an analysis leaves the model's validated range, one sentence each (empty: inside).
+
+    ``voltages`` is the (lowest, highest) voltage analysed [V], ``max_speed`` the largest
+    |lower-disk speed| reached [rad/s]; ``preset`` names the friction model (its identified
+    speed range, :data:`IDENTIFIED_SPEED_RAD_S`).
+    """
+    notes: list[str] = []
+    if voltages is not None:
+        lo, hi = voltages
+        if hi > RIG_VOLTAGE_LIMIT or lo < -RIG_VOLTAGE_LIMIT:
+            what = f"u = {lo:g} V is" if lo == hi else f"voltages from {lo:g} to {hi:g} V are"
+            notes.append(
+                f"{what} outside the rig's +-{RIG_VOLTAGE_LIMIT:g} V amplifier range: the model is "
+                "unvalidated there"
+            )
+    limit = IDENTIFIED_SPEED_RAD_S.get(preset)
+    if max_speed is not None and limit is not None and max_speed > limit:
+        notes.append(
+            f"the lower disk reaches {max_speed:.4g} rad/s, beyond the {limit:g} rad/s up to which the "
+            f"{preset} friction was identified (Sec. 4 of the paper): results there are extrapolation"
+        )
+    return notes
 
 
 # Allowed ranges: (low, high, low_inclusive). high is always exclusive (inf).
@@ -289,6 +328,71 @@ def _apply_overrides(params: RigParams, overrides: Mapping[str, Any]) -> RigPara
     return dataclasses.replace(params, effects=effects, **top_kw)
 
 
+# -- YAML files ------------------------------------------------------------------------------
+
+MAX_YAML_BYTES = 1 << 20  # a configuration file is small; anything larger is not one
+
+
+# PyYAML follows YAML 1.1, where a float needs a dot ("5.0e-4"): 5e-4 and 1e300 would load
+# as strings. The loader adds YAML 1.2's exponent form.
+def _yaml_loader() -> type:
+    import re
+
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    # copy the resolvers before adding one, so that yaml.SafeLoader itself is left alone
+    Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+    Loader.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+        list("-+0123456789."),
+    )
+    return Loader
+
+
+def load_yaml(path: str | Path, *, what: str = "YAML file", error: type[Exception] = ParameterError) -> Any:
+    """Parse a small YAML file; every failure is ``error`` with a one-line message naming the file.
+
+    Numbers in exponent form without a dot (``5e-4``, ``1e300``) are read as floats, as
+    YAML 1.2 does. A file that is missing, not a regular file (a folder, a FIFO), larger
+    than :data:`MAX_YAML_BYTES`, not UTF-8 text or not valid YAML is refused, with the
+    line and column of a syntax error.
+    """
+    import stat
+
+    import yaml
+
+    path = Path(path)
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"{path}: not a regular file; expected a {what}")
+    if st.st_size > MAX_YAML_BYTES:
+        raise error(f"{path}: {st.st_size} bytes; a {what} is at most {MAX_YAML_BYTES} bytes")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"{path}: not UTF-8 text (byte {exc.start} is 0x{raw[exc.start]:02x}); expected a {what}"
+        ) from None
+    try:
+        return yaml.load(text, Loader=_yaml_loader())  # noqa: S506 (a SafeLoader subclass)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise error(f"{path}: not valid YAML{where}: {problem}") from None
+
+
 def _preset_dirs() -> list[Path]:
     here = Path(__file__).resolve().parent
     return [here / "_configs" / "rig", here.parent / "configs" / "rig"]
@@ -304,10 +408,8 @@ def available_presets() -> list[str]:
 
 def load_params(name_or_path: str | Path, **overrides: Any) -> RigParams:
     """Load a preset by name (``brake``, ``no_brake``) or a YAML file by path."""
-    import yaml
-
     path = Path(name_or_path)
-    if path.suffix not in (".yaml", ".yml"):
+    if path.suffix.lower() not in (".yaml", ".yml"):
         for d in _preset_dirs():
             candidate = d / f"{name_or_path}.yaml"
             if candidate.is_file():
@@ -317,9 +419,9 @@ def load_params(name_or_path: str | Path, **overrides: Any) -> RigParams:
             raise ParameterError(
                 f"preset: unknown preset {str(name_or_path)!r}; available: {available_presets()}"
             )
-    if not path.is_file():
+    if not path.exists():
         raise ParameterError(f"preset: no such file {str(path)!r}")
-    data = yaml.safe_load(path.read_text())
+    data = load_yaml(path, error=ParameterError)
     if not isinstance(data, Mapping):
         raise ParameterError(f"{path.name}: expected a mapping of parameter names to values")
     params = RigParams.from_dict(data, source=path.name)

@@ -37,6 +37,8 @@ __all__ = [
     "simulate_batch",
     "initial_state",
     "InputFunctionError",
+    "OutputSizeError",
+    "MAX_RESULT_BYTES",
     "DEFAULT_RTOL",
     "DEFAULT_ATOL",
 ]
@@ -132,6 +134,8 @@ def _finite(name: str, value: Any) -> float:
 
 
 def _check_positive(name: str, value: Any) -> float:
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"{name}: expected a number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -139,6 +143,45 @@ def _check_positive(name: str, value: Any) -> float:
     if not math.isfinite(v) or v <= 0.0:
         raise ValueError(f"{name}: must be finite and > 0, got {value!r}")
     return v
+
+
+# The arrays of one result (states, modes, input at every output sample) may take at most
+# this much memory; a larger request is refused before anything is allocated.
+MAX_RESULT_BYTES = 2 * 2**30
+_BYTES_PER_SAMPLE = 8 * L.NY + 2 + 8  # simulate: states (float64), modes (int8), input
+_BYTES_PER_BATCH_SAMPLE = 8 * L.NY + 2 * 8 + 8  # simulate_batch: modes are int64
+
+
+class OutputSizeError(ValueError):
+    """The requested output would exceed :data:`MAX_RESULT_BYTES`."""
+
+
+def _check_output_size(n_samples: int, per_sample: int, t_span: float, dt: float, n_rigs: int = 1) -> None:
+    size = n_samples * per_sample * n_rigs
+    if size > MAX_RESULT_BYTES:
+        rigs = f" x {n_rigs} rigs" if n_rigs > 1 else ""
+        raise OutputSizeError(
+            f"dt: {t_span:g} s sampled every {dt:g} s is {n_samples:.4g} output samples{rigs}, "
+            f"{size / 2**30:.3g} GiB; the limit is {MAX_RESULT_BYTES / 2**30:g} GiB: raise dt, "
+            "shorten the run or split it (pass the final state as x0 of the next)"
+        )
+
+
+def _n_output(t0: float, t_final: float, dt: float) -> int:
+    return int(math.floor((t_final - t0) / dt * (1 + 1e-12) + 1e-9)) + 1
+
+
+def _voltage_array(u: Any) -> np.ndarray:
+    """``u`` as a float array; strings, None, booleans and other non-numbers are refused."""
+    if u is None or isinstance(u, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"u: expected a voltage [V] (a number, a sequence or a function of time), got {u!r}")
+    try:
+        raw = np.asarray(u)
+    except (TypeError, ValueError):
+        raise ValueError(f"u: expected numbers [V], got {u!r}") from None
+    if raw.dtype.kind not in "iuf" and not (raw.dtype.kind == "O" and raw.size == 0):
+        raise ValueError(f"u: expected numbers [V], got {raw.dtype.name} values ({u!r:.80})")
+    return raw.astype(float)
 
 
 class InputFunctionError(ValueError):
@@ -230,7 +273,9 @@ def _input_program(
     if callable(u):
         fn = _compile_input(u, t0)
         return np.array([t0, t_final]), np.array([0.0]), fn, True, lim
-    arr = np.asarray(u, dtype=float)
+    arr = _voltage_array(u)
+    if control_dt is not None:
+        control_dt = _check_positive("control_dt", control_dt)
     if arr.ndim == 0:
         if not math.isfinite(float(arr)):
             raise ValueError(f"u: the voltage must be finite, got {float(arr)!r}")
@@ -255,7 +300,7 @@ def _input_program(
 
 
 def _output_grid(t0: float, t_final: float, dt: float) -> np.ndarray:
-    n = int(math.floor((t_final - t0) / dt * (1 + 1e-12) + 1e-9)) + 1
+    n = _n_output(t0, t_final, dt)
     t = t0 + dt * np.arange(n)
     t[-1] = min(t[-1], t_final)
     return t
@@ -325,6 +370,7 @@ def simulate(
     vlim = options.get("voltage_limit")
     if vlim is not None:
         vlim = _check_positive("voltage_limit", vlim)
+    _check_output_size(_n_output(t0, t_final, dt), _BYTES_PER_SAMPLE, duration, dt)
     max_steps = options.get("max_steps", max(100_000, int(duration * 2000)))
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"max_steps: expected an integer >= 1, got {max_steps!r}")
@@ -481,23 +527,43 @@ def simulate_batch(
     :class:`SimulationResult` whose arrays have a leading rig axis; event logs are not
     kept (only their counts, in ``result.stats['events']``).
     """
-    u_arr = np.asarray(u, dtype=float)
+    u_arr = _voltage_array(u)
+    if u_arr.ndim > 2 or 0 in u_arr.shape:
+        raise ValueError(
+            f"u: expected a number, N voltages or N sequences (shape (N, K)), got shape {u_arr.shape}"
+        )
     if isinstance(params, (RigParams, str)):
         plist = None
         base = resolve_params(params)
     else:
-        plist = [resolve_params(q) for q in params]
+        try:
+            plist = [resolve_params(q) for q in params]
+        except TypeError:
+            raise ValueError(
+                f"params: expected RigParams, a preset name or a sequence of them, got {params!r:.80}"
+            ) from None
+        if not plist:
+            raise ValueError("params: an empty sequence; give one parameter set, or one per rig")
         base = plist[0]
-    n_rigs = n or (len(plist) if plist is not None else (u_arr.shape[0] if u_arr.ndim >= 1 else 1))
+    if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1):
+        raise ValueError(f"n: expected an integer >= 1 (the number of rigs), got {n!r}")
+    if control_dt is not None:
+        control_dt = _check_positive("control_dt", control_dt)
+    n_rigs = (
+        int(n)
+        if n is not None
+        else (len(plist) if plist is not None else (u_arr.shape[0] if u_arr.ndim >= 1 else 1))
+    )
     if plist is not None and len(plist) != n_rigs:
         raise ValueError(f"params: {len(plist)} parameter sets for {n_rigs} rigs")
+    t_final = _check_positive("t_final", t_final)
+    dt = _check_positive("dt", dt)
+    _check_output_size(_n_output(0.0, t_final, dt), _BYTES_PER_BATCH_SAMPLE, t_final, dt, n_rigs)
     P = (
         np.stack([q.as_array() for q in plist])
         if plist is not None
         else np.tile(base.as_array(), (n_rigs, 1))
     )
-    t_final = _check_positive("t_final", t_final)
-    dt = _check_positive("dt", dt)
     if u_arr.ndim == 0:
         u_arr = np.full(n_rigs, float(u_arr))
     if u_arr.shape[0] != n_rigs:

@@ -31,6 +31,7 @@ def test_bifurcation_command_writes_json_and_figures(tmp_path):
         assert (out / name).stat().st_size > 1000, name
     data = json.loads((out / "bifurcation.json").read_text())
     assert data["preset"] == "no_brake"
+    assert data["validity_warnings"] == []  # inside +-5 V; no identified speed limit for no_brake
     assert list(data["points"]) == ["A", "B", "C", "D", "E", "F"]
     assert {b["name"] for b in data["branches"]} == {"e1", "e2", "e3", "e4", "p1", "p2", "p3", "p4"}
     assert "fold_periodic" in res.output

@@ -266,13 +266,19 @@ def test_cli_benchmark_says_what_was_resumed_and_fails_when_a_run_failed(tmp_pat
     res = runner.invoke(app, [*args, "--controllers", "open_loop"])
     assert res.exit_code == 0, res.output
     assert "resumed" not in res.output
-    # one run more, one from before; the learned one fails: no policy where it is looked for
+    # a missing policy is bad input, refused before any run
     res = runner.invoke(
         app, [*args, "--controllers", "open_loop,ppo", "--agents-dir", str(tmp_path / "none")]
     )
+    assert res.exit_code == 2 and "--agents-dir" in res.output
+    # one run more, one from before; the learned one fails: its policy file is damaged
+    agents = tmp_path / "agents"
+    (agents / "ppo").mkdir(parents=True)
+    (agents / "ppo" / "policy.zip").write_bytes(b"PK\x03\x04 not a policy")
+    res = runner.invoke(app, [*args, "--controllers", "open_loop,ppo", "--agents-dir", str(agents)])
     assert res.exit_code == 1
     assert "1 resumed from an earlier run" in res.output
-    assert "1 of 2 runs failed" in res.output and "no trained ppo policy" in res.output
+    assert "1 of 2 runs failed" in res.output and "first: ppo brake" in res.output
     df = load_results(tmp_path / "benchmark.csv")
     assert len(df) == 2 and np.isfinite(df.loc[df["controller"] == "open_loop", "amplitude"]).all()
 

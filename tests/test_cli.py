@@ -83,13 +83,21 @@ def test_no_voltage_limit_lifts_the_clip(runner, tmp_path):
         app, ["simulate", "--voltage", "7", "--duration", "20", "--no-voltage-limit", "--out", str(out)]
     )
     assert result.exit_code == 0, result.output
-    assert result.stderr == ""
+    # outside the model's validity: said, not refused
+    warnings = result.stderr.splitlines()
+    assert len(warnings) == 2 and all(w.startswith("warning: ") for w in warnings)
+    assert "u = 7 V" in warnings[0] and "+-5 V" in warnings[0]
+    assert "beyond the 12.6 rad/s" in warnings[1]
     np.testing.assert_array_equal(pd.read_csv(out).u, 7.0)
 
 
 def test_voltage_inside_the_range_is_not_clipped(runner):
     result = runner.invoke(app, ["simulate", "--voltage", "5", "--duration", "10"])
-    assert result.exit_code == 0 and result.stderr == ""
+    assert result.exit_code == 0 and "clipped" not in result.stderr and "u = 5 V" in result.stdout
+    # at 5 V the brake's lower disk passes the speed its friction was identified up to
+    assert result.stderr.startswith("warning: the lower disk reaches") and "12.6 rad/s" in result.stderr
+    result = runner.invoke(app, ["simulate", "--voltage", "1", "--duration", "10"])
+    assert result.exit_code == 0 and result.stderr == ""  # inside the identified range: no word
 
 
 @pytest.mark.parametrize(

@@ -9,11 +9,13 @@ import pytest
 
 from drill_env.discrepancy.dataset import DatasetError, MeasuredRun, load_dataset, write_dataset
 
+STEP = 2 * np.pi / 2000  # [rad] one count of the 2000-count encoder
+
 
 def _run(name="run01", n=3001, dt=0.005, t0=12.5):
     t = t0 + dt * np.arange(n)
-    th = 0.5 * (t - t0)
-    return MeasuredRun(name=name, t=t, u=np.full(n, 1.0), theta_u=th + 0.1, theta_l=th)
+    th = np.floor(0.5 * (t - t0) / STEP) * STEP  # encoder readings: whole counts
+    return MeasuredRun(name=name, t=t, u=np.full(n, 1.0), theta_u=th + 32 * STEP, theta_l=th)
 
 
 @pytest.fixture
@@ -38,7 +40,7 @@ def test_round_trip(folder):
     r = ds.runs[0]
     assert r.t[0] == pytest.approx(12.5) and r.dt == pytest.approx(0.005)
     assert r.is_constant_voltage and r.voltage == 1.0
-    np.testing.assert_allclose(r.theta_u - r.theta_l, 0.1, atol=1e-9)
+    np.testing.assert_allclose(r.theta_u - r.theta_l, 32 * STEP, atol=1e-9)
     assert json.loads((folder / "dataset.json").read_text())["sample_rate_hz"] == pytest.approx(200.0)
 
 

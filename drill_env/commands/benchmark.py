@@ -143,6 +143,16 @@ def register(app: typer.Typer) -> None:
             _fail(f"--plant: the plant name(s) {dup} appear twice (a plant is named by its file's stem)")
         if gains is not None and not gains.is_file():
             _fail(f"--gains: {gains} is not a file (a YAML written by drill-env tune)")
+        if agents_dir is not None and not agents_dir.is_dir():
+            _fail(
+                f"--agents-dir: {agents_dir} is not a folder (trained policies, laid out like results/agents)"
+            )
+        from drill_env.envs.config import EnvSettings
+
+        control_dt = EnvSettings().control_dt
+        for name, value in (("--duration", duration), ("--window", window)):
+            if value < control_dt:
+                _fail(f"{name} {value:g} s is shorter than one control period ({control_dt:g} s)")
         try:
             episode = EpisodeSettings(duration=duration, window=window, warmup_time=warmup)
             if vs is not None:
@@ -169,7 +179,28 @@ def register(app: typer.Typer) -> None:
                 )
         except ValueError as exc:
             _fail(str(exc))
-        from drill_env.outputs import OutputFolderError, output_lock
+        # every file the runs will need, before the first run
+        from agents.registry import LEARNED, load_gains, policy_path
+
+        try:
+            if any(c not in LEARNED for c in cfg.controllers):
+                load_gains(cfg.gains_file)
+            for c in cfg.controllers:
+                if c in LEARNED:
+                    for p in cfg.presets:
+                        policy_path(c, p, cfg.agents_dir)
+        except ValueError as exc:
+            _fail(f"--agents-dir: {exc}" if "policy" in str(exc) else f"--gains: {exc}")
+        from drill_env.outputs import OutputFolderError, check_output_folder, output_lock
+
+        check_output_folder(out, "--out")
+        if not fresh:
+            from agents.benchmark import check_resumable
+
+            try:
+                check_resumable(cfg, out)  # a damaged folder is named before anything runs
+            except ValueError as exc:
+                _fail(str(exc))
 
         held = ExitStack()
         try:

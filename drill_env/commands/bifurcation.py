@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import math
 from contextlib import ExitStack
 from pathlib import Path
+from typing import Any
 
 import typer
-
-RIG_VOLTAGE_LIMIT = 5.0  # [V] the amplifier input range of the rig, Sec. 2.1
 
 
 def _fail(message: str) -> None:
@@ -31,6 +31,9 @@ def register(app: typer.Typer) -> None:
 
         Writes OUT/bifurcation.json, the figures fig6_equilibria.png, fig8_bifurcation.png,
         period.png and fig9_limit_cycles.png, and with --check OUT/brute_force_check.json.
+        A range beyond the rig's +-5 V, or orbits faster than the speed the brake friction
+        was identified up to (12.6 rad/s), gives a warning and bifurcation.json's
+        "validity_warnings".
         """
         if not (math.isfinite(umin) and math.isfinite(umax)) or umax <= umin:
             _fail(f"need finite --umin < --umax, got {umin!r}, {umax!r}")
@@ -40,22 +43,20 @@ def register(app: typer.Typer) -> None:
 
         from drill_env.analysis import bifurcation_diagram, brute_force_check
         from drill_env.analysis.plots import save_figures
-        from drill_env.outputs import OutputFolderError, output_lock
-        from drill_env.params import ParameterError, resolve_params
+        from drill_env.outputs import OutputFolderError, atomic_write_text, check_output_folder, output_lock
+        from drill_env.params import resolve_params, validity_warnings
 
-        try:
-            params = resolve_params(preset)
-        except ParameterError as exc:
-            _fail(str(exc))
+        params = resolve_params(preset)
         if params.effects.active:
             _fail(
                 f"the analysis covers the paper's model only; the preset switches on {list(params.effects.active)}"
             )
+        check_output_folder(out, "--out")
         console = Console(stderr=True)
-        if umax > RIG_VOLTAGE_LIMIT or umin < -RIG_VOLTAGE_LIMIT:
+        notes = validity_warnings(params.name, voltages=(umin, umax))
+        for note in notes:
             console.print(
-                f"[yellow]note: the range exceeds the rig's +-{RIG_VOLTAGE_LIMIT:g} V amplifier input; "
-                "the model is analysed there all the same[/yellow]"
+                f"[yellow]warning: {note}; it is analysed there all the same[/yellow]", highlight=False
             )
         held = ExitStack()
         try:
@@ -85,7 +86,12 @@ def register(app: typer.Typer) -> None:
 
                     result = brute_force_check(diagram, progress=on_stage)
                     prog.update(ctask, completed=1.0, description="brute-force check: done")
-            diagram.save_json(out / "bifurcation.json")
+            record = diagram.to_dict()
+            speed_notes = validity_warnings(params.name, max_speed=_max_speed(record))
+            for note in speed_notes:
+                console.print(f"[yellow]warning: {note}[/yellow]", highlight=False, soft_wrap=True)
+            record["validity_warnings"] = notes + speed_notes
+            atomic_write_text(out / "bifurcation.json", json.dumps(record, indent=1, allow_nan=False) + "\n")
             if result is not None:
                 result.save_json(out / "brute_force_check.json")
             paths = save_figures(diagram, out, check=result)
@@ -125,12 +131,14 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Compare the model's steady states with the measurements quoted in the paper (Sec. 4)."""
         from drill_env.analysis import rig_comparison
-        from drill_env.params import ParameterError
+        from drill_env.outputs import check_output_file
 
-        try:
-            comp = rig_comparison(preset)
-        except ParameterError as exc:
-            _fail(str(exc))
+        if out is not None:
+            if out.suffix.lower() == ".json":
+                _fail(f"--out {out}: the Markdown file; its .json goes beside it")
+            check_output_file(out, "--out")
+            check_output_file(out.with_suffix(".json"), "--out")
+        comp = rig_comparison(preset)
         text = comp.to_markdown()
         if out is not None:
             out.parent.mkdir(parents=True, exist_ok=True)
@@ -138,3 +146,9 @@ def register(app: typer.Typer) -> None:
         typer.echo(text)
         if out is not None:
             typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
+
+
+def _max_speed(record: dict[str, Any]) -> float:
+    """The largest |lower-disk speed| of any equilibrium or orbit in the diagram [rad/s]."""
+    speeds = [abs(v) for br in record["branches"] for key in ("x3_min", "x3_max") for v in br.get(key, [])]
+    return max(speeds, default=0.0)

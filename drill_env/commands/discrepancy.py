@@ -46,8 +46,16 @@ def synth(
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect."""
     from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
-    from drill_env.outputs import output_lock
+    from drill_env.outputs import check_output_file, check_output_folder, output_lock
     from drill_env.params import ParameterError
+
+    # both outputs are checked before the runs are simulated
+    check_output_folder(out, "--out")
+    check_output_file(answer, "--answer")
+    if out.resolve() in answer.resolve().parents:
+        _fail(
+            f"--answer {answer}: lies inside the dataset folder --out {out}; keep the answer apart from the data"
+        )
 
     try:
         volts = tuple(float(v) for v in voltages.split(",") if v.strip())
@@ -91,7 +99,9 @@ def discrepancy(
     """Find where and why measured data disagree with the nominal model; name the missing effect."""
     from drill_env.discrepancy.dataset import DatasetError
     from drill_env.discrepancy.workflow import run_discrepancy
+    from drill_env.outputs import check_output_folder
 
+    check_output_folder(out, "--out")
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout else None
     try:
         with _progress() as prog:

@@ -100,6 +100,14 @@ def register(app: typer.Typer) -> None:
             _fail(f"--preset: with --params expected one preset to write the gains under, got {preset!r}")
         if not (0 < control_dt <= 1.0):
             _fail(f"--control-dt must lie in (0, 1] s, got {control_dt!r}")
+        from drill_env.sensors import SensorConfig
+
+        ts = SensorConfig().sample_period  # the controller acts on whole sensor periods
+        if abs(round(control_dt / ts) * ts - control_dt) > 1e-9 * control_dt:
+            _fail(
+                f"--control-dt {control_dt!r} s must be a whole number of sensor periods ({ts:g} s), "
+                f"e.g. {max(1, round(control_dt / ts)) * ts:g}"
+            )
 
         def progress(p: str, kind: str) -> None:
             typer.echo(f"tuning {kind} on {p} ...", err=True)
@@ -108,6 +116,10 @@ def register(app: typer.Typer) -> None:
 
         if out is not None and out.is_dir():
             _fail(f"--out {out} is a directory; expected a YAML file path")
+        if out is not None:
+            from drill_env.outputs import check_output_file
+
+            check_output_file(out, "--out")  # before the tuning, not after it
         data = (
             tune_all(presets=presets, control_dt=control_dt, progress=progress)
             if model is None

@@ -22,8 +22,12 @@ column; nothing is dropped or repaired silently.
 
 from __future__ import annotations
 
+import io
 import json
 import math
+import os
+import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,6 +47,7 @@ __all__ = [
     "MIN_RATE_HZ",
     "MAX_RATE_HZ",
     "MIN_DURATION_S",
+    "MAX_RUN_BYTES",
 ]
 
 COLUMNS = ("t", "u", "theta_u", "theta_l")
@@ -53,6 +58,9 @@ MIN_DURATION_S = 10.0  # shorter runs hold too few equation-error windows
 MAX_SPEED_RAD_S = 100.0  # larger jumps between samples are a wrapped or glitched angle
 _RATE_TOL = 1e-3  # relative tolerance on the sample period (float formatting of t)
 _COUNTS_MAX = 1 << 26
+_GRID_TOL = 1e-3  # [counts] how far an angle may sit from a whole encoder count (print rounding aside)
+MAX_RUN_BYTES = 1 << 30  # a run file of more than 1 GiB (about 25 million samples) is refused unread
+MAX_META_BYTES = 1 << 20
 
 
 class DatasetError(ValueError):
@@ -128,19 +136,83 @@ class MeasuredDataset:
 # -- loading ------------------------------------------------------------------------------
 
 
+def _num(x: Any) -> str:
+    """A number as the user wrote it, never ``np.float64(...)``."""
+    return repr(float(x))
+
+
+def _file_problem(path: Path, what: str, max_bytes: int) -> str | None:
+    """Why ``path`` cannot be read as a ``what`` (None: a regular file of sane size).
+
+    Checked before opening: a FIFO would block the reader and a sparse file of many GB
+    would be read whole.
+    """
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        if path.is_symlink():
+            return f"a dangling link (its target {os.readlink(path)} does not exist); expected a {what}"
+        return f"missing; expected a {what}"
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc}); expected a {what}"
+    if stat.S_ISDIR(st.st_mode):
+        return f"a folder, not a file; expected a {what}"
+    if not stat.S_ISREG(st.st_mode):
+        return f"not a regular file (a FIFO, socket or device); expected a {what}"
+    if st.st_size > max_bytes:
+        return f"{st.st_size} bytes, more than the {max_bytes} bytes allowed for a {what}"
+    return None
+
+
+def _read_text(path: Path, what: str, max_bytes: int) -> bytes:
+    """The bytes of a UTF-8 text file (a BOM is allowed), or :class:`DatasetError` naming it."""
+    problem = _file_problem(path, what, max_bytes)
+    if problem is not None:
+        raise DatasetError(f"{path}: {problem}")
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(max_bytes + 1)
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if len(raw) > max_bytes:
+        raise DatasetError(f"{path}: more than the {max_bytes} bytes allowed for a {what}")
+    hint = " (a macOS metadata file: delete it)" if path.name.startswith("._") else ""
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise DatasetError(f"{path}: UTF-16 text{hint}; save the {what} as UTF-8")
+    nul = raw.find(b"\x00")
+    if nul >= 0:
+        at = raw.count(b"\n", 0, nul) + 1
+        raise DatasetError(
+            f"{path}: a binary file (a NUL byte at line {at}){hint}; expected a {what} in UTF-8 text"
+        )
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        at = raw.count(b"\n", 0, exc.start) + 1
+        raise DatasetError(
+            f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at line {at}){hint}; expected a {what}"
+        ) from None
+    return raw[3:] if raw.startswith(b"\xef\xbb\xbf") else raw
+
+
 def _load_meta(folder: Path) -> dict[str, Any]:
     from drill_env.params import available_presets
 
     path = folder / "dataset.json"
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         raise DatasetError(
             f"{path}: missing; a dataset folder needs dataset.json with 'preset' and 'encoder_counts_per_rev'"
         )
+    raw = _read_text(path, "dataset.json", MAX_META_BYTES)
     try:
-        meta = json.loads(path.read_text())
+        meta = json.loads(raw.decode("utf-8"))
     except json.JSONDecodeError as exc:
         raise DatasetError(
             f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}"
+        ) from None
+    except (ValueError, RecursionError) as exc:  # an integer of thousands of digits, deep nesting
+        raise DatasetError(
+            f"{path}: not valid JSON ({' '.join(str(exc).split()) or 'nested too deeply'})"
         ) from None
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: expected a JSON object, got {type(meta).__name__}")
@@ -148,12 +220,12 @@ def _load_meta(folder: Path) -> dict[str, Any]:
         if key not in meta:
             raise DatasetError(f"{path}: field '{key}' is missing")
     presets = available_presets()
-    if meta["preset"] not in presets:
-        raise DatasetError(f"{path}: field 'preset' = {meta['preset']!r}; allowed: {presets}")
+    if not isinstance(meta["preset"], str) or meta["preset"] not in presets:
+        raise DatasetError(f"{path}: field 'preset' = {meta['preset']!r:.80}; allowed: {presets}")
     counts = meta["encoder_counts_per_rev"]
     if isinstance(counts, bool) or not isinstance(counts, int) or not 1 <= counts <= _COUNTS_MAX:
         raise DatasetError(
-            f"{path}: field 'encoder_counts_per_rev' = {counts!r}; expected an integer in [1, {_COUNTS_MAX}]"
+            f"{path}: field 'encoder_counts_per_rev' = {counts!r:.80}; expected an integer in [1, {_COUNTS_MAX}]"
         )
     rate = meta.get("sample_rate_hz")
     if rate is not None:
@@ -163,7 +235,7 @@ def _load_meta(folder: Path) -> dict[str, Any]:
             or not (MIN_RATE_HZ <= rate <= MAX_RATE_HZ)
         ):
             raise DatasetError(
-                f"{path}: field 'sample_rate_hz' = {rate!r}; expected a number in "
+                f"{path}: field 'sample_rate_hz' = {rate!r:.80}; expected a number in "
                 f"[{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}]"
             )
     return meta
@@ -173,38 +245,95 @@ def _first(mask: np.ndarray) -> int:
     return int(np.flatnonzero(mask)[0])
 
 
-def _load_csv(path: Path, expected_rate: float | None) -> MeasuredRun:
+def _lines_of_rows(raw: bytes) -> tuple[bytes, np.ndarray]:
+    """The CSV without blank lines, and the file's line number of every remaining line.
+
+    Blank lines are allowed anywhere; a message still names the line of the file. Line
+    ends may be LF, CRLF or CR.
+    """
+    body = raw[:-1] if raw.endswith(b"\n") else raw
+    if b"\r" not in raw and re.search(rb"(?:^|\n)[ \t\f\v]*(?:\n|$)", body) is None:
+        # the usual file: no blank line, LF line ends; not split into a list of lines
+        return raw, np.arange(1, body.count(b"\n") + 2)
+    if b"\r" in raw:
+        raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    lines = raw.split(b"\n")
+    if lines and lines[-1] == b"":
+        lines.pop()
+    keep = [i for i, ln in enumerate(lines) if ln.strip()]
+    if len(keep) == len(lines):
+        return raw, np.arange(1, len(lines) + 1)
+    return b"\n".join(lines[i] for i in keep) + b"\n", np.asarray(keep, dtype=np.int64) + 1
+
+
+def _print_quantum(raw: bytes, col: int, tmax: float) -> float:
+    """The rounding step of the printed numbers of column ``col`` near ``tmax`` [same unit].
+
+    A writer prints a fixed number of decimals (``%.6f``) or of significant digits
+    (``%.12g``, trailing zeros dropped); the most decimals and the most significant digits
+    seen bound the rounding of every value: one unit in the last printed place. ``col``
+    is the column's position.
+    """
     import pandas as pd
 
+    df = pd.read_csv(io.BytesIO(raw), usecols=[col], dtype=str, na_filter=False, skipinitialspace=True)
+    text = df.iloc[:, 0].astype(str)
+    parts = text.str.strip().str.extract(r"^[-+]?(\d*)(?:\.(\d*))?(?:[eE]([-+]?\d+))?$")
+    whole = parts[0].fillna("")
+    frac = parts[1].fillna("")
+    exp = pd.to_numeric(parts[2].fillna("0"), errors="coerce").fillna(0.0)
+    decimals = float((frac.str.len() - exp).max())
+    digits = float((whole + frac).str.lstrip("0").str.len().max())
+    if not (math.isfinite(decimals) and math.isfinite(digits)):
+        return math.inf
+    mag = math.floor(math.log10(tmax)) if tmax > 0 else 0
     try:
-        df = pd.read_csv(path, na_filter=False, skipinitialspace=True)
+        return max(10.0 ** (-decimals), 10.0 ** (mag + 1 - max(digits, 1.0)))
+    except OverflowError:
+        return math.inf
+
+
+def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> MeasuredRun:
+    import pandas as pd
+
+    raw = _read_text(path, "run file (CSV)", MAX_RUN_BYTES)
+    name = path.name
+    raw, line_no = _lines_of_rows(raw)
+    if line_no.size == 0:
+        raise DatasetError(f"{name}: empty file; expected header {','.join(COLUMNS)}")
+
+    def line(row: int) -> int:  # the file's line of data row ``row`` (0-based)
+        return int(line_no[min(row + 1, line_no.size - 1)])
+
+    try:
+        df = pd.read_csv(io.BytesIO(raw), na_filter=False, skipinitialspace=True)
     except pd.errors.EmptyDataError:
-        raise DatasetError(f"{path.name}: empty file; expected header {','.join(COLUMNS)}") from None
-    except pd.errors.ParserError as exc:
-        raise DatasetError(f"{path.name}: malformed CSV: {str(exc).strip()}") from None
+        raise DatasetError(f"{name}: empty file; expected header {','.join(COLUMNS)}") from None
+    except (pd.errors.ParserError, ValueError, OverflowError) as exc:
+        raise DatasetError(f"{name}: malformed CSV: {' '.join(str(exc).split())}") from None
     cols = [str(c).strip() for c in df.columns]
+    header = f"line {int(line_no[0])} (header)"
     missing = [c for c in COLUMNS if c not in cols]
     if missing:
         raise DatasetError(
-            f"{path.name}: line 1 (header): missing column(s) {missing}; the header must be "
-            f"{','.join(COLUMNS)} (found {','.join(cols)})"
+            f"{name}: {header}: missing column(s) {missing}; the header must be "
+            f"{','.join(COLUMNS)} (found {','.join(cols)[:200]})"
         )
     extra = [c for c in cols if c not in COLUMNS]
     if extra:
         raise DatasetError(
-            f"{path.name}: line 1 (header): unexpected column(s) {extra}; the header must be "
-            f"{','.join(COLUMNS)}"
+            f"{name}: {header}: unexpected column(s) {extra[:10]}; the header must be {','.join(COLUMNS)}"
         )
     if len(set(cols)) != len(cols):
-        raise DatasetError(f"{path.name}: line 1 (header): a column appears twice ({','.join(cols)})")
+        raise DatasetError(f"{name}: {header}: a column appears twice ({','.join(cols)})")
     df.columns = cols
     if len(df) < 2:
-        raise DatasetError(f"{path.name}: {len(df)} data row(s); a run needs many samples")
+        raise DatasetError(f"{name}: {len(df)} data row(s); a run needs many samples")
     data: dict[str, np.ndarray] = {}
     for col in COLUMNS:
         s = df[col]
         if not (pd.api.types.is_numeric_dtype(s.dtype) and not pd.api.types.is_bool_dtype(s.dtype)):
-            num = pd.to_numeric(s, errors="coerce")
+            num = pd.to_numeric(s.astype(str).str.strip(), errors="coerce")
             bad = (
                 num.isna().to_numpy()
                 & ~s.astype(str).str.strip().str.lower().isin(["nan", "+nan", "-nan"]).to_numpy()
@@ -212,7 +341,7 @@ def _load_csv(path: Path, expected_rate: float | None) -> MeasuredRun:
             if bad.any():
                 i = _first(bad)
                 raise DatasetError(
-                    f"{path.name}: line {i + 2}, column '{col}': {s.iloc[i]!r} is not a number"
+                    f"{name}: line {line(i)}, column '{col}': {str(s.iloc[i])[:40]!r} is not a number"
                 )
             arr = num.to_numpy(dtype=float)
         else:
@@ -221,7 +350,7 @@ def _load_csv(path: Path, expected_rate: float | None) -> MeasuredRun:
         if nonfinite.any():
             i = _first(nonfinite)
             raise DatasetError(
-                f"{path.name}: line {i + 2}, column '{col}': {df[col].iloc[i]!r} is not finite "
+                f"{name}: line {line(i)}, column '{col}': {str(df[col].iloc[i])[:40]!r} is not finite "
                 "(NaN/inf are not allowed)"
             )
         data[col] = arr
@@ -231,39 +360,53 @@ def _load_csv(path: Path, expected_rate: float | None) -> MeasuredRun:
     if nonincreasing.any():
         i = _first(nonincreasing) + 1
         raise DatasetError(
-            f"{path.name}: line {i + 2}, column 't': time {t[i]!r} s does not increase "
-            f"(previous {t[i - 1]!r} s); time must be strictly increasing"
+            f"{name}: line {line(i)}, column 't': time {_num(t[i])} s does not increase "
+            f"(previous {_num(t[i - 1])} s on line {line(i - 1)}); time must be strictly increasing"
         )
-    dt = (t[-1] - t[0]) / (t.size - 1)
-    uneven = np.abs(d - dt) > _RATE_TOL * dt
+    # the sample period: the median step, so that a gap is found where it is
+    period = float(np.median(d))
+    tmax = float(np.max(np.abs(t)))
+    tol = max(_RATE_TOL * period, 8.0 * float(np.spacing(tmax)))
+    uneven = np.abs(d - period) > tol
+    if uneven.any():
+        # Time stamps are printed to a fixed number of digits: an epoch time at 10 kHz, or
+        # 2048 Hz written with 6 decimals, steps by +-1 unit of the last digit.
+        # (Digits that cannot resolve a tenth of the period do not widen the tolerance: the
+        # steps then show the coarse print themselves, and the first odd one is named.)
+        quantum = _print_quantum(raw, cols.index("t"), tmax)
+        print_tol = 2.02 * quantum + 8.0 * float(np.spacing(tmax))
+        if print_tol <= 0.1 * period:
+            tol = max(tol, print_tol)
+        uneven = np.abs(d - period) > tol
     if uneven.any():
         i = _first(uneven) + 1
         raise DatasetError(
-            f"{path.name}: line {i + 2}, column 't': step {d[i - 1]:.6g} s differs from the mean "
-            f"sample period {dt:.6g} s by more than {_RATE_TOL:.0e} of it; sampling must be uniform"
+            f"{name}: line {line(i)}, column 't': step {d[i - 1]:.6g} s (from {_num(t[i - 1])} s on line "
+            f"{line(i - 1)}) differs from the sample period {period:.6g} s by more than {tol:.2g} s; "
+            "sampling must be uniform (a gap or a glitch in the recording?)"
         )
+    dt = (t[-1] - t[0]) / (t.size - 1)
     rate = 1.0 / dt
     if not (MIN_RATE_HZ * (1 - _RATE_TOL) <= rate <= MAX_RATE_HZ * (1 + _RATE_TOL)):
         raise DatasetError(
-            f"{path.name}: column 't': sample rate {rate:.6g} Hz is outside the allowed range "
+            f"{name}: column 't': sample rate {rate:.6g} Hz is outside the allowed range "
             f"[{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}] Hz"
         )
     if expected_rate is not None and abs(rate - expected_rate) > _RATE_TOL * expected_rate:
         raise DatasetError(
-            f"{path.name}: column 't': sample rate {rate:.6g} Hz differs from dataset.json "
+            f"{name}: column 't': sample rate {rate:.6g} Hz differs from dataset.json "
             f"'sample_rate_hz' = {expected_rate:g} Hz"
         )
     if t[-1] - t[0] < MIN_DURATION_S:
         raise DatasetError(
-            f"{path.name}: column 't': the run lasts {t[-1] - t[0]:.4g} s; at least {MIN_DURATION_S:g} s "
-            "are needed"
+            f"{name}: column 't': the run lasts {t[-1] - t[0]:.4g} s; at least {MIN_DURATION_S:g} s are needed"
         )
     u = data["u"]
     out = np.abs(u) > RIG_VOLTAGE_LIMIT + 1e-9
     if out.any():
         i = _first(out)
         raise DatasetError(
-            f"{path.name}: line {i + 2}, column 'u': {u[i]!r} V is outside the rig's range "
+            f"{name}: line {line(i)}, column 'u': {_num(u[i])} V is outside the rig's range "
             f"[{-RIG_VOLTAGE_LIMIT:g}, {RIG_VOLTAGE_LIMIT:g}] V"
         )
     for col in ("theta_u", "theta_l"):
@@ -271,11 +414,61 @@ def _load_csv(path: Path, expected_rate: float | None) -> MeasuredRun:
         if jump.any():
             i = _first(jump) + 1
             raise DatasetError(
-                f"{path.name}: line {i + 2}, column '{col}': the angle jumps by "
+                f"{name}: line {line(i)}, column '{col}': the angle jumps by "
                 f"{data[col][i] - data[col][i - 1]:.6g} rad in one sample (> {MAX_SPEED_RAD_S:g} rad/s); "
                 "angles must be unwrapped (cumulative)"
             )
+    for col in ("theta_u", "theta_l"):
+        _check_encoder_grid(name, col, data[col], raw, cols.index(col), counts_per_rev, line)
     return MeasuredRun(name=path.stem, t=t, u=u, theta_u=data["theta_u"], theta_l=data["theta_l"], path=path)
+
+
+def _check_encoder_grid(
+    name: str, col: str, theta: np.ndarray, raw: bytes, position: int, counts: int, line
+) -> None:
+    """Encoder angles are whole counts, ``k 2 pi / counts``: a wrong count does not fit them."""
+    step = 2.0 * math.pi / counts
+    k = theta / step
+    off = np.abs(k - np.round(k))
+    amax = float(np.max(np.abs(theta)))
+    tol = _GRID_TOL + 8.0 * float(np.spacing(amax)) / step
+    if not (off > tol).any():
+        return
+    quantum = _print_quantum(raw, position, amax)  # the angles' printed digits
+    tol = max(tol, (0.51 * quantum + 8.0 * float(np.spacing(amax))) / step)
+    if tol > 0.1:
+        return  # printed too coarsely to tell whole counts: nothing to check against
+    bad = off > tol
+    if bad.any():
+        i = _first(bad)
+        raise DatasetError(
+            f"{name}: line {line(i)}, column '{col}': {_num(theta[i])} rad is {_num(k[i])} encoder counts, "
+            f"not a whole number; dataset.json 'encoder_counts_per_rev' = {counts} (one count = "
+            f"{step:.6g} rad) does not fit the angles: is it the encoder's count after quadrature decoding?"
+        )
+
+
+def _check_common_divisor(runs: tuple[MeasuredRun, ...], counts: int, path: Path) -> None:
+    """Angles that are all even (or all multiples of g) counts: the count per revolution is g times too large."""
+    step = 2.0 * math.pi / counts
+    ks = []
+    for r in runs:
+        for th in (r.theta_u, r.theta_l):
+            k = np.round(th / step)
+            if np.max(np.abs(k), initial=0.0) >= 2.0**62:
+                return
+            ks.append(np.abs(k).astype(np.int64))
+    k_all = np.unique(np.concatenate(ks))
+    if k_all.size < 50:
+        return  # too few distinct readings to judge
+    g = int(np.gcd.reduce(k_all))
+    if g >= 2:
+        raise DatasetError(
+            f"{path}: field 'encoder_counts_per_rev' = {counts}: every angle of every run is a multiple of "
+            f"{g} counts, so the encoder has {counts // g if counts % g == 0 else counts / g:g} counts per "
+            "revolution, not "
+            f"{counts}; correct the field"
+        )
 
 
 def load_dataset(folder: str | Path) -> MeasuredDataset:
@@ -284,14 +477,24 @@ def load_dataset(folder: str | Path) -> MeasuredDataset:
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder; a dataset is a folder of CSV runs plus dataset.json")
     meta = _load_meta(folder)
-    files = sorted(folder.glob("*.csv"))
+    try:
+        files = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".csv")
+    except OSError as exc:
+        raise DatasetError(f"{folder}: cannot list the folder ({exc.strerror or exc})") from None
     if not files:
         raise DatasetError(f"{folder}: no run files (*.csv)")
+    stems: dict[str, Path] = {}
+    for f in files:
+        if f.stem in stems:
+            raise DatasetError(f"{folder}: two run files named {f.stem!r} ({stems[f.stem].name}, {f.name})")
+        stems[f.stem] = f
     rate = meta.get("sample_rate_hz")
-    runs = tuple(_load_csv(f, float(rate) if rate is not None else None) for f in files)
+    counts = int(meta["encoder_counts_per_rev"])
+    runs = tuple(_load_csv(f, float(rate) if rate is not None else None, counts) for f in files)
+    _check_common_divisor(runs, counts, folder / "dataset.json")
     return MeasuredDataset(
         preset=str(meta["preset"]),
-        encoder_counts_per_rev=int(meta["encoder_counts_per_rev"]),
+        encoder_counts_per_rev=counts,
         runs=runs,
         path=folder,
         meta=meta,

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -244,10 +245,17 @@ def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: 
     t_final = (n_rec - 1) * dt
     angle0 = float(rng.uniform(0.0, _TWO_PI))
     x0 = {"theta_u": angle0, "theta_l": angle0}
-    if np.ndim(u_levels) == 0:
-        res = simulate(truth, float(u_levels), t_final, x0=x0, dt=dt, t0=t0)
-    else:
-        res = simulate(truth, u_levels, t_final, x0=x0, dt=dt, t0=t0, control_dt=cdt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a failed run is an error, below
+        if np.ndim(u_levels) == 0:
+            res = simulate(truth, float(u_levels), t_final, x0=x0, dt=dt, t0=t0)
+        else:
+            res = simulate(truth, u_levels, t_final, x0=x0, dt=dt, t0=t0, control_dt=cdt)
+    if res.status != 0:  # never write the frozen angles of a run that stopped
+        raise ValueError(
+            f"magnitude: the truth model of run {name} could not be simulated ({res.message.rstrip('.')}); "
+            "choose a magnitude in the effect's detectable range"
+        )
     k0 = res.t.size - n_rec
     t_true = res.t[k0:]
     if abs(t_true[0]) > 1e-6 * dt + 1e-9:
