@@ -30,23 +30,42 @@ The rule (all numbers in :class:`DecisionRule`):
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
+from drill_env.discrepancy.calibrate import (
+    CALIBRATED,
+    CalibrationRule,
+    CalibrationStatistics,
+    ParameterFit,
+    parameter_fits,
+    solve_joint,
+)
 from drill_env.discrepancy.effects import CANDIDATES, Candidate
 from drill_env.discrepancy.equation_error import RunEquations
+from drill_env.params import RigParams
+
+NOT_AN_EFFECT = ("none", "recalibrated", "unexplained")  # verdicts that name no effect
 
 __all__ = [
     "DecisionRule",
     "RunStatistics",
     "run_statistics",
     "CandidateScore",
+    "CalibrationSetup",
     "Decision",
+    "JointFit",
+    "NOT_AN_EFFECT",
     "decide",
+    "demote",
+    "final_parameters",
+    "first_calibration",
+    "sensor_worse",
     "line_scan",
     "LineScan",
     "split_runs",
@@ -132,30 +151,115 @@ class CandidateScore:
     note: str
     parameters: dict[str, float]
     heldout_ss: float  # held-out sum of squares with the candidate
+    p_value: float = float("nan")  # of the held-out gain, chi^2 with k degrees of freedom
+    fit: Any = field(default=None, repr=False)  # the joint fit (calibration + candidate)
 
     def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "fit"}
 
 
-def _fit_linear(stats_list, name, ridge):
-    A = sum(s.linear[name][0] for s in stats_list)
-    b = sum(s.linear[name][1] for s in stats_list)
-    k = A.shape[0]
-    scale = max(float(np.trace(A)) / k, 1e-300)
-    return np.linalg.solve(A + ridge * scale * np.eye(k), b)
+@dataclass
+class CalibrationSetup:
+    """What the decision needs to score effects as additions to the recalibrated model.
+
+    ``stats`` are the calibration statistics at the model being scored (the recalibrated
+    one), ``free`` the identified parameters refitted jointly with every candidate,
+    ``nominal_ztz`` the nominal model's sum of squares per run and ``moved`` the
+    parameters that the recalibrated model changes (the recalibration is confirmed when
+    it lowers the held-out sum of squares significantly, with ``len(moved)`` degrees of
+    freedom)."""
+
+    stats: dict[str, CalibrationStatistics]
+    free: list[int]
+    prior: np.ndarray  # prior precision of every calibrated parameter (CALIBRATED order)
+    nominal_ztz: dict[str, float]
+    moved: list[int]
+    nominal: RigParams
+    base: RigParams  # the recalibrated model the statistics were computed at
+    rule: CalibrationRule = field(default_factory=CalibrationRule)
 
 
-def _gain_linear(stats_list, name, coef):
-    A = sum(s.linear[name][0] for s in stats_list)
-    b = sum(s.linear[name][1] for s in stats_list)
-    return float(2.0 * coef @ b - coef @ A @ coef)
+def _no_calibration(names) -> CalibrationSetup:
+    empty = CalibrationStatistics(name="", ata=np.zeros((0, 0)), atz=np.zeros(0))
+    return CalibrationSetup(
+        stats={n: empty for n in names},
+        free=[],
+        prior=np.zeros(0),
+        nominal_ztz={},
+        moved=[],
+        nominal=None,
+        base=None,
+    )
 
 
-def _score(c: Candidate, train, held, rule: DecisionRule) -> CandidateScore:
+def _cal_block(cal: CalibrationSetup, group):
+    f = np.array(cal.free, dtype=int)
+    ata = sum((cal.stats[s.name].ata[np.ix_(f, f)] for s in group), np.zeros((f.size, f.size)))
+    atz = sum((cal.stats[s.name].atz[f] for s in group), np.zeros(f.size))
+    return f, ata, atz
+
+
+@dataclass
+class JointFit:
+    """Parameter changes (and candidate coefficients) fitted on the training runs."""
+
+    theta: np.ndarray  # [parameter changes, candidate coefficients]
+    cov: np.ndarray  # unscaled posterior covariance
+    train_ss: float
+    train_n: int
+    heldout_ss: float
+    tau: float | None = None  # lag candidates: the time constant
+
+    @property
+    def variance_scale(self) -> float:
+        dof = max(self.train_n - self.theta.size, 1)
+        return max(1.0, self.train_ss / dof)
+
+
+def _joint(group, cal: CalibrationSetup, name: str | None = None):
+    """Gram matrix and right-hand side of [calibration | candidate columns] summed over runs."""
+    f, ata, atz = _cal_block(cal, group)
+    if name is None:
+        return ata, atz
+    xx = sum(s.linear[name][0] for s in group)
+    xz = sum(s.linear[name][1] for s in group)
+    ax = sum((cal.stats[s.name].cross[name][f] for s in group), np.zeros((f.size, xx.shape[0])))
+    return np.block([[ata, ax], [ax.T, xx]]), np.concatenate([atz, xz])
+
+
+def _ss(group, theta, m, b) -> float:
+    return float(sum(s.ztz for s in group) - 2.0 * theta @ b + theta @ m @ theta)
+
+
+def _fit_linear_joint(train, held, cal: CalibrationSetup, name: str | None, rule: DecisionRule) -> JointFit:
+    m, b = _joint(train, cal, name)
+    theta, cov = solve_joint(m, b, cal.prior[cal.free], rule.ridge)
+    mh, bh = _joint(held, cal, name)
+    return JointFit(theta, cov, _ss(train, theta, m, b), sum(s.n for s in train), _ss(held, theta, mh, bh))
+
+
+def _fit_lag_joint(train, held, cal: CalibrationSetup, c: Candidate, rule: DecisionRule, i: int) -> JointFit:
+    """Calibration refitted with the lag candidate's column (coefficient 1, physics) at tau_i."""
+    f, ata, atz = _cal_block(cal, train)
+    atx = sum((cal.stats[s.name].cross_lag[c.name][f, i] for s in train), np.zeros(f.size))
+    rhs = atz - atx
+    theta, cov = solve_joint(ata, rhs, cal.prior[cal.free], rule.ridge)
+    q_tr = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in train))
+    q_tr += float(-2.0 * theta @ rhs + theta @ ata @ theta)
+    _, ath, atzh = _cal_block(cal, held)
+    atxh = sum((cal.stats[s.name].cross_lag[c.name][f, i] for s in held), np.zeros(f.size))
+    q_h = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in held))
+    q_h += float(-2.0 * theta @ (atzh - atxh) + theta @ ath @ theta)
+    return JointFit(theta, cov, q_tr, sum(s.n for s in train), q_h, tau=float(c.tau_grid[i]))
+
+
+def _score(c: Candidate, train, held, rule: DecisionRule, cal: CalibrationSetup, ref: JointFit):
+    """Score a candidate as an addition to the recalibrated model ``ref`` (calibration alone)."""
     n_h = sum(s.n for s in held)
-    q0_h = sum(s.ztz for s in held)
+    nf = len(cal.free)
     if c.is_lag:
-        gain_train = sum(2.0 * s.lag[c.name][0] - s.lag[c.name][1] for s in train)
+        fits = [_fit_lag_joint(train, held, cal, c, rule, i) for i in range(c.tau_grid.size)]
+        gain_train = np.array([ref.train_ss - f.train_ss for f in fits])
         i = int(np.argmax(gain_train))
         tau = float(c.tau_grid[i])
         if 0 < i < c.tau_grid.size - 1:
@@ -165,31 +269,53 @@ def _score(c: Candidate, train, held, rule: DecisionRule) -> CandidateScore:
             if den < 0.0:
                 step = math.log(c.tau_grid[i + 1] / c.tau_grid[i])
                 tau = float(c.tau_grid[i] * math.exp(0.5 * (y0 - y2) / den * step))
-        raw = float(sum(2.0 * s.lag[c.name][0][i] - s.lag[c.name][1][i] for s in held))
+        fit = fits[i]
+        raw = ref.heldout_ss - fit.heldout_ss
         params = c.to_parameters(np.array([1.0]), tau)
         if gain_train[i] <= 0.0:
             raw = 0.0  # no lag improves the training fit: the candidate stays at zero
             params = c.to_parameters(np.array([1.0]), 0.0)
+            fit = ref
     else:
-        coef = _fit_linear(train, c.name, rule.ridge)
-        raw = _gain_linear(held, c.name, coef)
-        params = c.to_parameters(coef)
-    q_c = q0_h - raw
+        fit = _fit_linear_joint(train, held, cal, c.name, rule)
+        raw = ref.heldout_ss - fit.heldout_ss
+        params = c.to_parameters(fit.theta[nf:])
+    q_c = ref.heldout_ss - raw
     gain = raw / max(1.0, q_c / max(n_h, 1))
     k = c.n_params
-    thr = max(float(stats.chi2.isf(rule.alpha, k)), k * math.log(max(n_h, 2)))
     why = c.admissible(params)
-    return CandidateScore(
+    score = CandidateScore(
         name=c.name,
         gain=float(gain),
         raw_gain=float(raw),
-        threshold=float(thr),
-        significant=bool(gain > thr and why is None),
+        threshold=float("nan"),  # set by the false-discovery step, see _significance
+        significant=False,
         admissible=why is None,
         note=why or "",
         parameters={k_: float(v) for k_, v in params.items()},
         heldout_ss=float(q_c),
     )
+    score.p_value = float(stats.chi2.sf(max(gain, 0.0), k))
+    score.fit = fit
+    return score
+
+
+def _significance(scores, candidates, n_h: int, rule: DecisionRule) -> None:
+    """Benjamini-Hochberg at level alpha over the admissible candidates, and the BIC penalty."""
+    k_of = {c.name: c.n_params for c in candidates}
+    pool = [s for s in scores if s.admissible]
+    m = max(len(pool), 1)
+    order = sorted(pool, key=lambda s: s.p_value)
+    last = 0
+    for i, s in enumerate(order, start=1):
+        if s.p_value <= rule.alpha * i / m:
+            last = i
+    passed = {s.name for s in order[:last]}
+    for s in scores:
+        k = k_of[s.name]
+        bic = k * math.log(max(n_h, 2))
+        s.threshold = max(float(stats.chi2.isf(rule.alpha / m, k)), bic)
+        s.significant = bool(s.name in passed and s.gain > bic and s.admissible)
 
 
 @dataclass(frozen=True)
@@ -290,6 +416,17 @@ class Decision:
     bootstrap_counts: dict[str, int]
     train_runs: list[str]
     heldout_runs: list[str]
+    parameters: list[ParameterFit] = field(default_factory=list)  # the chosen model's calibration
+    reference: JointFit | None = field(default=None, repr=False)  # recalibration alone
+    calibration: CalibrationSetup | None = field(default=None, repr=False)
+
+    @property
+    def named(self) -> bool:
+        return self.effect not in NOT_AN_EFFECT
+
+    @property
+    def recalibrated(self) -> list[ParameterFit]:
+        return [f for f in self.parameters if f.moved]
 
     def score(self, name: str) -> CandidateScore:
         for s in self.scores:
@@ -298,12 +435,26 @@ class Decision:
         raise KeyError(name)
 
 
-def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates):
-    scores = [_score(c, train, held, rule) for c in candidates]
+def _recalibration_gain(held, cal: CalibrationSetup) -> tuple[float, float]:
+    """Held-out drop of the sum of squares from the nominal to the recalibrated model, and the
+    threshold it must pass (the candidates' rule with one degree of freedom per moved parameter)."""
+    k = len(cal.moved)
+    if k == 0 or not cal.nominal_ztz:
+        return 0.0, float("inf")
     n_h = sum(s.n for s in held)
-    q0_h = sum(s.ztz for s in held)
+    gain = sum(cal.nominal_ztz[s.name] for s in held) - sum(s.ztz for s in held)
+    thr = max(float(stats.chi2.isf(1e-3, k)), k * math.log(max(n_h, 2)))
+    return float(gain), thr
+
+
+def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates, cal: CalibrationSetup):
+    n_h = sum(s.n for s in held)
+    ref = _fit_linear_joint(train, held, cal, None, rule)  # recalibration alone
+    scores = [_score(c, train, held, rule, cal, ref) for c in candidates]
+    _significance(scores, candidates, n_h, rule)
+    q0_h = ref.heldout_ss
     n_all = n_h + sum(s.n for s in train)
-    q0_all = q0_h + sum(s.ztz for s in train)
+    q0_all = q0_h + ref.train_ss
 
     def excess_significant(q, n):
         return q > n * (1.0 + rule.floor_tolerance) + rule.excess_z * math.sqrt(2.0 * n)
@@ -315,6 +466,7 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
     rho = s_ab / math.sqrt(s_aa * s_bb) if s_aa > 0 and s_bb > 0 else 0.0
     rho_z = rho * math.sqrt(max(pairs, 1))
     excess_h = q0_h - n_h
+    cal_gain, cal_thr = _recalibration_gain(held, cal)
     structure = {
         "excess_heldout": bool(excess_significant(q0_h, n_h)),
         "excess_all": bool(excess_significant(q0_all, n_all)),
@@ -322,6 +474,9 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
         "neighbour_correlation_z": float(rho_z),
         "correlated": bool(rho_z > rule.autocorr_z),
         "line": bool(line.significant) if line is not None else False,
+        "recalibration_gain": cal_gain,
+        "recalibration_threshold": cal_thr,
+        "recalibration_confirmed": bool(cal_gain > cal_thr),
     }
     has_structure = structure["excess_all"] or structure["correlated"] or structure["line"]
     sig = [s for s in scores if s.significant]
@@ -333,15 +488,16 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
             explained = 1.0
         if explained >= rule.min_explained:
             reason = (
-                f"{winner.name} removes {min(explained, 1.0):.0%} of the held-out excess "
+                f"{winner.name} removes {min(explained, 1.0):.0%} of the held-out excess of the "
+                f"{'recalibrated' if cal.free else 'nominal'} model "
                 f"(gain {winner.gain:.1f} > threshold {winner.threshold:.1f})"
             )
-            return winner.name, reason, scores, winner, structure, explained
+            return winner.name, reason, scores, winner, structure, explained, ref
         reason = (
             f"the best candidate {winner.name} removes only {explained:.0%} of the held-out excess "
             f"(< {rule.min_explained:.0%}): the residual has structure no candidate explains"
         )
-        return "unexplained", reason, scores, winner, structure, explained
+        return "unexplained", reason, scores, winner, structure, explained, ref
     if has_structure:
         what = [k for k in ("excess_all", "correlated", "line") if structure[k]]
         return (
@@ -351,6 +507,19 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
             None,
             structure,
             0.0,
+            ref,
+        )
+    if structure["recalibration_confirmed"]:
+        return (
+            "recalibrated",
+            f"new parameter values lower the held-out sum of squares by {cal_gain:.1f} "
+            f"(> {cal_thr:.1f}); no candidate is significant on top of them and the residual is "
+            "at the noise floor",
+            scores,
+            None,
+            structure,
+            0.0,
+            ref,
         )
     return (
         "none",
@@ -359,6 +528,7 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
         None,
         structure,
         0.0,
+        ref,
     )
 
 
@@ -377,6 +547,100 @@ def split_runs(runs) -> tuple[list[str], list[str]]:
     return train, held
 
 
+def _fallback(structure) -> str:
+    if structure["excess_all"] or structure["correlated"] or structure["line"]:
+        return "unexplained"
+    return "recalibrated" if structure["recalibration_confirmed"] else "none"
+
+
+def final_parameters(cal: CalibrationSetup | None, fit: JointFit | None) -> list[ParameterFit]:
+    """Every calibrated parameter of the model a fit stands for, judged against the nominal."""
+    if cal is None or fit is None or not cal.free or cal.nominal is None:
+        return []
+    nf = len(cal.free)
+    cov = fit.cov[:nf, :nf] * fit.variance_scale
+    return parameter_fits(cal.nominal, cal.base, cal.free, fit.theta[:nf], cov, cal.rule)
+
+
+# Sensor-space metrics a named effect must not make worse (compare.aggregate keys), with the
+# absolute part of the tolerance: "angle" and "speed" stand for the angle noise and the noise of
+# the smooth speed; the relative part is SENSOR_RELATIVE_TOLERANCE of the recalibrated model's gap.
+SENSOR_CHECKS: dict[str, tuple[str, float]] = {
+    "short_horizon_angle_rms_rad": ("angle", 1.0),
+    "short_horizon_speed_rms_rad_s": ("speed", 1.0),
+    "steady_mean_speed_abs_error": ("speed", 1.0),
+    "steady_min_speed_abs_error": ("speed", 3.0),
+    "steady_max_speed_abs_error": ("speed", 3.0),
+    "steady_stick_fraction_abs_error": ("one", 0.05),
+    "steady_period_abs_error_s": ("one", 0.25),
+}
+SENSOR_RELATIVE_TOLERANCE = 0.25
+
+
+def sensor_worse(before: dict[str, float], after: dict[str, float], floors: dict[str, float]) -> list[str]:
+    """The sensor-space gaps that the model ``after`` makes worse than ``before`` by more than
+    their noise: ``after > (1 + SENSOR_RELATIVE_TOLERANCE) before + c floor``."""
+    worse = []
+    scale = {"angle": floors.get("angle_rad", 0.0), "speed": floors.get("speed_rad_s", 0.0), "one": 1.0}
+    for key, (unit, c) in SENSOR_CHECKS.items():
+        if key not in before or key not in after:
+            continue
+        b, a = before[key], after[key]
+        if not (math.isfinite(a) and math.isfinite(b)):
+            continue
+        if a > (1.0 + SENSOR_RELATIVE_TOLERANCE) * b + c * scale[unit]:
+            worse.append(key)
+    return worse
+
+
+def first_calibration(
+    stats_by_run: dict[str, RunStatistics],
+    train: list[str],
+    heldout: list[str],
+    cal: CalibrationSetup,
+    *,
+    rule: DecisionRule | None = None,
+    candidates: tuple[Candidate, ...] = CANDIDATES,
+) -> tuple[list[ParameterFit], str | None]:
+    """The parameters to recompute the equation error at: the moved parameters of the best
+    model on the nominal model's statistics (calibration alone, or jointly with the best
+    significant candidate, so that an effect is not absorbed into the parameters), refitted
+    with only the moved parameters free. Also the name of that candidate, if any."""
+    rule = rule or DecisionRule()
+    tr = [stats_by_run[n] for n in train]
+    ho = [stats_by_run[n] for n in heldout]
+    n_h = sum(s.n for s in ho)
+    ref = _fit_linear_joint(tr, ho, cal, None, rule)
+    scores = [_score(c, tr, ho, rule, cal, ref) for c in candidates]
+    _significance(scores, candidates, n_h, rule)
+    sig = [s for s in scores if s.significant]
+    winner = max(sig, key=lambda s: s.gain - s.threshold) if sig else None
+    fits = final_parameters(cal, winner.fit if winner is not None else ref)
+    moved = [CALIBRATED.index(f.name) for f in fits if f.moved]
+    if not moved:
+        return fits, winner.name if winner is not None else None
+    cal_m = dataclasses.replace(cal, free=moved)
+    ref_m = _fit_linear_joint(tr, ho, cal_m, None, rule)
+    fit = ref_m
+    if winner is not None:
+        cand = next(c for c in candidates if c.name == winner.name)
+        fit = _score(cand, tr, ho, rule, cal_m, ref_m).fit
+    return final_parameters(cal_m, fit), winner.name if winner is not None else None
+
+
+def demote(decision: Decision, reason: str) -> None:
+    """Withdraw the named effect (e.g. it makes the model worse in sensor space)."""
+    decision.effect = _fallback(decision.structure)
+    decision.reason = f"{reason}; answer {decision.effect}"
+    decision.confidence = decision.bootstrap_counts.get(decision.effect, 0) / max(
+        sum(decision.bootstrap_counts.values()), 1
+    )
+    decision.winner = None
+    decision.parameters = final_parameters(decision.calibration, decision.reference)
+    if decision.effect == "recalibrated" and not any(f.moved for f in decision.parameters):
+        decision.effect = "none"
+
+
 def decide(
     stats_by_run: dict[str, RunStatistics],
     train: list[str],
@@ -387,12 +651,16 @@ def decide(
     candidates: tuple[Candidate, ...] = CANDIDATES,
     seed: int = 0,
     kinds: dict[str, str] | None = None,
+    calibration: CalibrationSetup | None = None,
     progress=None,
 ) -> Decision:
+    """The verdict on the held-out runs, with effects scored as additions to the recalibrated
+    model when ``calibration`` is given (else to the model the statistics were computed at)."""
     rule = rule or DecisionRule()
+    cal = calibration if calibration is not None else _no_calibration(stats_by_run)
     tr = [stats_by_run[n] for n in train]
     ho = [stats_by_run[n] for n in heldout]
-    effect, reason, scores, winner, structure, explained = _verdict(tr, ho, rule, line, candidates)
+    effect, reason, scores, winner, structure, explained, ref = _verdict(tr, ho, rule, line, candidates, cal)
     rng = np.random.default_rng(seed)
     counts: dict[str, int] = {}
     kinds = kinds or {}
@@ -408,15 +676,14 @@ def decide(
     for b in range(rule.bootstrap):
         tr_b = resample(tr)
         ho_b = resample(ho)
-        e_b = _verdict(tr_b, ho_b, rule, line, candidates)[0]
+        e_b = _verdict(tr_b, ho_b, rule, line, candidates, cal)[0]
         counts[e_b] = counts.get(e_b, 0) + 1
         if progress is not None:
             progress(b + 1, rule.bootstrap)
     confidence = counts.get(effect, 0) / max(rule.bootstrap, 1)
-    if effect not in ("none", "unexplained") and rule.bootstrap > 0 and confidence < rule.min_confidence:
+    if effect not in NOT_AN_EFFECT and rule.bootstrap > 0 and confidence < rule.min_confidence:
         # significant on these runs but not stable over resampled runs: do not force a name
-        has_structure = structure["excess_all"] or structure["correlated"] or structure["line"]
-        fallback = "unexplained" if has_structure else "none"
+        fallback = _fallback(structure)
         reason = (
             f"{effect} was significant but wins in only {confidence:.0%} of the bootstrap replicates "
             f"(< {rule.min_confidence:.0%}); answer {fallback}"
@@ -424,12 +691,20 @@ def decide(
         effect = fallback
         confidence = counts.get(effect, 0) / max(rule.bootstrap, 1)
         winner = None
+    named = winner is not None and effect == winner.name
+    params = final_parameters(calibration, winner.fit if named else ref)
+    if effect == "recalibrated" and not any(f.moved for f in params):
+        effect, reason = (
+            "none",
+            "the recalibration is confirmed but no parameter differs from nominal beyond its interval",
+        )
     n_h = sum(s.n for s in ho)
-    q0_h = sum(s.ztz for s in ho)
+    q0_h = sum(cal.nominal_ztz[s.name] for s in ho) if cal.nominal_ztz else sum(s.ztz for s in ho)
     excess = {
         "heldout_windows": int(n_h),
         "heldout_ss_nominal": float(q0_h),
         "heldout_ss_per_window_nominal": float(q0_h / max(n_h, 1)),
+        "heldout_ss_per_window_recalibrated": float(ref.heldout_ss / max(n_h, 1)),
         "heldout_ss_per_window_chosen": float(winner.heldout_ss / max(n_h, 1)) if winner else float("nan"),
         "explained_fraction": float(explained),
     }
@@ -444,4 +719,7 @@ def decide(
         bootstrap_counts=counts,
         train_runs=list(train),
         heldout_runs=list(heldout),
+        parameters=params,
+        reference=ref,
+        calibration=calibration,
     )
