@@ -202,13 +202,15 @@ class ParameterFit:
     name: str
     nominal: float
     value: float
-    sd: float
+    sd: float  # posterior standard deviation from the window noise (the "moved" test)
     identified: bool
     moved: bool
+    sd_interval: float = float("nan")  # the one of the interval, at least sd (see decide.final_parameters)
 
     @property
     def ci95(self) -> tuple[float, float]:
-        return (self.value - 1.96 * self.sd, self.value + 1.96 * self.sd)
+        s = self.sd if not math.isfinite(self.sd_interval) else max(self.sd, self.sd_interval)
+        return (self.value - 1.96 * s, self.value + 1.96 * s)
 
     def as_dict(self) -> dict[str, Any]:
         lo, hi = self.ci95
@@ -227,6 +229,7 @@ def parameter_fits(
     cov: np.ndarray,
     rule: CalibrationRule,
     identified: list[int] | None = None,
+    sd_interval: np.ndarray | None = None,
 ) -> list[ParameterFit]:
     """Fits of every :data:`CALIBRATED` parameter: ``base`` plus ``delta`` on the ``free`` ones,
     judged against ``nominal``. ``identified`` (default: ``free``) is where the data decide."""
@@ -241,9 +244,12 @@ def parameter_fits(
             value = float(getattr(base, name)) + float(delta[i])
             sd = float(math.sqrt(max(cov[i, i], 0.0)))
             moved = j in identified and abs(value - nom) > z * sd
-            out.append(ParameterFit(name, nom, value, sd, j in identified, bool(moved)))
+            si = float(sd_interval[i]) if sd_interval is not None else float("nan")
+            out.append(ParameterFit(name, nom, value, sd, j in identified, bool(moved), si))
         else:
-            out.append(ParameterFit(name, nom, float(getattr(base, name)), float("nan"), False, False))
+            out.append(
+                ParameterFit(name, nom, float(getattr(base, name)), float("nan"), j in identified, False)
+            )
     return out
 
 

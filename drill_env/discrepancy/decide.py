@@ -418,6 +418,7 @@ class Decision:
     heldout_runs: list[str]
     parameters: list[ParameterFit] = field(default_factory=list)  # the chosen model's calibration
     reference: JointFit | None = field(default=None, repr=False)  # recalibration alone
+    reference_parameters: list[ParameterFit] = field(default_factory=list)  # ... and its parameters
     calibration: CalibrationSetup | None = field(default=None, repr=False)
 
     @property
@@ -553,13 +554,60 @@ def _fallback(structure) -> str:
     return "recalibrated" if structure["recalibration_confirmed"] else "none"
 
 
-def final_parameters(cal: CalibrationSetup | None, fit: JointFit | None) -> list[ParameterFit]:
-    """Every calibrated parameter of the model a fit stands for, judged against the nominal."""
+def final_parameters(
+    cal: CalibrationSetup | None,
+    fit: JointFit | None,
+    refit=None,
+    train=None,
+    *,
+    identified: list[int] | None = None,
+    moved_all: bool = False,
+) -> list[ParameterFit]:
+    """Every calibrated parameter of the model a fit stands for, judged against the nominal.
+
+    With ``refit`` (training runs -> JointFit) and the training runs, each standard deviation
+    of an interval is at least the jackknife one over the training runs (leave one run out):
+    errors common to the windows of a run, which the per-window noise model does not see,
+    then widen the intervals instead of hiding in them. Whether a parameter moved is
+    judged on the per-window noise alone (the jackknife over a handful of runs is itself
+    too noisy for a test)."""
     if cal is None or fit is None or not cal.free or cal.nominal is None:
         return []
     nf = len(cal.free)
     cov = fit.cov[:nf, :nf] * fit.variance_scale
-    return parameter_fits(cal.nominal, cal.base, cal.free, fit.theta[:nf], cov, cal.rule)
+    sd_interval = None
+    if refit is not None and train is not None and len(train) >= 3:
+        r = len(train)
+        loo = np.array([refit(train[:i] + train[i + 1 :]).theta[:nf] for i in range(r)])
+        var_jk = (r - 1) / r * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
+        sd_interval = np.sqrt(np.maximum(var_jk, np.diag(cov)))
+    fits = parameter_fits(
+        cal.nominal,
+        cal.base,
+        cal.free,
+        fit.theta[:nf],
+        cov,
+        cal.rule,
+        identified=identified,
+        sd_interval=sd_interval,
+    )
+    if moved_all:
+        fits = [
+            dataclasses.replace(f, moved=True) if CALIBRATED.index(f.name) in cal.free else f for f in fits
+        ]
+    return fits
+
+
+def _refit_of(cal: CalibrationSetup, held, rule: DecisionRule, winner: CandidateScore | None, candidates):
+    """Training runs -> the same joint fit (calibration alone, or with the winner at its tau)."""
+    if winner is None:
+        return lambda tr: _fit_linear_joint(tr, held, cal, None, rule)
+    cand = next(c for c in candidates if c.name == winner.name)
+    if not cand.is_lag:
+        return lambda tr: _fit_linear_joint(tr, held, cal, cand.name, rule)
+    fit = winner.fit
+    i = int(np.argmin(np.abs(np.log(cand.tau_grid / fit.tau)))) if fit.tau else 0
+    return lambda tr: _fit_lag_joint(tr, held, cal, cand, rule, i)
 
 
 # Sensor-space metrics a named effect must not make worse (compare.aggregate keys), with the
@@ -593,6 +641,34 @@ def sensor_worse(before: dict[str, float], after: dict[str, float], floors: dict
     return worse
 
 
+def _select_parameters(
+    tr, ho, cal: CalibrationSetup, rule: DecisionRule, cand: Candidate | None
+) -> list[int]:
+    """Forward selection of the parameters that moved: add, one at a time, the identified
+    parameter whose refit lowers the training sum of squares most, while that drop passes
+    the candidates' test for one parameter, max(chi2_1(1 - alpha), ln n)."""
+    n_tr = sum(s.n for s in tr)
+    pen = max(float(stats.chi2.isf(rule.alpha, 1)), math.log(max(n_tr, 2)))
+
+    def train_ss(free):
+        c = dataclasses.replace(cal, free=sorted(free))
+        ref = _fit_linear_joint(tr, ho, c, None, rule)
+        return _score(cand, tr, ho, rule, c, ref).fit.train_ss if cand is not None else ref.train_ss
+
+    chosen: list[int] = []
+    current = train_ss(chosen)
+    while True:
+        trial = {j: train_ss(chosen + [j]) for j in cal.free if j not in chosen}
+        if not trial:
+            break
+        j = min(trial, key=trial.get)
+        if current - trial[j] <= pen:
+            break
+        chosen.append(j)
+        current = trial[j]
+    return sorted(chosen)
+
+
 def first_calibration(
     stats_by_run: dict[str, RunStatistics],
     train: list[str],
@@ -601,11 +677,12 @@ def first_calibration(
     *,
     rule: DecisionRule | None = None,
     candidates: tuple[Candidate, ...] = CANDIDATES,
-) -> tuple[list[ParameterFit], str | None]:
-    """The parameters to recompute the equation error at: the moved parameters of the best
-    model on the nominal model's statistics (calibration alone, or jointly with the best
-    significant candidate, so that an effect is not absorbed into the parameters), refitted
-    with only the moved parameters free. Also the name of that candidate, if any."""
+) -> tuple[list[int], str | None]:
+    """The parameters that moved, chosen on the nominal model's statistics (training runs):
+    the best significant candidate, if any, is fitted jointly with all identified parameters
+    (so that an effect is not absorbed into the parameters, nor a parameter error into an
+    effect), then the parameters are selected forward alongside it. Returns their indices
+    in :data:`CALIBRATED` and the candidate's name."""
     rule = rule or DecisionRule()
     tr = [stats_by_run[n] for n in train]
     ho = [stats_by_run[n] for n in heldout]
@@ -615,17 +692,20 @@ def first_calibration(
     _significance(scores, candidates, n_h, rule)
     sig = [s for s in scores if s.significant]
     winner = max(sig, key=lambda s: s.gain - s.threshold) if sig else None
-    fits = final_parameters(cal, winner.fit if winner is not None else ref)
-    moved = [CALIBRATED.index(f.name) for f in fits if f.moved]
-    if not moved:
-        return fits, winner.name if winner is not None else None
-    cal_m = dataclasses.replace(cal, free=moved)
-    ref_m = _fit_linear_joint(tr, ho, cal_m, None, rule)
-    fit = ref_m
-    if winner is not None:
-        cand = next(c for c in candidates if c.name == winner.name)
-        fit = _score(cand, tr, ho, rule, cal_m, ref_m).fit
-    return final_parameters(cal_m, fit), winner.name if winner is not None else None
+    cand = next(c for c in candidates if c.name == winner.name) if winner is not None else None
+    return _select_parameters(tr, ho, cal, rule, cand), winner.name if winner is not None else None
+
+
+def moved_fit(
+    cal: CalibrationSetup, tr, ho, rule: DecisionRule, cand: Candidate | None
+) -> tuple[JointFit, Any, CalibrationSetup]:
+    """The fit with only the moved parameters free (and the candidate, if any), and its refit."""
+    c = dataclasses.replace(cal, free=list(cal.moved))
+    ref = _fit_linear_joint(tr, ho, c, None, rule)
+    if cand is None:
+        return ref, (lambda t: _fit_linear_joint(t, ho, c, None, rule)), c
+    sc = _score(cand, tr, ho, rule, c, ref)
+    return sc.fit, _refit_of(c, ho, rule, sc, (cand,)), c
 
 
 def demote(decision: Decision, reason: str) -> None:
@@ -636,7 +716,7 @@ def demote(decision: Decision, reason: str) -> None:
         sum(decision.bootstrap_counts.values()), 1
     )
     decision.winner = None
-    decision.parameters = final_parameters(decision.calibration, decision.reference)
+    decision.parameters = decision.reference_parameters
     if decision.effect == "recalibrated" and not any(f.moved for f in decision.parameters):
         decision.effect = "none"
 
@@ -692,7 +772,17 @@ def decide(
         confidence = counts.get(effect, 0) / max(rule.bootstrap, 1)
         winner = None
     named = winner is not None and effect == winner.name
-    params = final_parameters(calibration, winner.fit if named else ref)
+    ref_params: list[ParameterFit] = []
+    params: list[ParameterFit] = []
+    if calibration is not None and calibration.nominal is not None:
+        kw = {"identified": calibration.free, "moved_all": True}
+        fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, None)
+        ref_params = final_parameters(cal_m, fit_m, refit_m, tr, **kw)
+        params = ref_params
+        if named:
+            cand = next(c for c in candidates if c.name == winner.name)
+            fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, cand)
+            params = final_parameters(cal_m, fit_m, refit_m, tr, **kw)
     if effect == "recalibrated" and not any(f.moved for f in params):
         effect, reason = (
             "none",
@@ -721,5 +811,6 @@ def decide(
         heldout_runs=list(heldout),
         parameters=params,
         reference=ref,
+        reference_parameters=ref_params,
         calibration=calibration,
     )

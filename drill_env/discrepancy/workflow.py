@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 
 from drill_env.discrepancy.calibrate import (
-    CALIBRATED,
     CalibrationRule,
     ParameterFit,
     calibrated_params,
@@ -47,6 +46,7 @@ from drill_env.discrepancy.decide import (
     final_parameters,
     first_calibration,
     line_scan,
+    moved_fit,
     run_statistics,
     sensor_worse,
     split_runs,
@@ -230,7 +230,12 @@ def analyse(
             base=params,
             rule=cal_rule,
         )
-        first_pass, _ = first_calibration(stats, train, held, setup0, rule=rule)
+        moved, first_winner = first_calibration(stats, train, held, setup0, rule=rule)
+        cand = next((c for c in CANDIDATES if c.name == first_winner), None)
+        tr0 = [stats[n] for n in train]
+        ho0 = [stats[n] for n in held]
+        fit0, _, cal0 = moved_fit(dataclasses.replace(setup0, moved=moved), tr0, ho0, rule, cand)
+        first_pass = final_parameters(cal0, fit0, identified=free, moved_all=True)
         base = calibrated_params(params, first_pass)
         if base is not params:
             eqs_cal, stats_cal = [], {}
@@ -245,7 +250,7 @@ def analyse(
             setup0,
             stats=cal_stats,
             nominal_ztz={n: s.ztz for n, s in stats.items()},
-            moved=[CALIBRATED.index(f.name) for f in first_pass if f.moved],
+            moved=moved,
             base=base,
         )
     timings["calibrate"] = time.perf_counter() - t1
@@ -298,7 +303,7 @@ def analyse(
                 progress("simulate nominal", i + 1, len(eqs))
         if decision.named:
             # the effect must make the recalibrated model better in sensor space too
-            ref_params = calibrated_params(params, final_parameters(setup, decision.reference))
+            ref_params = calibrated_params(params, decision.reference_parameters)
             ref = {
                 eq.run.name: (
                     nominal[eq.run.name]
