@@ -8,24 +8,32 @@ other sets of runs, and the bootstrap over runs, cost nothing.
 
 The rule (all numbers in :class:`DecisionRule`):
 
+0. With a :class:`CalibrationSetup` (see :mod:`~drill_env.discrepancy.calibrate`), the
+   statistics are those of the recalibrated model and every fit below refits the
+   identified parameters jointly: effects are scored as additions to the recalibrated
+   model, against recalibration alone.
 1. Fit each candidate on the training runs; its *held-out gain* is the drop of the
-   held-out sum of squares ``D = Q0 - Q_c``, divided by ``max(1, Q_c/n)`` so that a
+   held-out sum of squares ``D = Q_ref - Q_c``, divided by ``max(1, Q_c/n)`` so that a
    residual left far above the noise floor cannot make a partial fit look significant.
-2. A candidate is *significant* when its gain exceeds ``max(chi2_{k}(1 - alpha),
-   k ln n)`` (a likelihood-ratio test at level alpha and the BIC penalty, k fitted
-   parameters, n held-out windows) and its fitted parameters are physical.
-3. The *excess* of the nominal model is its held-out sum of squares above what noise
-   gives (n, with a tolerance for the noise-floor estimate). The best significant
+2. A candidate is *significant* when it passes the Benjamini-Hochberg step-up rule at
+   false-discovery level alpha over the admissible candidates (p-values of the gain,
+   chi^2 with k degrees of freedom) and its gain exceeds the BIC penalty ``k ln n``
+   (k fitted parameters, n held-out windows), and its fitted parameters are physical.
+3. The *excess* of the recalibrated model is its held-out sum of squares above what
+   noise gives (n, with a tolerance for the noise-floor estimate). The best significant
    candidate (largest gain above its threshold) is named when it removes at least
    ``min_explained`` of a significant excess (or when there is no significant excess
    left to explain).
 4. Otherwise the answer is ``unexplained`` if the residual has structure (significant
    excess, a spectral line at a common frequency, or correlation between neighbouring
-   windows), and ``none`` if it does not.
+   windows), ``recalibrated`` if the recalibrated model lowers the held-out sum of
+   squares of the nominal one significantly, and ``none`` if neither.
 5. The confidence is the fraction of bootstrap replicates (training and held-out runs
    each resampled with replacement, within each kind of run: constant or varying
    voltage) that reach the same answer. A named effect that wins in fewer than
    ``min_confidence`` of the replicates is not named: the answer falls back to rule 4.
+6. The workflow also withdraws a named effect that makes a held-out sensor-space gap
+   worse (:func:`sensor_worse`, :func:`demote`).
 """
 
 from __future__ import annotations
