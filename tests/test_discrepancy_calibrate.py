@@ -89,6 +89,23 @@ def test_effect_under_parameter_errors_is_named_and_parameters_recalibrated():
     assert res.sensor_check["effect"] == "position_friction_lower" and res.sensor_check["worse"] == []
     assert res.corrected.effects.lower_position_amp_1 == pytest.approx(0.12, rel=0.05)
     assert res.corrected.motor_constant == pytest.approx(out["recalibrated"]["motor_constant"]["value"])
+    assert out["effects"] == ["position_friction_lower"]
+
+
+def test_two_effects_at_once():
+    # position friction with a drift of the friction level on top: both named, strongest first,
+    # and the drift's mean is not mistaken for a static-friction error
+    res, syn = _analyse(
+        "position_friction_lower", 52, magnitude=0.1, overrides={"friction_drift": 1e-3}, simulate=True
+    )
+    out = res.result_json()
+    assert res.effect == "position_friction_lower", res.decision.reason
+    assert out["effects"] == ["position_friction_lower", "friction_drift"], res.second
+    assert res.second["parameters"]["friction_drift"] == pytest.approx(1e-3, rel=0.15)
+    assert "lower_static" not in out["recalibrated"]
+    assert res.corrected.effects.friction_drift == pytest.approx(res.second["parameters"]["friction_drift"])
+    assert res.corrected.effects.lower_position_amp_1 == pytest.approx(0.1, rel=0.1)
+    assert out["gap_after"]["equation_error_ss_per_window"] < 1.5
 
 
 @pytest.mark.parametrize("seed", [45, 46])
@@ -96,6 +113,7 @@ def test_none_stays_none(seed):
     res, _ = _analyse("none", seed)
     assert res.effect == "none", res.decision.reason
     assert res.result_json()["recalibrated"] == {}
+    assert res.result_json()["effects"] == []
     assert res.corrected is None
 
 

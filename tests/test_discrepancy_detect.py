@@ -109,6 +109,7 @@ def test_cli_end_to_end(tmp_path):
         "heldout_runs",
         "evidence",
         "recalibrated",
+        "effects",
     }
     assert result["effect"] in RESULT_EFFECTS and result["effect"] == "friction_drift"
     assert abs(result["parameters"]["friction_drift"]) == pytest.approx(0.001, rel=0.1)

@@ -35,13 +35,16 @@ Choices the data leave open, documented here and in the README:
 * **Identified or not.** A parameter is *identified* when the data shrink its prior
   standard deviation at least ``identified_ratio`` (3) times; the others stay nominal
   and are reported as not identified.
-* **Moved.** An identified parameter has *moved* when its fitted change exceeds
-  ``z`` posterior standard deviations, ``z`` the two-sided normal quantile at
-  ``alpha`` Bonferroni-corrected over the identified parameters. Only moved parameters
-  are changed in the recalibrated model.
+* **Moved.** Which identified parameters moved is chosen by forward selection on the
+  training runs (:func:`drill_env.discrepancy.decide.first_calibration`): add the one
+  whose refit lowers the sum of squares most while the drop passes the candidates' test
+  for one parameter, jointly with the best significant candidate if there is one, so
+  that neither absorbs the other. Only moved parameters are changed in the
+  recalibrated model; they are refitted with the others at nominal.
 
 Intervals are posterior 95 % intervals, scaled up by ``sqrt(Q/(n - p))`` when the fit
-leaves more than the noise floor.
+leaves more than the noise floor, and at least as wide as the jackknife over the
+training runs (errors common to a run's windows are not in the per-window noise model).
 """
 
 from __future__ import annotations
@@ -149,6 +152,11 @@ class CalibrationStatistics:
     atz: np.ndarray  # A'z
     cross: dict[str, np.ndarray] = field(default_factory=dict)  # linear candidate: A'X
     cross_lag: dict[str, np.ndarray] = field(default_factory=dict)  # lag candidate: A'x per tau (p x n_tau)
+    # Gram matrix of every column [z, A, each linear candidate's columns, each lag candidate's
+    # column per tau] and where each sits in it (keys "z", "A", name, (name, tau index)):
+    # any joint fit of several candidates is a choice of its blocks
+    gram: np.ndarray | None = None
+    index: dict[Any, np.ndarray] = field(default_factory=dict)
 
 
 def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatistics:
@@ -156,6 +164,9 @@ def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatis
     a = -np.vstack([xu / eq.upper.sigma[:, None], xl / eq.lower.sigma[:, None]])
     z = np.concatenate([eq.upper.z, eq.lower.z])
     st = CalibrationStatistics(name=eq.run.name, ata=a.T @ a, atz=a.T @ z)
+    blocks = [z[:, None], a]
+    index: dict[Any, np.ndarray] = {"z": np.array([0]), "A": np.arange(1, 1 + a.shape[1])}
+    pos = 1 + a.shape[1]
     for c in candidates:
         if c.is_lag:
             cols = np.empty((a.shape[1], c.tau_grid.size))
@@ -163,11 +174,20 @@ def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatis
                 cu, cl = c.columns(eq, float(tau))
                 x = np.concatenate([cu[:, 0] / eq.upper.sigma, cl[:, 0] / eq.lower.sigma])
                 cols[:, i] = a.T @ x
+                blocks.append(x[:, None])
+                index[(c.name, i)] = np.array([pos])
+                pos += 1
             st.cross_lag[c.name] = cols
         else:
             cu, cl = c.columns(eq)
             x = np.vstack([cu / eq.upper.sigma[:, None], cl / eq.lower.sigma[:, None]])
             st.cross[c.name] = a.T @ x
+            blocks.append(x)
+            index[c.name] = np.arange(pos, pos + x.shape[1])
+            pos += x.shape[1]
+    d = np.hstack(blocks)
+    st.gram = d.T @ d
+    st.index = index
     return st
 
 

@@ -73,6 +73,7 @@ __all__ = [
     "demote",
     "final_parameters",
     "first_calibration",
+    "second_effect",
     "sensor_worse",
     "line_scan",
     "LineScan",
@@ -714,6 +715,147 @@ def moved_fit(
         return ref, (lambda t: _fit_linear_joint(t, ho, c, None, rule)), c
     sc = _score(cand, tr, ho, rule, c, ref)
     return sc.fit, _refit_of(c, ho, rule, sc, (cand,)), c
+
+
+def _gram_fit(group, cal: CalibrationSetup, free_keys, offset_keys, held, rule: DecisionRule, with_cov=False):
+    """Joint fit from the per-run Gram matrices: the identified parameters and the columns of
+    ``free_keys`` fitted, the columns of ``offset_keys`` added with coefficient 1 (a lag effect
+    at its time constant). Returns the coefficients, the training and the held-out sum of squares."""
+    idx = cal.stats[group[0].name].index
+    free = np.concatenate([idx["A"][np.array(cal.free, dtype=int)]] + [idx[k] for k in free_keys])
+    off = np.concatenate([np.zeros(0, dtype=int)] + [idx[k] for k in offset_keys])
+    z = int(idx["z"][0])
+
+    def parts(runs):
+        g = sum(cal.stats[s.name].gram for s in runs)
+        yy = g[z, z] - 2.0 * g[z, off].sum() + g[np.ix_(off, off)].sum()
+        dy = g[free, z] - g[np.ix_(free, off)].sum(axis=1)
+        return g[np.ix_(free, free)], dy, float(yy)
+
+    m, dy, yy = parts(group)
+    theta, cov = solve_joint(m, dy, cal.prior[cal.free], rule.ridge)
+    q_tr = yy - 2.0 * theta @ dy + theta @ m @ theta
+    mh, dyh, yyh = parts(held)
+    q_h = yyh - 2.0 * theta @ dyh + theta @ mh @ theta
+    if with_cov:
+        return theta, float(q_tr), float(q_h), cov
+    return theta, float(q_tr), float(q_h)
+
+
+def second_effect(
+    decision: Decision,
+    stats_by_run: dict[str, RunStatistics],
+    cal: CalibrationSetup | None,
+    *,
+    rule: DecisionRule | None = None,
+    candidates: tuple[Candidate, ...] = CANDIDATES,
+) -> dict[str, Any]:
+    """Greedy forward step: with the named effect in the model, is a second candidate needed?
+
+    Tried only when the held-out residual of the recalibrated model with the first effect
+    still shows a significant excess; each other candidate is fitted jointly with the
+    identified parameters and the first effect (a lag effect at its fitted time constant)
+    and scored on the held-out runs by the same rule as the first (Benjamini-Hochberg over
+    the remaining candidates, BIC penalty, physical parameters, at least ``min_explained``
+    of the remaining excess)."""
+    rule = rule or DecisionRule()
+    out: dict[str, Any] = {"tried": False, "named": None}
+    if not decision.named or cal is None or not cal.stats:
+        return out
+    if any(st.gram is None for st in cal.stats.values()):
+        return out
+    tr = [stats_by_run[n] for n in decision.train_runs]
+    ho = [stats_by_run[n] for n in decision.heldout_runs]
+    n_h = sum(s.n for s in ho)
+    first = next(c for c in candidates if c.name == decision.effect)
+    if first.is_lag:
+        tau = decision.winner.fit.tau
+        i_w = int(np.argmin(np.abs(np.log(first.tau_grid / tau)))) if tau else 0
+        f_free, f_off = [], [(first.name, i_w)]
+    else:
+        f_free, f_off = [first.name], []
+    _, q_tr0, q_h0 = _gram_fit(tr, cal, f_free, f_off, ho, rule)
+    excess = q_h0 - n_h
+    out["heldout_ss_per_window_with_first"] = q_h0 / max(n_h, 1)
+    if not q_h0 > n_h * (1.0 + rule.floor_tolerance) + rule.excess_z * math.sqrt(2.0 * n_h):
+        out["reason"] = f"the held-out residual with {first.name} is at the noise floor"
+        return out
+    out["tried"] = True
+    rest = tuple(c for c in candidates if c.name != first.name)
+    scores = []
+    for c in rest:
+        if c.is_lag:
+            fits = [
+                _gram_fit(tr, cal, f_free, f_off + [(c.name, i)], ho, rule) for i in range(c.tau_grid.size)
+            ]
+            i = int(np.argmin([f[1] for f in fits]))
+            raw = q_h0 - fits[i][2] if fits[i][1] < q_tr0 else 0.0
+            params = c.to_parameters(np.array([1.0]), float(c.tau_grid[i]) if fits[i][1] < q_tr0 else 0.0)
+        else:
+            theta, _, q_h = _gram_fit(tr, cal, f_free + [c.name], f_off, ho, rule)
+            raw = q_h0 - q_h
+            params = c.to_parameters(theta[-c.n_params :])
+        q_c = q_h0 - raw
+        gain = raw / max(1.0, q_c / max(n_h, 1))
+        why = c.admissible(params)
+        sc = CandidateScore(
+            name=c.name,
+            gain=float(gain),
+            raw_gain=float(raw),
+            threshold=float("nan"),
+            significant=False,
+            admissible=why is None,
+            note=why or "",
+            parameters={k: float(v) for k, v in params.items()},
+            heldout_ss=float(q_c),
+        )
+        sc.p_value = float(stats.chi2.sf(max(gain, 0.0), c.n_params))
+        scores.append(sc)
+    _significance(scores, rest, n_h, rule)
+    out["candidates"] = [s.as_dict() for s in scores]
+    sig = [s for s in scores if s.significant]
+    if not sig:
+        out["reason"] = "no second candidate is significant"
+        return out
+    best = max(sig, key=lambda s: s.gain - s.threshold)
+    keys: dict[str, list] = {}
+    for c in rest:
+        if c.name == best.name:
+            if c.is_lag:
+                tau = best.parameters[next(iter(best.parameters))]
+                i = int(np.argmin(np.abs(np.log(c.tau_grid / tau)))) if tau else 0
+                keys = {"free": f_free, "off": f_off + [(c.name, i)]}
+            else:
+                keys = {"free": f_free + [c.name], "off": f_off}
+    explained = best.raw_gain / excess if excess > 0 else 1.0
+    out["explained_fraction"] = float(explained)
+    if explained < rule.min_explained:
+        out["reason"] = f"{best.name} removes only {explained:.0%} of the excess left by {first.name}"
+        return out
+    out["named"] = best.name
+    out["parameters"] = best.parameters
+    out["heldout_ss"] = best.heldout_ss
+    # the moved parameters refitted with both effects; those no longer significant stay nominal
+    if cal.moved and cal.nominal is not None:
+        cal_m = dataclasses.replace(cal, free=list(cal.moved))
+        theta, q_tr, _, cov = _gram_fit(tr, cal_m, keys["free"], keys["off"], ho, rule, with_cov=True)
+        n_tr = sum(s_.n for s_ in tr)
+        scale = max(1.0, q_tr / max(n_tr - theta.size, 1))
+        nf = len(cal_m.free)
+        out["parameter_fits"] = parameter_fits(
+            cal.nominal,
+            cal.base,
+            cal_m.free,
+            theta[:nf],
+            cov[:nf, :nf] * scale,
+            cal.rule,
+            identified=cal.free,
+        )
+    out["reason"] = (
+        f"{best.name} removes {min(explained, 1.0):.0%} of the held-out excess left by {first.name} "
+        f"(gain {best.gain:.1f} > threshold {best.threshold:.1f})"
+    )
+    return out
 
 
 def demote(decision: Decision, reason: str) -> None:

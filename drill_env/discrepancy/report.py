@@ -208,11 +208,13 @@ def parameter_table(res) -> list[str]:
         return ["The parameters were taken as exact (no recalibration).", ""]
     rows = []
     for f in d.parameters:
-        if f.identified:
+        if f.moved:
             lo, hi = f.ci95
             interval = f"[{lo:.4g}, {hi:.4g}]"
             change = f"{f.value / f.nominal - 1.0:+.2%}" if f.nominal else "-"
-            status = "moved: recalibrated" if f.moved else "within its interval of nominal: kept nominal"
+            status = "moved: recalibrated"
+        elif f.identified:
+            interval, change, status = "-", "-", "excited, no significant change: kept nominal"
         else:
             interval, change, status = "-", "-", "not excited by the data: kept nominal"
         rows.append([f.name, f.nominal, f.value if f.identified else f.nominal, interval, change, status])
@@ -223,9 +225,10 @@ def parameter_table(res) -> list[str]:
         f"ratios, not the scale: the string stiffness is kept at its nominal {k_theta:g} N m/rad and "
         "sets it. Each parameter carries a weak prior at its nominal value (standard deviation 25 % "
         "of it); a parameter the data do not pin down three times better than that is not excited and "
-        "stays nominal. A parameter is recalibrated when its change exceeds the Bonferroni-corrected "
-        "normal quantile (family-wise level 1e-3) times its standard deviation; only those enter "
-        "`model.yaml`. Intervals: posterior 95 %.",
+        "stays nominal. The parameters that moved are chosen by forward selection on the training runs "
+        "(each one must lower the sum of squares by more than max(chi2_1 quantile at 1e-3, ln n)), "
+        "jointly with the named effect, and refitted with the others at nominal; only those enter "
+        "`model.yaml`. Intervals: posterior 95 %, at least as wide as the jackknife over training runs.",
         "",
         _table(["parameter", "nominal", "fitted", "95 % interval", "change", "status"], rows),
         "",
@@ -400,6 +403,12 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         _table(["candidate", "held-out gain", "threshold", "significant", "fitted parameters", "note"], rows),
         "",
     ]
+    if res.second:
+        lines += [
+            "Second effect (greedy forward step, same held-out rule, with the first effect and the "
+            f"identified parameters refitted jointly): {res.second.get('reason', 'not tried')}.",
+            "",
+        ]
     lines += _sensor_lines(res)
     lines += [
         "## Gap before and after, held-out runs",

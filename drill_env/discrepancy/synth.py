@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,7 @@ import numpy as np
 
 from drill_env.discrepancy.dataset import MeasuredRun, write_dataset
 from drill_env.outputs import atomic_write_text
-from drill_env.params import RigParams, load_params
+from drill_env.params import ModelEffects, RigParams, load_params
 
 __all__ = [
     "HiddenEffect",
@@ -234,10 +234,12 @@ def _parameter_errors(
         rng = np.random.default_rng([seed, 7919])  # a stream of its own: the runs stay the same
         for name, e in zip(IDENTIFIED, rng.uniform(-rel, rel, len(IDENTIFIED)), strict=True):
             out[name] = float(getattr(base, name)) * (1.0 + float(e))
+    effect_fields = {f.name for f in fields(ModelEffects)}
     for name, value in (overrides or {}).items():
-        if name not in IDENTIFIED:
+        if name not in IDENTIFIED and name not in effect_fields:
             raise ValueError(
-                f"truth_overrides: {name!r} is not an identified parameter; allowed: {list(IDENTIFIED)}"
+                f"truth_overrides: {name!r} is neither an identified parameter nor an effect field; "
+                f"allowed: {list(IDENTIFIED)} and {sorted(effect_fields)}"
             )
         out[name] = float(value)
     return out
@@ -340,13 +342,16 @@ def make_dataset(
     """Simulate a truth model with one hidden effect and record it like the rig.
 
     ``truth_overrides`` sets identified parameters of the truth (RigParams field names)
-    on top of the drawn ``config.param_error``; both go to the answer only."""
+    on top of the drawn ``config.param_error``, or fields of a second effect
+    (:class:`~drill_env.params.ModelEffects` names); all go to the answer only."""
     cfg = config or SynthConfig()
     rng = np.random.default_rng(seed)
     truth, spec, mag, fields_ = _truth_params(cfg.preset, effect, magnitude, rng)
-    errors = _parameter_errors(cfg.preset, cfg.param_error, truth_overrides, seed)
-    if errors:
-        truth = truth.replace(**errors)
+    changes = _parameter_errors(cfg.preset, cfg.param_error, truth_overrides, seed)
+    if changes:
+        truth = truth.replace(**changes)
+    errors = {n: v for n, v in changes.items() if n in IDENTIFIED}
+    extra = {n: v for n, v in changes.items() if n not in IDENTIFIED}
     runs: list[MeasuredRun] = []
     total = len(cfg.voltages) + cfg.random_runs
     designs: list[Any] = [float(v) for v in cfg.voltages]
@@ -363,6 +368,7 @@ def make_dataset(
         "magnitude_meaning": spec.magnitude_meaning,
         "detectable_range": [spec.low, spec.high],
         "model_effects": fields_,
+        "extra_effects": extra,
         "parameter_errors": {
             n: v / float(getattr(load_params(cfg.preset), n)) - 1.0 for n, v in errors.items()
         },

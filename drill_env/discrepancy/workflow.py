@@ -48,6 +48,7 @@ from drill_env.discrepancy.decide import (
     line_scan,
     moved_fit,
     run_statistics,
+    second_effect,
     sensor_worse,
     split_runs,
 )
@@ -77,6 +78,8 @@ class DiscrepancyResult:
     corrected: RigParams | None  # the chosen model when it differs from the nominal one
     first_pass: list[ParameterFit]  # the calibration on the nominal model's equation error
     sensor_check: dict[str, Any]  # a named effect against the recalibrated model, held-out runs
+    effects: list[str]  # every named effect, strongest first
+    second: dict[str, Any]  # the greedy search for a second effect
     where: list[dict[str, Any]]
     nominal: dict[str, RunComparison]
     after: dict[str, RunComparison]
@@ -95,6 +98,7 @@ class DiscrepancyResult:
             "effect": d.effect,
             "confidence": d.confidence,
             "parameters": params,
+            "effects": list(self.effects),
             "recalibrated": {f.name: f.as_dict() for f in d.recalibrated},
             "gap_before": self.gap_before,
             "gap_after": self.gap_after,
@@ -122,6 +126,7 @@ class DiscrepancyResult:
                     ],
                 },
                 "sensor_check": self.sensor_check,
+                "second_effect": self.second,
                 "angle_noise": self.noise.as_dict(),
                 "where": self.where,
                 "preset": self.dataset.preset,
@@ -143,7 +148,11 @@ class DiscrepancyResult:
         if d.effect == "recalibrated":
             return f"verdict: recalibrated (confidence {d.confidence:.2f}): {moved}"
         par = ", ".join(f"{k}={v:.4g}" for k, v in d.winner.parameters.items())
-        return f"verdict: {d.effect} (confidence {d.confidence:.2f}; {par}){cal}"
+        plus = ""
+        if len(self.effects) > 1:
+            par2 = ", ".join(f"{k}={v:.4g}" for k, v in self.second["parameters"].items())
+            plus = f"; plus {self.effects[1]} ({par2})"
+        return f"verdict: {d.effect} (confidence {d.confidence:.2f}; {par}){plus}{cal}"
 
 
 def _where_table(eqs: list[RunEquations], nominal: dict[str, RunComparison], rule: DecisionRule):
@@ -167,6 +176,20 @@ def _where_table(eqs: list[RunEquations], nominal: dict[str, RunComparison], rul
             row["short_horizon_speed_over_floor"] = c.short_speed_rms / max(c.floors["speed_rad_s"], 1e-12)
         rows.append(row)
     return rows
+
+
+def _second_parameters(decision: Decision, second: dict[str, Any]) -> None:
+    """With two effects, the parameters are those refitted jointly with both."""
+    fits = second.get("parameter_fits")
+    if fits:
+        decision.parameters = fits
+
+
+def _with_second(model: RigParams, second: dict[str, Any]) -> RigParams:
+    cand = next(c for c in CANDIDATES if c.name == second["named"])
+    return model.replace(**cand.to_model_effects(second["parameters"])).replace(
+        name=f"{model.name}+{cand.name}", description=f"{model.description}; plus {cand.title}"
+    )
 
 
 def analyse(
@@ -292,6 +315,8 @@ def analyse(
     after: dict[str, RunComparison] = {}
     cache: dict = {}
     sensor_check: dict[str, Any] = {}
+    effects: list[str] = []
+    second: dict[str, Any] = {}
     by_name = {eq.run.name: eq for eq in eqs}
     held_eqs = [by_name[n] for n in decision.heldout_runs]
     if simulate_gaps:
@@ -344,7 +369,33 @@ def analyse(
                 )
             else:
                 after = with_effect
+                effects = [decision.effect]
+                second = second_effect(decision, stats_cal, setup, rule=rule)
+                if second.get("named"):
+                    kept = decision.parameters
+                    _second_parameters(decision, second)  # the parameters refitted with both
+                    both = _with_second(model_of(decision), second)
+                    decision.parameters = kept
+                    with_both = {
+                        eq.run.name: compare_run(
+                            both, eq, dataset.encoder_counts_per_rev, compare_config, measured_cache=cache
+                        )
+                        for eq in held_eqs
+                    }
+                    worse2 = sensor_worse(after_g, aggregate(list(with_both.values())), floors)
+                    second["sensor_worse"] = worse2
+                    if worse2:
+                        second["reason"] += (
+                            f"; not named: it makes {', '.join(worse2)} worse on the held-out runs"
+                        )
+                        second["named"] = None
+                    else:
+                        after = with_both
+                        effects.append(second["named"])
+                        _second_parameters(decision, second)
         corrected = model_of(decision)
+        if len(effects) > 1:
+            corrected = _with_second(corrected, second)
         if corrected is not None and not after:
             for i, eq in enumerate(held_eqs):
                 after[eq.run.name] = compare_run(
@@ -354,6 +405,14 @@ def analyse(
                     progress("simulate corrected", i + 1, len(held_eqs))
     else:
         corrected = model_of(decision)
+        if decision.named:
+            effects = [decision.effect]
+            second = second_effect(decision, stats_cal, setup, rule=rule)
+            if second.get("named"):
+                effects.append(second["named"])
+                _second_parameters(decision, second)
+                corrected = _with_second(model_of(decision), second)
+    second.pop("parameter_fits", None)  # in decision.parameters now
     timings["simulate"] = time.perf_counter() - t2
     where = _where_table(eqs, nominal, rule)
     held_nom = [nominal[n] for n in decision.heldout_runs if n in nominal]
@@ -362,6 +421,8 @@ def analyse(
     gap_before.update(aggregate(held_nom))
     if corrected is not None:
         chosen = decision.winner.heldout_ss if decision.named else decision.reference.heldout_ss
+        if len(effects) > 1:
+            chosen = second["heldout_ss"]
         gap_after = {"equation_error_ss_per_window": chosen / max(n_h, 1)}
         gap_after.update(aggregate([after[n] for n in decision.heldout_runs if n in after]))
     else:
@@ -377,6 +438,8 @@ def analyse(
         corrected=corrected,
         first_pass=first_pass,
         sensor_check=sensor_check,
+        effects=effects,
+        second=second,
         where=where,
         nominal=nominal,
         after=after,
