@@ -213,3 +213,20 @@ def test_cli_synth_real_conditions(tmp_path):
     assert json.loads(ans.read_text())["design"]["angle_noise_std"] == 0.002
     bad = CliRunner().invoke(app, base + ["--out", str(tmp_path / "f"), "--param-error", "0.9"])
     assert bad.exit_code == 2 and "param_error" in bad.output
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [61, 62, 63])
+@pytest.mark.parametrize(
+    "changes",
+    [{"lower_inertia": 0.02}, {"lower_inertia": -0.05}, {"lower_static": 0.05}, {"upper_static_pos": -0.04}],
+)
+def test_parameter_errors_are_never_named_as_effects(changes, seed):
+    # the false names of a model that takes its parameters as exact: a static friction off
+    # read as a drift, an inertia off read as a frictional lag
+    res, syn = _analyse("none", seed, overrides=_rel(**changes), simulate=True)
+    assert res.effect == "recalibrated", res.decision.reason
+    assert res.result_json()["effects"] == []
+    truth = syn.answer["parameters_at_nominal_string_stiffness"]
+    for name, entry in res.result_json()["recalibrated"].items():
+        assert entry["ci95"][0] <= truth[name] <= entry["ci95"][1], (name, entry, truth[name])

@@ -262,6 +262,14 @@ def _fit_lag_joint(train, held, cal: CalibrationSetup, c: Candidate, rule: Decis
     return JointFit(theta, cov, q_tr, sum(s.n for s in train), q_h, tau=float(c.tau_grid[i]))
 
 
+# A lag whose best time constant is the shortest one tried is not resolved: for a small lag
+# tau, the lagged term is tau times the derivative of the unlagged one, which an inertia
+# (or another parameter) change mimics; such a fit is not admissible as an effect.
+_EDGE_NOTE = (
+    "the time constant is the shortest of the grid: a lag this short is not resolved from a parameter change"
+)
+
+
 def _score(c: Candidate, train, held, rule: DecisionRule, cal: CalibrationSetup, ref: JointFit):
     """Score a candidate as an addition to the recalibrated model ``ref`` (calibration alone)."""
     n_h = sum(s.n for s in held)
@@ -293,6 +301,8 @@ def _score(c: Candidate, train, held, rule: DecisionRule, cal: CalibrationSetup,
     gain = raw / max(1.0, q_c / max(n_h, 1))
     k = c.n_params
     why = c.admissible(params)
+    if c.is_lag and why is None and i == 0 and raw > 0.0:
+        why = _EDGE_NOTE
     score = CandidateScore(
         name=c.name,
         gain=float(gain),
@@ -790,6 +800,7 @@ def second_effect(
             ]
             i = int(np.argmin([f[1] for f in fits]))
             raw = q_h0 - fits[i][2] if fits[i][1] < q_tr0 else 0.0
+            edge = i == 0 and raw > 0.0
             params = c.to_parameters(np.array([1.0]), float(c.tau_grid[i]) if fits[i][1] < q_tr0 else 0.0)
         else:
             theta, _, q_h = _gram_fit(tr, cal, f_free + [c.name], f_off, ho, rule)
@@ -798,6 +809,8 @@ def second_effect(
         q_c = q_h0 - raw
         gain = raw / max(1.0, q_c / max(n_h, 1))
         why = c.admissible(params)
+        if c.is_lag and why is None and edge:
+            why = _EDGE_NOTE
         sc = CandidateScore(
             name=c.name,
             gain=float(gain),
