@@ -60,7 +60,7 @@ from drill_env.discrepancy.equation_error import (
     estimate_angle_noise,
 )
 from drill_env.outputs import atomic_write_text, output_lock
-from drill_env.params import RigParams, load_params
+from drill_env.params import ParameterError, RigParams, load_params
 
 __all__ = ["DiscrepancyResult", "analyse", "run_discrepancy", "RESULT_EFFECTS"]
 
@@ -113,6 +113,7 @@ class DiscrepancyResult:
                 "bootstrap_verdicts": d.bootstrap_counts,
                 "calibration": {
                     "fixed_scale": {"string_stiffness": self.params.string_stiffness},
+                    "first_pass_moved": [f.name for f in self.first_pass if f.moved],
                     "parameters": [
                         {
                             "name": f.name,
@@ -259,7 +260,12 @@ def analyse(
         ho0 = [stats[n] for n in held]
         fit0, _, cal0 = moved_fit(dataclasses.replace(setup0, moved=moved), tr0, ho0, rule, cand)
         first_pass = final_parameters(cal0, fit0, identified=free, moved_all=True)
-        base = calibrated_params(params, first_pass)
+        try:
+            base = calibrated_params(params, first_pass)
+        except ParameterError:
+            # the refit left the rig's valid range (e.g. a friction that is not dissipative):
+            # keep the nominal parameters rather than explain with an impossible model
+            first_pass, moved, base = [], [], params
         if base is not params:
             eqs_cal, stats_cal = [], {}
             for i, r in enumerate(dataset.runs):
