@@ -51,7 +51,7 @@ def main() -> None:
     )
     print(
         f"drill-env discrepancy, one core: {t_run:.1f} s "
-        f"(equation error {res.timings['equation_error']:.1f} s, decide + bootstrap {res.timings['decide']:.1f} s, "
+        f"(equation error {res.timings['equation_error']:.1f} s, calibration {res.timings['calibrate']:.1f} s, decide + bootstrap {res.timings['decide']:.1f} s, "
         f"simulations {res.timings['simulate']:.1f} s); target < 120 s"
     )
     print(res.verdict_line())

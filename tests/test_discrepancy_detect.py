@@ -90,6 +90,8 @@ def test_cli_end_to_end(tmp_path):
             "2",
             "--rate",
             "200",
+            "--angle-noise",
+            "0.001",
         ],
     )
     assert r.exit_code == 0, r.output
@@ -106,6 +108,8 @@ def test_cli_end_to_end(tmp_path):
         "gap_after",
         "heldout_runs",
         "evidence",
+        "recalibrated",
+        "effects",
     }
     assert result["effect"] in RESULT_EFFECTS and result["effect"] == "friction_drift"
     assert abs(result["parameters"]["friction_drift"]) == pytest.approx(0.001, rel=0.1)

@@ -35,7 +35,19 @@ def synth(
     seed: int = typer.Option(0, help="Seed of everything random (effect phases, runs, noise)."),
     out: Path = typer.Option(..., help="Dataset folder to write (runs + dataset.json)."),
     answer: Path = typer.Option(..., help="File that receives the effect and its parameters (JSON)."),
-    noise: float = typer.Option(1e-3, help="Angle noise before quantisation [rad]."),
+    angle_noise: float = typer.Option(
+        0.0,
+        "--angle-noise",
+        "--noise",
+        help="Gaussian angle noise before quantisation [rad]; 0 is a real encoder (the angle is the "
+        "quantised true angle and nothing else). --noise is the older name.",
+    ),
+    param_error: float = typer.Option(
+        0.0,
+        "--param-error",
+        help="Relative error of every identified parameter of the truth model, drawn uniformly from "
+        "[-REL, REL] per dataset from the seed (0-0.3); the drawn values go to --answer only.",
+    ),
     counts: int = typer.Option(2000, help="Encoder counts per revolution."),
     rate: float = typer.Option(500.0, help="Sample rate [Hz] (100-10000)."),
     duration: float = typer.Option(150.0, help="Recorded length of each run [s]."),
@@ -44,7 +56,8 @@ def synth(
     ),
     random_runs: int = typer.Option(3, help="Quasi-random voltage runs."),
 ) -> None:
-    """Make measured-like data from a truth model with one hidden effect."""
+    """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
+    parameters off by a few percent)."""
     from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
     from drill_env.outputs import check_output_file, check_output_folder, output_lock
     from drill_env.params import ParameterError
@@ -69,7 +82,8 @@ def synth(
             duration_s=duration,
             sample_rate_hz=rate,
             encoder_counts_per_rev=counts,
-            angle_noise_std=noise,
+            angle_noise_std=angle_noise,
+            param_error=param_error,
         )
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:

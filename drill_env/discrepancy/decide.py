@@ -8,45 +8,73 @@ other sets of runs, and the bootstrap over runs, cost nothing.
 
 The rule (all numbers in :class:`DecisionRule`):
 
+0. With a :class:`CalibrationSetup` (see :mod:`~drill_env.discrepancy.calibrate`), the
+   statistics are those of the recalibrated model and every fit below refits the
+   identified parameters jointly: effects are scored as additions to the recalibrated
+   model, against recalibration alone.
 1. Fit each candidate on the training runs; its *held-out gain* is the drop of the
-   held-out sum of squares ``D = Q0 - Q_c``, divided by ``max(1, Q_c/n)`` so that a
+   held-out sum of squares ``D = Q_ref - Q_c``, divided by ``max(1, Q_c/n)`` so that a
    residual left far above the noise floor cannot make a partial fit look significant.
-2. A candidate is *significant* when its gain exceeds ``max(chi2_{k}(1 - alpha),
-   k ln n)`` (a likelihood-ratio test at level alpha and the BIC penalty, k fitted
-   parameters, n held-out windows) and its fitted parameters are physical.
-3. The *excess* of the nominal model is its held-out sum of squares above what noise
-   gives (n, with a tolerance for the noise-floor estimate). The best significant
+2. A candidate is *significant* when it passes the Benjamini-Hochberg step-up rule at
+   false-discovery level alpha over the admissible candidates (p-values of the gain,
+   chi^2 with k degrees of freedom) and its gain exceeds the BIC penalty ``k ln n``
+   (k fitted parameters, n held-out windows), and its fitted parameters are physical.
+3. The *excess* of the recalibrated model is its held-out sum of squares above what
+   noise gives (n, with a tolerance for the noise-floor estimate). The best significant
    candidate (largest gain above its threshold) is named when it removes at least
    ``min_explained`` of a significant excess (or when there is no significant excess
    left to explain).
 4. Otherwise the answer is ``unexplained`` if the residual has structure (significant
    excess, a spectral line at a common frequency, or correlation between neighbouring
-   windows), and ``none`` if it does not.
+   windows), ``recalibrated`` if the recalibrated model lowers the held-out sum of
+   squares of the nominal one significantly, and ``none`` if neither.
 5. The confidence is the fraction of bootstrap replicates (training and held-out runs
    each resampled with replacement, within each kind of run: constant or varying
    voltage) that reach the same answer. A named effect that wins in fewer than
    ``min_confidence`` of the replicates is not named: the answer falls back to rule 4.
+6. The workflow also withdraws a named effect that makes a held-out sensor-space gap
+   worse (:func:`sensor_worse`, :func:`demote`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
+from drill_env.discrepancy.calibrate import (
+    CALIBRATED,
+    CalibrationRule,
+    CalibrationStatistics,
+    ParameterFit,
+    parameter_fits,
+    solve_joint,
+)
 from drill_env.discrepancy.effects import CANDIDATES, Candidate
 from drill_env.discrepancy.equation_error import RunEquations
+from drill_env.params import RigParams
+
+NOT_AN_EFFECT = ("none", "recalibrated", "unexplained")  # verdicts that name no effect
 
 __all__ = [
     "DecisionRule",
     "RunStatistics",
     "run_statistics",
     "CandidateScore",
+    "CalibrationSetup",
     "Decision",
+    "JointFit",
+    "NOT_AN_EFFECT",
     "decide",
+    "demote",
+    "final_parameters",
+    "first_calibration",
+    "second_effect",
+    "sensor_worse",
     "line_scan",
     "LineScan",
     "split_runs",
@@ -132,30 +160,123 @@ class CandidateScore:
     note: str
     parameters: dict[str, float]
     heldout_ss: float  # held-out sum of squares with the candidate
+    p_value: float = float("nan")  # of the held-out gain, chi^2 with k degrees of freedom
+    fit: Any = field(default=None, repr=False)  # the joint fit (calibration + candidate)
 
     def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "fit"}
 
 
-def _fit_linear(stats_list, name, ridge):
-    A = sum(s.linear[name][0] for s in stats_list)
-    b = sum(s.linear[name][1] for s in stats_list)
-    k = A.shape[0]
-    scale = max(float(np.trace(A)) / k, 1e-300)
-    return np.linalg.solve(A + ridge * scale * np.eye(k), b)
+@dataclass
+class CalibrationSetup:
+    """What the decision needs to score effects as additions to the recalibrated model.
+
+    ``stats`` are the calibration statistics at the model being scored (the recalibrated
+    one), ``free`` the identified parameters refitted jointly with every candidate,
+    ``nominal_ztz`` the nominal model's sum of squares per run and ``moved`` the
+    parameters that the recalibrated model changes (the recalibration is confirmed when
+    it lowers the held-out sum of squares significantly, with ``len(moved)`` degrees of
+    freedom)."""
+
+    stats: dict[str, CalibrationStatistics]
+    free: list[int]
+    prior: np.ndarray  # prior precision of every calibrated parameter (CALIBRATED order)
+    nominal_ztz: dict[str, float]
+    moved: list[int]
+    nominal: RigParams
+    base: RigParams  # the recalibrated model the statistics were computed at
+    rule: CalibrationRule = field(default_factory=CalibrationRule)
 
 
-def _gain_linear(stats_list, name, coef):
-    A = sum(s.linear[name][0] for s in stats_list)
-    b = sum(s.linear[name][1] for s in stats_list)
-    return float(2.0 * coef @ b - coef @ A @ coef)
+def _no_calibration(names) -> CalibrationSetup:
+    empty = CalibrationStatistics(name="", ata=np.zeros((0, 0)), atz=np.zeros(0))
+    return CalibrationSetup(
+        stats={n: empty for n in names},
+        free=[],
+        prior=np.zeros(0),
+        nominal_ztz={},
+        moved=[],
+        nominal=None,
+        base=None,
+    )
 
 
-def _score(c: Candidate, train, held, rule: DecisionRule) -> CandidateScore:
+def _cal_block(cal: CalibrationSetup, group):
+    f = np.array(cal.free, dtype=int)
+    ata = sum((cal.stats[s.name].ata[np.ix_(f, f)] for s in group), np.zeros((f.size, f.size)))
+    atz = sum((cal.stats[s.name].atz[f] for s in group), np.zeros(f.size))
+    return f, ata, atz
+
+
+@dataclass
+class JointFit:
+    """Parameter changes (and candidate coefficients) fitted on the training runs."""
+
+    theta: np.ndarray  # [parameter changes, candidate coefficients]
+    cov: np.ndarray  # unscaled posterior covariance
+    train_ss: float
+    train_n: int
+    heldout_ss: float
+    tau: float | None = None  # lag candidates: the time constant
+
+    @property
+    def variance_scale(self) -> float:
+        dof = max(self.train_n - self.theta.size, 1)
+        return max(1.0, self.train_ss / dof)
+
+
+def _joint(group, cal: CalibrationSetup, name: str | None = None):
+    """Gram matrix and right-hand side of [calibration | candidate columns] summed over runs."""
+    f, ata, atz = _cal_block(cal, group)
+    if name is None:
+        return ata, atz
+    xx = sum(s.linear[name][0] for s in group)
+    xz = sum(s.linear[name][1] for s in group)
+    ax = sum((cal.stats[s.name].cross[name][f] for s in group), np.zeros((f.size, xx.shape[0])))
+    return np.block([[ata, ax], [ax.T, xx]]), np.concatenate([atz, xz])
+
+
+def _ss(group, theta, m, b) -> float:
+    return float(sum(s.ztz for s in group) - 2.0 * theta @ b + theta @ m @ theta)
+
+
+def _fit_linear_joint(train, held, cal: CalibrationSetup, name: str | None, rule: DecisionRule) -> JointFit:
+    m, b = _joint(train, cal, name)
+    theta, cov = solve_joint(m, b, cal.prior[cal.free], rule.ridge)
+    mh, bh = _joint(held, cal, name)
+    return JointFit(theta, cov, _ss(train, theta, m, b), sum(s.n for s in train), _ss(held, theta, mh, bh))
+
+
+def _fit_lag_joint(train, held, cal: CalibrationSetup, c: Candidate, rule: DecisionRule, i: int) -> JointFit:
+    """Calibration refitted with the lag candidate's column (coefficient 1, physics) at tau_i."""
+    f, ata, atz = _cal_block(cal, train)
+    atx = sum((cal.stats[s.name].cross_lag[c.name][f, i] for s in train), np.zeros(f.size))
+    rhs = atz - atx
+    theta, cov = solve_joint(ata, rhs, cal.prior[cal.free], rule.ridge)
+    q_tr = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in train))
+    q_tr += float(-2.0 * theta @ rhs + theta @ ata @ theta)
+    _, ath, atzh = _cal_block(cal, held)
+    atxh = sum((cal.stats[s.name].cross_lag[c.name][f, i] for s in held), np.zeros(f.size))
+    q_h = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in held))
+    q_h += float(-2.0 * theta @ (atzh - atxh) + theta @ ath @ theta)
+    return JointFit(theta, cov, q_tr, sum(s.n for s in train), q_h, tau=float(c.tau_grid[i]))
+
+
+# A lag whose best time constant is the shortest one tried is not resolved: for a small lag
+# tau, the lagged term is tau times the derivative of the unlagged one, which an inertia
+# (or another parameter) change mimics; such a fit is not admissible as an effect.
+_EDGE_NOTE = (
+    "the time constant is the shortest of the grid: a lag this short is not resolved from a parameter change"
+)
+
+
+def _score(c: Candidate, train, held, rule: DecisionRule, cal: CalibrationSetup, ref: JointFit):
+    """Score a candidate as an addition to the recalibrated model ``ref`` (calibration alone)."""
     n_h = sum(s.n for s in held)
-    q0_h = sum(s.ztz for s in held)
+    nf = len(cal.free)
     if c.is_lag:
-        gain_train = sum(2.0 * s.lag[c.name][0] - s.lag[c.name][1] for s in train)
+        fits = [_fit_lag_joint(train, held, cal, c, rule, i) for i in range(c.tau_grid.size)]
+        gain_train = np.array([ref.train_ss - f.train_ss for f in fits])
         i = int(np.argmax(gain_train))
         tau = float(c.tau_grid[i])
         if 0 < i < c.tau_grid.size - 1:
@@ -165,31 +286,55 @@ def _score(c: Candidate, train, held, rule: DecisionRule) -> CandidateScore:
             if den < 0.0:
                 step = math.log(c.tau_grid[i + 1] / c.tau_grid[i])
                 tau = float(c.tau_grid[i] * math.exp(0.5 * (y0 - y2) / den * step))
-        raw = float(sum(2.0 * s.lag[c.name][0][i] - s.lag[c.name][1][i] for s in held))
+        fit = fits[i]
+        raw = ref.heldout_ss - fit.heldout_ss
         params = c.to_parameters(np.array([1.0]), tau)
         if gain_train[i] <= 0.0:
             raw = 0.0  # no lag improves the training fit: the candidate stays at zero
             params = c.to_parameters(np.array([1.0]), 0.0)
+            fit = ref
     else:
-        coef = _fit_linear(train, c.name, rule.ridge)
-        raw = _gain_linear(held, c.name, coef)
-        params = c.to_parameters(coef)
-    q_c = q0_h - raw
+        fit = _fit_linear_joint(train, held, cal, c.name, rule)
+        raw = ref.heldout_ss - fit.heldout_ss
+        params = c.to_parameters(fit.theta[nf:])
+    q_c = ref.heldout_ss - raw
     gain = raw / max(1.0, q_c / max(n_h, 1))
     k = c.n_params
-    thr = max(float(stats.chi2.isf(rule.alpha, k)), k * math.log(max(n_h, 2)))
     why = c.admissible(params)
-    return CandidateScore(
+    if c.is_lag and why is None and i == 0 and raw > 0.0:
+        why = _EDGE_NOTE
+    score = CandidateScore(
         name=c.name,
         gain=float(gain),
         raw_gain=float(raw),
-        threshold=float(thr),
-        significant=bool(gain > thr and why is None),
+        threshold=float("nan"),  # set by the false-discovery step, see _significance
+        significant=False,
         admissible=why is None,
         note=why or "",
         parameters={k_: float(v) for k_, v in params.items()},
         heldout_ss=float(q_c),
     )
+    score.p_value = float(stats.chi2.sf(max(gain, 0.0), k))
+    score.fit = fit
+    return score
+
+
+def _significance(scores, candidates, n_h: int, rule: DecisionRule) -> None:
+    """Benjamini-Hochberg at level alpha over the admissible candidates, and the BIC penalty."""
+    k_of = {c.name: c.n_params for c in candidates}
+    pool = [s for s in scores if s.admissible]
+    m = max(len(pool), 1)
+    order = sorted(pool, key=lambda s: s.p_value)
+    last = 0
+    for i, s in enumerate(order, start=1):
+        if s.p_value <= rule.alpha * i / m:
+            last = i
+    passed = {s.name for s in order[:last]}
+    for s in scores:
+        k = k_of[s.name]
+        bic = k * math.log(max(n_h, 2))
+        s.threshold = max(float(stats.chi2.isf(rule.alpha / m, k)), bic)
+        s.significant = bool(s.name in passed and s.gain > bic and s.admissible)
 
 
 @dataclass(frozen=True)
@@ -290,6 +435,18 @@ class Decision:
     bootstrap_counts: dict[str, int]
     train_runs: list[str]
     heldout_runs: list[str]
+    parameters: list[ParameterFit] = field(default_factory=list)  # the chosen model's calibration
+    reference: JointFit | None = field(default=None, repr=False)  # recalibration alone
+    reference_parameters: list[ParameterFit] = field(default_factory=list)  # ... and its parameters
+    calibration: CalibrationSetup | None = field(default=None, repr=False)
+
+    @property
+    def named(self) -> bool:
+        return self.effect not in NOT_AN_EFFECT
+
+    @property
+    def recalibrated(self) -> list[ParameterFit]:
+        return [f for f in self.parameters if f.moved]
 
     def score(self, name: str) -> CandidateScore:
         for s in self.scores:
@@ -298,12 +455,26 @@ class Decision:
         raise KeyError(name)
 
 
-def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates):
-    scores = [_score(c, train, held, rule) for c in candidates]
+def _recalibration_gain(held, cal: CalibrationSetup) -> tuple[float, float]:
+    """Held-out drop of the sum of squares from the nominal to the recalibrated model, and the
+    threshold it must pass (the candidates' rule with one degree of freedom per moved parameter)."""
+    k = len(cal.moved)
+    if k == 0 or not cal.nominal_ztz:
+        return 0.0, float("inf")
     n_h = sum(s.n for s in held)
-    q0_h = sum(s.ztz for s in held)
+    gain = sum(cal.nominal_ztz[s.name] for s in held) - sum(s.ztz for s in held)
+    thr = max(float(stats.chi2.isf(1e-3, k)), k * math.log(max(n_h, 2)))
+    return float(gain), thr
+
+
+def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates, cal: CalibrationSetup):
+    n_h = sum(s.n for s in held)
+    ref = _fit_linear_joint(train, held, cal, None, rule)  # recalibration alone
+    scores = [_score(c, train, held, rule, cal, ref) for c in candidates]
+    _significance(scores, candidates, n_h, rule)
+    q0_h = ref.heldout_ss
     n_all = n_h + sum(s.n for s in train)
-    q0_all = q0_h + sum(s.ztz for s in train)
+    q0_all = q0_h + ref.train_ss
 
     def excess_significant(q, n):
         return q > n * (1.0 + rule.floor_tolerance) + rule.excess_z * math.sqrt(2.0 * n)
@@ -315,6 +486,7 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
     rho = s_ab / math.sqrt(s_aa * s_bb) if s_aa > 0 and s_bb > 0 else 0.0
     rho_z = rho * math.sqrt(max(pairs, 1))
     excess_h = q0_h - n_h
+    cal_gain, cal_thr = _recalibration_gain(held, cal)
     structure = {
         "excess_heldout": bool(excess_significant(q0_h, n_h)),
         "excess_all": bool(excess_significant(q0_all, n_all)),
@@ -322,6 +494,9 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
         "neighbour_correlation_z": float(rho_z),
         "correlated": bool(rho_z > rule.autocorr_z),
         "line": bool(line.significant) if line is not None else False,
+        "recalibration_gain": cal_gain,
+        "recalibration_threshold": cal_thr,
+        "recalibration_confirmed": bool(cal_gain > cal_thr),
     }
     has_structure = structure["excess_all"] or structure["correlated"] or structure["line"]
     sig = [s for s in scores if s.significant]
@@ -333,15 +508,16 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
             explained = 1.0
         if explained >= rule.min_explained:
             reason = (
-                f"{winner.name} removes {min(explained, 1.0):.0%} of the held-out excess "
+                f"{winner.name} removes {min(explained, 1.0):.0%} of the held-out excess of the "
+                f"{'recalibrated' if cal.free else 'nominal'} model "
                 f"(gain {winner.gain:.1f} > threshold {winner.threshold:.1f})"
             )
-            return winner.name, reason, scores, winner, structure, explained
+            return winner.name, reason, scores, winner, structure, explained, ref
         reason = (
             f"the best candidate {winner.name} removes only {explained:.0%} of the held-out excess "
             f"(< {rule.min_explained:.0%}): the residual has structure no candidate explains"
         )
-        return "unexplained", reason, scores, winner, structure, explained
+        return "unexplained", reason, scores, winner, structure, explained, ref
     if has_structure:
         what = [k for k in ("excess_all", "correlated", "line") if structure[k]]
         return (
@@ -351,6 +527,19 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
             None,
             structure,
             0.0,
+            ref,
+        )
+    if structure["recalibration_confirmed"]:
+        return (
+            "recalibrated",
+            f"new parameter values lower the held-out sum of squares by {cal_gain:.1f} "
+            f"(> {cal_thr:.1f}); no candidate is significant on top of them and the residual is "
+            "at the noise floor",
+            scores,
+            None,
+            structure,
+            0.0,
+            ref,
         )
     return (
         "none",
@@ -359,6 +548,7 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates)
         None,
         structure,
         0.0,
+        ref,
     )
 
 
@@ -377,6 +567,323 @@ def split_runs(runs) -> tuple[list[str], list[str]]:
     return train, held
 
 
+def _fallback(structure) -> str:
+    if structure["excess_all"] or structure["correlated"] or structure["line"]:
+        return "unexplained"
+    return "recalibrated" if structure["recalibration_confirmed"] else "none"
+
+
+def final_parameters(
+    cal: CalibrationSetup | None,
+    fit: JointFit | None,
+    refit=None,
+    train=None,
+    *,
+    identified: list[int] | None = None,
+    moved_all: bool = False,
+) -> list[ParameterFit]:
+    """Every calibrated parameter of the model a fit stands for, judged against the nominal.
+
+    With ``refit`` (training runs -> JointFit) and the training runs, each standard deviation
+    of an interval is at least the jackknife one over the training runs (leave one run out):
+    errors common to the windows of a run, which the per-window noise model does not see,
+    then widen the intervals instead of hiding in them. Whether a parameter moved is
+    judged on the per-window noise alone (the jackknife over a handful of runs is itself
+    too noisy for a test)."""
+    if cal is None or fit is None or not cal.free or cal.nominal is None:
+        return []
+    nf = len(cal.free)
+    cov = fit.cov[:nf, :nf] * fit.variance_scale
+    sd_interval = None
+    if refit is not None and train is not None and len(train) >= 3:
+        r = len(train)
+        loo = np.array([refit(train[:i] + train[i + 1 :]).theta[:nf] for i in range(r)])
+        var_jk = (r - 1) / r * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
+        sd_interval = np.sqrt(np.maximum(var_jk, np.diag(cov)))
+    fits = parameter_fits(
+        cal.nominal,
+        cal.base,
+        cal.free,
+        fit.theta[:nf],
+        cov,
+        cal.rule,
+        identified=identified,
+        sd_interval=sd_interval,
+    )
+    if moved_all:
+        fits = [
+            dataclasses.replace(f, moved=True) if CALIBRATED.index(f.name) in cal.free else f for f in fits
+        ]
+    return fits
+
+
+def _refit_of(cal: CalibrationSetup, held, rule: DecisionRule, winner: CandidateScore | None, candidates):
+    """Training runs -> the same joint fit (calibration alone, or with the winner at its tau)."""
+    if winner is None:
+        return lambda tr: _fit_linear_joint(tr, held, cal, None, rule)
+    cand = next(c for c in candidates if c.name == winner.name)
+    if not cand.is_lag:
+        return lambda tr: _fit_linear_joint(tr, held, cal, cand.name, rule)
+    fit = winner.fit
+    i = int(np.argmin(np.abs(np.log(cand.tau_grid / fit.tau)))) if fit.tau else 0
+    return lambda tr: _fit_lag_joint(tr, held, cal, cand, rule, i)
+
+
+# Sensor-space metrics a named effect must not make worse (compare.aggregate keys), with the
+# absolute part of the tolerance: "angle" and "speed" stand for the angle noise and the noise of
+# the smooth speed; the relative part is SENSOR_RELATIVE_TOLERANCE of the recalibrated model's gap.
+SENSOR_CHECKS: dict[str, tuple[str, float]] = {
+    "short_horizon_angle_rms_rad": ("angle", 1.0),
+    "short_horizon_speed_rms_rad_s": ("speed", 1.0),
+    "steady_mean_speed_abs_error": ("speed", 1.0),
+    "steady_min_speed_abs_error": ("speed", 3.0),
+    "steady_max_speed_abs_error": ("speed", 3.0),
+    "steady_stick_fraction_abs_error": ("one", 0.05),
+    "steady_period_abs_error_s": ("one", 0.25),
+}
+SENSOR_RELATIVE_TOLERANCE = 0.25
+
+
+def sensor_worse(before: dict[str, float], after: dict[str, float], floors: dict[str, float]) -> list[str]:
+    """The sensor-space gaps that the model ``after`` makes worse than ``before`` by more than
+    their noise: ``after > (1 + SENSOR_RELATIVE_TOLERANCE) before + c floor``."""
+    worse = []
+    scale = {"angle": floors.get("angle_rad", 0.0), "speed": floors.get("speed_rad_s", 0.0), "one": 1.0}
+    for key, (unit, c) in SENSOR_CHECKS.items():
+        if key not in before or key not in after:
+            continue
+        b, a = before[key], after[key]
+        if not (math.isfinite(a) and math.isfinite(b)):
+            continue
+        if a > (1.0 + SENSOR_RELATIVE_TOLERANCE) * b + c * scale[unit]:
+            worse.append(key)
+    return worse
+
+
+def _select_parameters(
+    tr, ho, cal: CalibrationSetup, rule: DecisionRule, cand: Candidate | None
+) -> list[int]:
+    """Forward selection of the parameters that moved: add, one at a time, the identified
+    parameter whose refit lowers the training sum of squares most, while that drop passes
+    the candidates' test for one parameter, max(chi2_1(1 - alpha), ln n)."""
+    n_tr = sum(s.n for s in tr)
+    pen = max(float(stats.chi2.isf(rule.alpha, 1)), math.log(max(n_tr, 2)))
+
+    def train_ss(free):
+        c = dataclasses.replace(cal, free=sorted(free))
+        ref = _fit_linear_joint(tr, ho, c, None, rule)
+        return _score(cand, tr, ho, rule, c, ref).fit.train_ss if cand is not None else ref.train_ss
+
+    chosen: list[int] = []
+    current = train_ss(chosen)
+    while True:
+        trial = {j: train_ss(chosen + [j]) for j in cal.free if j not in chosen}
+        if not trial:
+            break
+        j = min(trial, key=trial.get)
+        if current - trial[j] <= pen:
+            break
+        chosen.append(j)
+        current = trial[j]
+    return sorted(chosen)
+
+
+def first_calibration(
+    stats_by_run: dict[str, RunStatistics],
+    train: list[str],
+    heldout: list[str],
+    cal: CalibrationSetup,
+    *,
+    rule: DecisionRule | None = None,
+    candidates: tuple[Candidate, ...] = CANDIDATES,
+) -> tuple[list[int], str | None]:
+    """The parameters that moved, chosen on the nominal model's statistics (training runs):
+    the best significant candidate, if any, is fitted jointly with all identified parameters
+    (so that an effect is not absorbed into the parameters, nor a parameter error into an
+    effect), then the parameters are selected forward alongside it. Returns their indices
+    in :data:`CALIBRATED` and the candidate's name."""
+    rule = rule or DecisionRule()
+    tr = [stats_by_run[n] for n in train]
+    ho = [stats_by_run[n] for n in heldout]
+    n_h = sum(s.n for s in ho)
+    ref = _fit_linear_joint(tr, ho, cal, None, rule)
+    scores = [_score(c, tr, ho, rule, cal, ref) for c in candidates]
+    _significance(scores, candidates, n_h, rule)
+    sig = [s for s in scores if s.significant]
+    winner = max(sig, key=lambda s: s.gain - s.threshold) if sig else None
+    cand = next(c for c in candidates if c.name == winner.name) if winner is not None else None
+    return _select_parameters(tr, ho, cal, rule, cand), winner.name if winner is not None else None
+
+
+def moved_fit(
+    cal: CalibrationSetup, tr, ho, rule: DecisionRule, cand: Candidate | None
+) -> tuple[JointFit, Any, CalibrationSetup]:
+    """The fit with only the moved parameters free (and the candidate, if any), and its refit."""
+    c = dataclasses.replace(cal, free=list(cal.moved))
+    ref = _fit_linear_joint(tr, ho, c, None, rule)
+    if cand is None:
+        return ref, (lambda t: _fit_linear_joint(t, ho, c, None, rule)), c
+    sc = _score(cand, tr, ho, rule, c, ref)
+    return sc.fit, _refit_of(c, ho, rule, sc, (cand,)), c
+
+
+def _gram_fit(group, cal: CalibrationSetup, free_keys, offset_keys, held, rule: DecisionRule, with_cov=False):
+    """Joint fit from the per-run Gram matrices: the identified parameters and the columns of
+    ``free_keys`` fitted, the columns of ``offset_keys`` added with coefficient 1 (a lag effect
+    at its time constant). Returns the coefficients, the training and the held-out sum of squares."""
+    idx = cal.stats[group[0].name].index
+    free = np.concatenate([idx["A"][np.array(cal.free, dtype=int)]] + [idx[k] for k in free_keys])
+    off = np.concatenate([np.zeros(0, dtype=int)] + [idx[k] for k in offset_keys])
+    z = int(idx["z"][0])
+
+    def parts(runs):
+        g = sum(cal.stats[s.name].gram for s in runs)
+        yy = g[z, z] - 2.0 * g[z, off].sum() + g[np.ix_(off, off)].sum()
+        dy = g[free, z] - g[np.ix_(free, off)].sum(axis=1)
+        return g[np.ix_(free, free)], dy, float(yy)
+
+    m, dy, yy = parts(group)
+    theta, cov = solve_joint(m, dy, cal.prior[cal.free], rule.ridge)
+    q_tr = yy - 2.0 * theta @ dy + theta @ m @ theta
+    mh, dyh, yyh = parts(held)
+    q_h = yyh - 2.0 * theta @ dyh + theta @ mh @ theta
+    if with_cov:
+        return theta, float(q_tr), float(q_h), cov
+    return theta, float(q_tr), float(q_h)
+
+
+def second_effect(
+    decision: Decision,
+    stats_by_run: dict[str, RunStatistics],
+    cal: CalibrationSetup | None,
+    *,
+    rule: DecisionRule | None = None,
+    candidates: tuple[Candidate, ...] = CANDIDATES,
+) -> dict[str, Any]:
+    """Greedy forward step: with the named effect in the model, is a second candidate needed?
+
+    Tried only when the held-out residual of the recalibrated model with the first effect
+    still shows a significant excess; each other candidate is fitted jointly with the
+    identified parameters and the first effect (a lag effect at its fitted time constant)
+    and scored on the held-out runs by the same rule as the first (Benjamini-Hochberg over
+    the remaining candidates, BIC penalty, physical parameters, at least ``min_explained``
+    of the remaining excess)."""
+    rule = rule or DecisionRule()
+    out: dict[str, Any] = {"tried": False, "named": None}
+    if not decision.named or cal is None or not cal.stats:
+        return out
+    if any(st.gram is None for st in cal.stats.values()):
+        return out
+    tr = [stats_by_run[n] for n in decision.train_runs]
+    ho = [stats_by_run[n] for n in decision.heldout_runs]
+    n_h = sum(s.n for s in ho)
+    first = next(c for c in candidates if c.name == decision.effect)
+    if first.is_lag:
+        tau = decision.winner.fit.tau
+        i_w = int(np.argmin(np.abs(np.log(first.tau_grid / tau)))) if tau else 0
+        f_free, f_off = [], [(first.name, i_w)]
+    else:
+        f_free, f_off = [first.name], []
+    _, q_tr0, q_h0 = _gram_fit(tr, cal, f_free, f_off, ho, rule)
+    excess = q_h0 - n_h
+    out["heldout_ss_per_window_with_first"] = q_h0 / max(n_h, 1)
+    if not q_h0 > n_h * (1.0 + rule.floor_tolerance) + rule.excess_z * math.sqrt(2.0 * n_h):
+        out["reason"] = f"the held-out residual with {first.name} is at the noise floor"
+        return out
+    out["tried"] = True
+    rest = tuple(c for c in candidates if c.name != first.name)
+    scores = []
+    for c in rest:
+        if c.is_lag:
+            fits = [
+                _gram_fit(tr, cal, f_free, f_off + [(c.name, i)], ho, rule) for i in range(c.tau_grid.size)
+            ]
+            i = int(np.argmin([f[1] for f in fits]))
+            raw = q_h0 - fits[i][2] if fits[i][1] < q_tr0 else 0.0
+            edge = i == 0 and raw > 0.0
+            params = c.to_parameters(np.array([1.0]), float(c.tau_grid[i]) if fits[i][1] < q_tr0 else 0.0)
+        else:
+            theta, _, q_h = _gram_fit(tr, cal, f_free + [c.name], f_off, ho, rule)
+            raw = q_h0 - q_h
+            params = c.to_parameters(theta[-c.n_params :])
+        q_c = q_h0 - raw
+        gain = raw / max(1.0, q_c / max(n_h, 1))
+        why = c.admissible(params)
+        if c.is_lag and why is None and edge:
+            why = _EDGE_NOTE
+        sc = CandidateScore(
+            name=c.name,
+            gain=float(gain),
+            raw_gain=float(raw),
+            threshold=float("nan"),
+            significant=False,
+            admissible=why is None,
+            note=why or "",
+            parameters={k: float(v) for k, v in params.items()},
+            heldout_ss=float(q_c),
+        )
+        sc.p_value = float(stats.chi2.sf(max(gain, 0.0), c.n_params))
+        scores.append(sc)
+    _significance(scores, rest, n_h, rule)
+    out["candidates"] = [s.as_dict() for s in scores]
+    sig = [s for s in scores if s.significant]
+    if not sig:
+        out["reason"] = "no second candidate is significant"
+        return out
+    best = max(sig, key=lambda s: s.gain - s.threshold)
+    keys: dict[str, list] = {}
+    for c in rest:
+        if c.name == best.name:
+            if c.is_lag:
+                tau = best.parameters[next(iter(best.parameters))]
+                i = int(np.argmin(np.abs(np.log(c.tau_grid / tau)))) if tau else 0
+                keys = {"free": f_free, "off": f_off + [(c.name, i)]}
+            else:
+                keys = {"free": f_free + [c.name], "off": f_off}
+    explained = best.raw_gain / excess if excess > 0 else 1.0
+    out["explained_fraction"] = float(explained)
+    if explained < rule.min_explained:
+        out["reason"] = f"{best.name} removes only {explained:.0%} of the excess left by {first.name}"
+        return out
+    out["named"] = best.name
+    out["parameters"] = best.parameters
+    out["heldout_ss"] = best.heldout_ss
+    # the moved parameters refitted with both effects; those no longer significant stay nominal
+    if cal.moved and cal.nominal is not None:
+        cal_m = dataclasses.replace(cal, free=list(cal.moved))
+        theta, q_tr, _, cov = _gram_fit(tr, cal_m, keys["free"], keys["off"], ho, rule, with_cov=True)
+        n_tr = sum(s_.n for s_ in tr)
+        scale = max(1.0, q_tr / max(n_tr - theta.size, 1))
+        nf = len(cal_m.free)
+        out["parameter_fits"] = parameter_fits(
+            cal.nominal,
+            cal.base,
+            cal_m.free,
+            theta[:nf],
+            cov[:nf, :nf] * scale,
+            cal.rule,
+            identified=cal.free,
+        )
+    out["reason"] = (
+        f"{best.name} removes {min(explained, 1.0):.0%} of the held-out excess left by {first.name} "
+        f"(gain {best.gain:.1f} > threshold {best.threshold:.1f})"
+    )
+    return out
+
+
+def demote(decision: Decision, reason: str) -> None:
+    """Withdraw the named effect (e.g. it makes the model worse in sensor space)."""
+    decision.effect = _fallback(decision.structure)
+    decision.reason = f"{reason}; answer {decision.effect}"
+    decision.confidence = decision.bootstrap_counts.get(decision.effect, 0) / max(
+        sum(decision.bootstrap_counts.values()), 1
+    )
+    decision.winner = None
+    decision.parameters = decision.reference_parameters
+    if decision.effect == "recalibrated" and not any(f.moved for f in decision.parameters):
+        decision.effect = "none"
+
+
 def decide(
     stats_by_run: dict[str, RunStatistics],
     train: list[str],
@@ -387,12 +894,16 @@ def decide(
     candidates: tuple[Candidate, ...] = CANDIDATES,
     seed: int = 0,
     kinds: dict[str, str] | None = None,
+    calibration: CalibrationSetup | None = None,
     progress=None,
 ) -> Decision:
+    """The verdict on the held-out runs, with effects scored as additions to the recalibrated
+    model when ``calibration`` is given (else to the model the statistics were computed at)."""
     rule = rule or DecisionRule()
+    cal = calibration if calibration is not None else _no_calibration(stats_by_run)
     tr = [stats_by_run[n] for n in train]
     ho = [stats_by_run[n] for n in heldout]
-    effect, reason, scores, winner, structure, explained = _verdict(tr, ho, rule, line, candidates)
+    effect, reason, scores, winner, structure, explained, ref = _verdict(tr, ho, rule, line, candidates, cal)
     rng = np.random.default_rng(seed)
     counts: dict[str, int] = {}
     kinds = kinds or {}
@@ -408,15 +919,14 @@ def decide(
     for b in range(rule.bootstrap):
         tr_b = resample(tr)
         ho_b = resample(ho)
-        e_b = _verdict(tr_b, ho_b, rule, line, candidates)[0]
+        e_b = _verdict(tr_b, ho_b, rule, line, candidates, cal)[0]
         counts[e_b] = counts.get(e_b, 0) + 1
         if progress is not None:
             progress(b + 1, rule.bootstrap)
     confidence = counts.get(effect, 0) / max(rule.bootstrap, 1)
-    if effect not in ("none", "unexplained") and rule.bootstrap > 0 and confidence < rule.min_confidence:
+    if effect not in NOT_AN_EFFECT and rule.bootstrap > 0 and confidence < rule.min_confidence:
         # significant on these runs but not stable over resampled runs: do not force a name
-        has_structure = structure["excess_all"] or structure["correlated"] or structure["line"]
-        fallback = "unexplained" if has_structure else "none"
+        fallback = _fallback(structure)
         reason = (
             f"{effect} was significant but wins in only {confidence:.0%} of the bootstrap replicates "
             f"(< {rule.min_confidence:.0%}); answer {fallback}"
@@ -424,12 +934,30 @@ def decide(
         effect = fallback
         confidence = counts.get(effect, 0) / max(rule.bootstrap, 1)
         winner = None
+    named = winner is not None and effect == winner.name
+    ref_params: list[ParameterFit] = []
+    params: list[ParameterFit] = []
+    if calibration is not None and calibration.nominal is not None:
+        kw = {"identified": calibration.free, "moved_all": True}
+        fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, None)
+        ref_params = final_parameters(cal_m, fit_m, refit_m, tr, **kw)
+        params = ref_params
+        if named:
+            cand = next(c for c in candidates if c.name == winner.name)
+            fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, cand)
+            params = final_parameters(cal_m, fit_m, refit_m, tr, **kw)
+    if effect == "recalibrated" and not any(f.moved for f in params):
+        effect, reason = (
+            "none",
+            "the recalibration is confirmed but no parameter differs from nominal beyond its interval",
+        )
     n_h = sum(s.n for s in ho)
-    q0_h = sum(s.ztz for s in ho)
+    q0_h = sum(cal.nominal_ztz[s.name] for s in ho) if cal.nominal_ztz else sum(s.ztz for s in ho)
     excess = {
         "heldout_windows": int(n_h),
         "heldout_ss_nominal": float(q0_h),
         "heldout_ss_per_window_nominal": float(q0_h / max(n_h, 1)),
+        "heldout_ss_per_window_recalibrated": float(ref.heldout_ss / max(n_h, 1)),
         "heldout_ss_per_window_chosen": float(winner.heldout_ss / max(n_h, 1)) if winner else float("nan"),
         "explained_fraction": float(explained),
     }
@@ -444,4 +972,8 @@ def decide(
         bootstrap_counts=counts,
         train_runs=list(train),
         heldout_runs=list(heldout),
+        parameters=params,
+        reference=ref,
+        reference_parameters=ref_params,
+        calibration=calibration,
     )

@@ -27,7 +27,7 @@ import json
 import math
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +35,7 @@ import numpy as np
 
 from drill_env.discrepancy.dataset import MeasuredRun, write_dataset
 from drill_env.outputs import atomic_write_text
-from drill_env.params import RigParams, load_params
+from drill_env.params import ModelEffects, RigParams, load_params
 
 __all__ = [
     "HiddenEffect",
@@ -172,6 +172,7 @@ class SynthConfig:
     hold_max_s: float = 2.0
     hold_quantum_s: float = 0.1
     level_max_v: float = 5.0
+    param_error: float = 0.0  # [-] relative error of every identified parameter (uniform +-)
 
     def __post_init__(self) -> None:
         for v in self.voltages:
@@ -191,6 +192,8 @@ class SynthConfig:
             raise ValueError(f"encoder_counts_per_rev: {self.encoder_counts_per_rev!r} is outside [1, 2^26]")
         if not (math.isfinite(self.angle_noise_std) and self.angle_noise_std >= 0.0):
             raise ValueError(f"angle_noise_std: must be >= 0, got {self.angle_noise_std!r}")
+        if not (math.isfinite(self.param_error) and 0.0 <= self.param_error <= 0.3):
+            raise ValueError(f"param_error: {self.param_error!r} is outside [0, 0.3]")
         if not 0.0 < self.level_max_v <= 5.0:
             raise ValueError(f"level_max_v: {self.level_max_v!r} is outside (0, 5] V")
 
@@ -200,6 +203,53 @@ class SynthResult:
     runs: list[MeasuredRun]
     truth: RigParams
     answer: dict[str, Any] = field(default_factory=dict)
+
+
+# The identified parameters of the paper (eq. 11, 13, 15, 17), RigParams field names.
+IDENTIFIED = (
+    "motor_constant",
+    "upper_inertia",
+    "upper_static_pos",
+    "upper_static_neg",
+    "upper_viscous_pos",
+    "upper_viscous_neg",
+    "lower_inertia",
+    "string_stiffness",
+    "lower_static",
+    "lower_viscous",
+    "lower_hump_1",
+    "lower_hump_2",
+    "lower_hump_rate_1",
+    "lower_hump_rate_2",
+)
+_RATES = ("lower_hump_rate_1", "lower_hump_rate_2")  # not torques: unchanged by a common scale
+
+
+def _parameter_errors(
+    preset: str, rel: float, overrides: dict[str, float] | None, seed: int
+) -> dict[str, float]:
+    """Truth values of the identified parameters that differ from the preset."""
+    base = load_params(preset)
+    out: dict[str, float] = {}
+    if rel > 0.0:
+        rng = np.random.default_rng([seed, 7919])  # a stream of its own: the runs stay the same
+        for name, e in zip(IDENTIFIED, rng.uniform(-rel, rel, len(IDENTIFIED)), strict=True):
+            out[name] = float(getattr(base, name)) * (1.0 + float(e))
+    effect_fields = {f.name for f in fields(ModelEffects)}
+    for name, value in (overrides or {}).items():
+        if name not in IDENTIFIED and name not in effect_fields:
+            raise ValueError(
+                f"truth_overrides: {name!r} is neither an identified parameter nor an effect field; "
+                f"allowed: {list(IDENTIFIED)} and {sorted(effect_fields)}"
+            )
+        out[name] = float(value)
+    return out
+
+
+def _at_nominal_stiffness(preset: str, truth: RigParams) -> dict[str, float]:
+    """The identified parameters of the equivalent truth whose string stiffness is the preset's."""
+    c = load_params(preset).string_stiffness / truth.string_stiffness
+    return {n: float(getattr(truth, n)) * (1.0 if n in _RATES else c) for n in IDENTIFIED}
 
 
 def _truth_params(preset: str, effect: str, magnitude: float | None, rng: np.random.Generator):
@@ -294,12 +344,22 @@ def make_dataset(
     seed: int,
     magnitude: float | None = None,
     config: SynthConfig | None = None,
+    truth_overrides: dict[str, float] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> SynthResult:
-    """Simulate a truth model with one hidden effect and record it like the rig."""
+    """Simulate a truth model with one hidden effect and record it like the rig.
+
+    ``truth_overrides`` sets identified parameters of the truth (RigParams field names)
+    on top of the drawn ``config.param_error``, or fields of a second effect
+    (:class:`~drill_env.params.ModelEffects` names); all go to the answer only."""
     cfg = config or SynthConfig()
     rng = np.random.default_rng(seed)
     truth, spec, mag, fields_ = _truth_params(cfg.preset, effect, magnitude, rng)
+    changes = _parameter_errors(cfg.preset, cfg.param_error, truth_overrides, seed)
+    if changes:
+        truth = truth.replace(**changes)
+    errors = {n: v for n, v in changes.items() if n in IDENTIFIED}
+    extra = {n: v for n, v in changes.items() if n not in IDENTIFIED}
     runs: list[MeasuredRun] = []
     total = len(cfg.voltages) + cfg.random_runs
     designs: list[Any] = [float(v) for v in cfg.voltages]
@@ -316,6 +376,12 @@ def make_dataset(
         "magnitude_meaning": spec.magnitude_meaning,
         "detectable_range": [spec.low, spec.high],
         "model_effects": fields_,
+        "extra_effects": extra,
+        "parameter_errors": {
+            n: v / float(getattr(load_params(cfg.preset), n)) - 1.0 for n, v in errors.items()
+        },
+        "parameters": {n: float(getattr(truth, n)) for n in IDENTIFIED},
+        "parameters_at_nominal_string_stiffness": _at_nominal_stiffness(cfg.preset, truth),
         "seed": seed,
         "preset": cfg.preset,
         "design": {
@@ -326,6 +392,7 @@ def make_dataset(
             "sample_rate_hz": cfg.sample_rate_hz,
             "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
             "angle_noise_std": cfg.angle_noise_std,
+            "param_error": cfg.param_error,
         },
     }
     return SynthResult(runs=runs, truth=truth, answer=answer)

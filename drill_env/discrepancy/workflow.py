@@ -1,15 +1,20 @@
-"""The model-discrepancy workflow on a measured dataset: where, which, decide, add and show.
+"""The model-discrepancy workflow on a measured dataset: where, calibrate, which, decide, add and show.
 
 :func:`run_discrepancy` loads a dataset folder, computes the nominal model's equation
-error and sensor-space gaps on every run (*where*), fits and scores the candidate
-library on training and held-out runs (*which*, *decide*), writes the chosen effect as
-a rig YAML under the output folder, re-simulates the held-out runs with it and writes
+error and sensor-space gaps on every run (*where*), refits the identified parameters on
+the training runs (*calibrate*, :mod:`~drill_env.discrepancy.calibrate`), recomputes the
+equation error at the recalibrated parameters, fits and scores the candidate library as
+additions to the recalibrated model on training and held-out runs (*which*, *decide*),
+checks in sensor space that a named effect makes the held-out runs no worse anywhere,
+writes the chosen model (recalibrated parameters, plus the effect if one is named) as a
+rig YAML under the output folder, re-simulates the held-out runs with it and writes
 ``result.json``, ``report.md`` and the figures (*add and show*). It never reads
 anything but the dataset folder.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -20,15 +25,31 @@ from typing import Any
 
 import numpy as np
 
+from drill_env.discrepancy.calibrate import (
+    CalibrationRule,
+    ParameterFit,
+    calibrated_params,
+    calibration_statistics,
+    identify,
+    prior_precision,
+)
 from drill_env.discrepancy.compare import CompareConfig, RunComparison, aggregate, compare_run
 from drill_env.discrepancy.dataset import MeasuredDataset, load_dataset
 from drill_env.discrepancy.decide import (
+    NOT_AN_EFFECT,
+    CalibrationSetup,
     Decision,
     DecisionRule,
     LineScan,
     decide,
+    demote,
+    final_parameters,
+    first_calibration,
     line_scan,
+    moved_fit,
     run_statistics,
+    second_effect,
+    sensor_worse,
     split_runs,
 )
 from drill_env.discrepancy.effects import CANDIDATES
@@ -39,11 +60,11 @@ from drill_env.discrepancy.equation_error import (
     estimate_angle_noise,
 )
 from drill_env.outputs import atomic_write_text, output_lock
-from drill_env.params import RigParams, load_params
+from drill_env.params import ParameterError, RigParams, load_params
 
 __all__ = ["DiscrepancyResult", "analyse", "run_discrepancy", "RESULT_EFFECTS"]
 
-RESULT_EFFECTS = tuple(c.name for c in CANDIDATES) + ("none", "unexplained")
+RESULT_EFFECTS = tuple(c.name for c in CANDIDATES) + NOT_AN_EFFECT
 
 
 @dataclass
@@ -54,7 +75,11 @@ class DiscrepancyResult:
     equations: list[RunEquations]
     decision: Decision
     line: LineScan
-    corrected: RigParams | None
+    corrected: RigParams | None  # the chosen model when it differs from the nominal one
+    first_pass: list[ParameterFit]  # the calibration on the nominal model's equation error
+    sensor_check: dict[str, Any]  # a named effect against the recalibrated model, held-out runs
+    effects: list[str]  # every named effect, strongest first
+    second: dict[str, Any]  # the greedy search for a second effect
     where: list[dict[str, Any]]
     nominal: dict[str, RunComparison]
     after: dict[str, RunComparison]
@@ -73,6 +98,8 @@ class DiscrepancyResult:
             "effect": d.effect,
             "confidence": d.confidence,
             "parameters": params,
+            "effects": list(self.effects),
+            "recalibrated": {f.name: f.as_dict() for f in d.recalibrated},
             "gap_before": self.gap_before,
             "gap_after": self.gap_after,
             "heldout_runs": d.heldout_runs,
@@ -84,6 +111,23 @@ class DiscrepancyResult:
                 "structure": d.structure,
                 "spectral_line": self.line.as_dict(),
                 "bootstrap_verdicts": d.bootstrap_counts,
+                "calibration": {
+                    "fixed_scale": {"string_stiffness": self.params.string_stiffness},
+                    "first_pass_moved": [f.name for f in self.first_pass if f.moved],
+                    "parameters": [
+                        {
+                            "name": f.name,
+                            "nominal": f.nominal,
+                            "value": f.value,
+                            "sd": f.sd,
+                            "identified": f.identified,
+                            "moved": f.moved,
+                        }
+                        for f in d.parameters
+                    ],
+                },
+                "sensor_check": self.sensor_check,
+                "second_effect": self.second,
                 "angle_noise": self.noise.as_dict(),
                 "where": self.where,
                 "preset": self.dataset.preset,
@@ -94,14 +138,22 @@ class DiscrepancyResult:
 
     def verdict_line(self) -> str:
         d = self.decision
+        moved = ", ".join(f"{f.name} {f.value / f.nominal - 1.0:+.1%}" for f in d.recalibrated)
+        cal = f"; recalibrated: {moved}" if moved else ""
         if d.effect in ("none", "unexplained"):
             extra = ""
             if d.effect == "unexplained" and self.line.significant:
                 rel = "locked to rotation" if self.line.related_to_rotation else "unrelated to rotation"
                 extra = f"; signature: line at {self.line.frequency_hz:.3g} Hz common to all runs, {rel}"
-            return f"verdict: {d.effect} (confidence {d.confidence:.2f}): {d.reason}{extra}"
+            return f"verdict: {d.effect} (confidence {d.confidence:.2f}): {d.reason}{extra}{cal}"
+        if d.effect == "recalibrated":
+            return f"verdict: recalibrated (confidence {d.confidence:.2f}): {moved}"
         par = ", ".join(f"{k}={v:.4g}" for k, v in d.winner.parameters.items())
-        return f"verdict: {d.effect} (confidence {d.confidence:.2f}; {par})"
+        plus = ""
+        if len(self.effects) > 1:
+            par2 = ", ".join(f"{k}={v:.4g}" for k, v in self.second["parameters"].items())
+            plus = f"; plus {self.effects[1]} ({par2})"
+        return f"verdict: {d.effect} (confidence {d.confidence:.2f}; {par}){plus}{cal}"
 
 
 def _where_table(eqs: list[RunEquations], nominal: dict[str, RunComparison], rule: DecisionRule):
@@ -127,6 +179,20 @@ def _where_table(eqs: list[RunEquations], nominal: dict[str, RunComparison], rul
     return rows
 
 
+def _second_parameters(decision: Decision, second: dict[str, Any]) -> None:
+    """With two effects, the parameters are those refitted jointly with both."""
+    fits = second.get("parameter_fits")
+    if fits:
+        decision.parameters = fits
+
+
+def _with_second(model: RigParams, second: dict[str, Any]) -> RigParams:
+    cand = next(c for c in CANDIDATES if c.name == second["named"])
+    return model.replace(**cand.to_model_effects(second["parameters"])).replace(
+        name=f"{model.name}+{cand.name}", description=f"{model.description}; plus {cand.title}"
+    )
+
+
 def analyse(
     dataset: MeasuredDataset,
     *,
@@ -134,12 +200,18 @@ def analyse(
     rule: DecisionRule | None = None,
     eq_config: EquationErrorConfig | None = None,
     compare_config: CompareConfig | None = None,
+    calibration_rule: CalibrationRule | None = None,
+    calibrate: bool = True,
     simulate_gaps: bool = True,
     seed: int = 0,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> DiscrepancyResult:
-    """Run the whole workflow in memory (no files); see :func:`run_discrepancy`."""
+    """Run the whole workflow in memory (no files); see :func:`run_discrepancy`.
+
+    ``calibrate=False`` scores the effects as additions to the nominal model (the
+    parameters are taken as exact)."""
     rule = rule or DecisionRule()
+    cal_rule = calibration_rule or CalibrationRule()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     params = load_params(dataset.preset)
@@ -153,8 +225,6 @@ def analyse(
         if progress:
             progress("equation error", i + 1, len(dataset.runs))
     timings["equation_error"] = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    line = line_scan(eqs, rule)
     if heldout is None:
         train, held = split_runs(dataset.runs)
     else:
@@ -166,30 +236,95 @@ def analyse(
         train = [n for n in names if n not in held]
         if not train or not held:
             raise ValueError("heldout: needs at least one training run and one held-out run")
+    # calibrate: refit the identified parameters, then recompute the equation error there
+    t1 = time.perf_counter()
+    first_pass: list[ParameterFit] = []
+    setup = None
+    eqs_cal, stats_cal, base = eqs, stats, params
+    if calibrate:
+        cal_stats = {eq.run.name: calibration_statistics(eq, CANDIDATES) for eq in eqs}
+        free, _, _ = identify([cal_stats[n] for n in train], params, cal_rule)
+        setup0 = CalibrationSetup(
+            stats=cal_stats,
+            free=free,
+            prior=prior_precision(params, cal_rule),
+            nominal_ztz={},
+            moved=[],
+            nominal=params,
+            base=params,
+            rule=cal_rule,
+        )
+        moved, first_winner = first_calibration(stats, train, held, setup0, rule=rule)
+        cand = next((c for c in CANDIDATES if c.name == first_winner), None)
+        tr0 = [stats[n] for n in train]
+        ho0 = [stats[n] for n in held]
+        fit0, _, cal0 = moved_fit(dataclasses.replace(setup0, moved=moved), tr0, ho0, rule, cand)
+        first_pass = final_parameters(cal0, fit0, identified=free, moved_all=True)
+        try:
+            base = calibrated_params(params, first_pass)
+        except ParameterError:
+            # the refit left the rig's valid range (e.g. a friction that is not dissipative):
+            # keep the nominal parameters rather than explain with an impossible model
+            first_pass, moved, base = [], [], params
+        if base is not params:
+            eqs_cal, stats_cal = [], {}
+            for i, r in enumerate(dataset.runs):
+                eq = RunEquations(r, base, noise, eq_config)
+                eqs_cal.append(eq)
+                stats_cal[r.name] = run_statistics(eq)
+                if progress:
+                    progress("equation error, recalibrated", i + 1, len(dataset.runs))
+            cal_stats = {eq.run.name: calibration_statistics(eq, CANDIDATES) for eq in eqs_cal}
+        setup = dataclasses.replace(
+            setup0,
+            stats=cal_stats,
+            nominal_ztz={n: s.ztz for n, s in stats.items()},
+            moved=moved,
+            base=base,
+        )
+    timings["calibrate"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    line = line_scan(eqs_cal, rule)
     kinds = {r.name: ("constant" if r.is_constant_voltage else "varying") for r in dataset.runs}
     decision = decide(
-        stats,
+        stats_cal,
         train,
         held,
         line=line,
         rule=rule,
         seed=seed,
         kinds=kinds,
+        calibration=setup,
         progress=(lambda i, n: progress("bootstrap", i, n)) if progress else None,
     )
     timings["decide"] = time.perf_counter() - t1
-    corrected = None
-    if decision.winner is not None and decision.effect == decision.winner.name:
-        cand = next(c for c in CANDIDATES if c.name == decision.effect)
-        fields_ = cand.to_model_effects(decision.winner.parameters)
-        corrected = params.replace(**fields_).replace(
-            name=f"{params.name}+{decision.effect}",
-            description=f"{params.description}; plus {cand.title} identified from measured data",
-        )
+
+    def model_of(decision_: Decision) -> RigParams | None:
+        p = calibrated_params(params, decision_.parameters)
+        if decision_.named:
+            cand = next(c for c in CANDIDATES if c.name == decision_.effect)
+            p = p.replace(**cand.to_model_effects(decision_.winner.parameters))
+            return p.replace(
+                name=f"{params.name}+{decision_.effect}",
+                description=f"{params.description}; plus {cand.title} identified from measured data"
+                + ("; parameters recalibrated" if decision_.recalibrated else ""),
+            )
+        if decision_.recalibrated:
+            return p.replace(
+                name=f"{params.name}+recalibrated",
+                description=f"{params.description}; parameters recalibrated on measured data",
+            )
+        return None
+
     t2 = time.perf_counter()
     nominal: dict[str, RunComparison] = {}
     after: dict[str, RunComparison] = {}
     cache: dict = {}
+    sensor_check: dict[str, Any] = {}
+    effects: list[str] = []
+    second: dict[str, Any] = {}
+    by_name = {eq.run.name: eq for eq in eqs}
+    held_eqs = [by_name[n] for n in decision.heldout_runs]
     if simulate_gaps:
         for i, eq in enumerate(eqs):
             nominal[eq.run.name] = compare_run(
@@ -197,13 +332,93 @@ def analyse(
             )
             if progress:
                 progress("simulate nominal", i + 1, len(eqs))
-        if corrected is not None:
-            for i, eq in enumerate(e for e in eqs if e.run.name in decision.heldout_runs):
+        if decision.named:
+            # the effect must make the recalibrated model better in sensor space too
+            ref_params = calibrated_params(params, decision.reference_parameters)
+            ref = {
+                eq.run.name: (
+                    nominal[eq.run.name]
+                    if ref_params is params
+                    else compare_run(
+                        ref_params, eq, dataset.encoder_counts_per_rev, compare_config, measured_cache=cache
+                    )
+                )
+                for eq in held_eqs
+            }
+            with_effect = {
+                eq.run.name: compare_run(
+                    model_of(decision),
+                    eq,
+                    dataset.encoder_counts_per_rev,
+                    compare_config,
+                    measured_cache=cache,
+                )
+                for eq in held_eqs
+            }
+            floors = {
+                k: float(np.mean([c.floors[k] for c in ref.values()])) for k in ("angle_rad", "speed_rad_s")
+            }
+            before_g, after_g = aggregate(list(ref.values())), aggregate(list(with_effect.values()))
+            worse = sensor_worse(before_g, after_g, floors)
+            sensor_check = {
+                "effect": decision.effect,
+                "recalibrated_model": before_g,
+                "with_effect": after_g,
+                "floors": floors,
+                "worse": worse,
+            }
+            if worse:
+                demote(
+                    decision,
+                    f"{decision.effect} improves the held-out equation error but makes "
+                    f"{', '.join(worse)} worse on the held-out runs",
+                )
+            else:
+                after = with_effect
+                effects = [decision.effect]
+                second = second_effect(decision, stats_cal, setup, rule=rule)
+                if second.get("named"):
+                    kept = decision.parameters
+                    _second_parameters(decision, second)  # the parameters refitted with both
+                    both = _with_second(model_of(decision), second)
+                    decision.parameters = kept
+                    with_both = {
+                        eq.run.name: compare_run(
+                            both, eq, dataset.encoder_counts_per_rev, compare_config, measured_cache=cache
+                        )
+                        for eq in held_eqs
+                    }
+                    worse2 = sensor_worse(after_g, aggregate(list(with_both.values())), floors)
+                    second["sensor_worse"] = worse2
+                    if worse2:
+                        second["reason"] += (
+                            f"; not named: it makes {', '.join(worse2)} worse on the held-out runs"
+                        )
+                        second["named"] = None
+                    else:
+                        after = with_both
+                        effects.append(second["named"])
+                        _second_parameters(decision, second)
+        corrected = model_of(decision)
+        if len(effects) > 1:
+            corrected = _with_second(corrected, second)
+        if corrected is not None and not after:
+            for i, eq in enumerate(held_eqs):
                 after[eq.run.name] = compare_run(
                     corrected, eq, dataset.encoder_counts_per_rev, compare_config, measured_cache=cache
                 )
                 if progress:
-                    progress("simulate corrected", i + 1, len(decision.heldout_runs))
+                    progress("simulate corrected", i + 1, len(held_eqs))
+    else:
+        corrected = model_of(decision)
+        if decision.named:
+            effects = [decision.effect]
+            second = second_effect(decision, stats_cal, setup, rule=rule)
+            if second.get("named"):
+                effects.append(second["named"])
+                _second_parameters(decision, second)
+                corrected = _with_second(model_of(decision), second)
+    second.pop("parameter_fits", None)  # in decision.parameters now
     timings["simulate"] = time.perf_counter() - t2
     where = _where_table(eqs, nominal, rule)
     held_nom = [nominal[n] for n in decision.heldout_runs if n in nominal]
@@ -211,10 +426,13 @@ def analyse(
     gap_before = {"equation_error_ss_per_window": decision.excess["heldout_ss_per_window_nominal"]}
     gap_before.update(aggregate(held_nom))
     if corrected is not None:
-        gap_after = {"equation_error_ss_per_window": decision.winner.heldout_ss / max(n_h, 1)}
+        chosen = decision.winner.heldout_ss if decision.named else decision.reference.heldout_ss
+        if len(effects) > 1:
+            chosen = second["heldout_ss"]
+        gap_after = {"equation_error_ss_per_window": chosen / max(n_h, 1)}
         gap_after.update(aggregate([after[n] for n in decision.heldout_runs if n in after]))
     else:
-        gap_after = dict(gap_before)  # no effect added: the model is unchanged
+        gap_after = dict(gap_before)  # no change: the model is the nominal one
     timings["total"] = time.perf_counter() - t0
     return DiscrepancyResult(
         dataset=dataset,
@@ -224,6 +442,10 @@ def analyse(
         decision=decision,
         line=line,
         corrected=corrected,
+        first_pass=first_pass,
+        sensor_check=sensor_check,
+        effects=effects,
+        second=second,
         where=where,
         nominal=nominal,
         after=after,

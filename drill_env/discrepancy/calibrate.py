@@ -1,0 +1,296 @@
+"""Recalibration of the rig's identified parameters from the equation error.
+
+The paper identified its parameters on the rig (eq. 11, 13, 15, 17); on another rig, or
+the same rig another day, they are off by a few percent, and a model with slightly
+wrong parameters leaves a residual that a missing effect can mimic (a lower static
+friction a few percent off looks like a drift of the friction level, a lower inertia a
+few percent off like a frictional lag). So the parameters are refitted first, and an
+effect is only ever scored as an *addition to the recalibrated model*.
+
+The equation error of :mod:`~drill_env.discrepancy.equation_error` is linear in every
+identified parameter but the two Stribeck rates:
+
+    r_u = [J_u B*D2 theta_u - k_m K[u] + k_theta K[x1] + b_u K[theta_u']] / h^2 + sgn T_su
+    r_l = [J_l B*D2 theta_l - k_theta K[x1] + sgn K[S(w)] + b_l K[theta_l']] / h^2 + sgn T_sl
+
+with ``S(w) = T_1 tanh(beta_1 w / 2) + T_2 tanh(beta_2 w / 2)``. So ``r(p + d) = r(p) + C d``
+with ``C = dr/dp`` exact for the linear parameters and the Gauss-Newton linearisation
+for ``beta_1, beta_2``. In noise units (each window divided by its noise standard
+deviation) the fit is a weighted linear least-squares problem whose sufficient
+statistics are kept per run, like the candidates'.
+
+Choices the data leave open, documented here and in the README:
+
+* **The scale.** Multiplying every parameter of both disk equations by one constant
+  leaves both residuals zero: the data fix ratios, not the scale. The string's
+  stiffness ``k_theta`` (from the string's geometry and material) is kept at its
+  nominal value and sets the scale; every other parameter is fitted relative to it.
+* **A weak prior.** Each parameter carries a Gaussian prior at its nominal value with
+  a standard deviation of ``prior_rel`` (25 %) of it: the paper's values are known to
+  that accuracy. It keeps nearly collinear directions (``T_2``, ``beta_2`` and ``b_l``
+  at speeds where ``tanh`` is still linear) and unexcited ones (the negative side of
+  the upper friction when the voltage never reverses) at their nominal values instead
+  of letting them wander, and changes well-determined parameters by a negligible
+  fraction of their interval.
+* **Identified or not.** A parameter is *identified* when the data shrink its prior
+  standard deviation at least ``identified_ratio`` (3) times; the others stay nominal
+  and are reported as not identified.
+* **Moved.** Which identified parameters moved is chosen by forward selection on the
+  training runs (:func:`drill_env.discrepancy.decide.first_calibration`): add the one
+  whose refit lowers the sum of squares most while the drop passes the candidates' test
+  for one parameter, jointly with the best significant candidate if there is one, so
+  that neither absorbs the other. Only moved parameters are changed in the
+  recalibrated model; they are refitted with the others at nominal.
+
+Intervals are posterior 95 % intervals, scaled up by ``sqrt(Q/(n - p))`` when the fit
+leaves more than the noise floor, and at least as wide as the jackknife over the
+training runs (errors common to a run's windows are not in the per-window noise model).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from drill_env.discrepancy.equation_error import RunEquations
+from drill_env.params import RigParams
+
+__all__ = [
+    "CALIBRATED",
+    "FIXED_SCALE",
+    "CalibrationRule",
+    "CalibrationStatistics",
+    "ParameterFit",
+    "calibration_columns",
+    "calibration_statistics",
+    "solve_joint",
+    "parameter_fits",
+]
+
+# The identified parameters that are refitted (RigParams field names, in column order).
+CALIBRATED: tuple[str, ...] = (
+    "motor_constant",
+    "upper_inertia",
+    "upper_static_pos",
+    "upper_static_neg",
+    "upper_viscous_pos",
+    "upper_viscous_neg",
+    "lower_inertia",
+    "lower_static",
+    "lower_viscous",
+    "lower_hump_1",
+    "lower_hump_2",
+    "lower_hump_rate_1",
+    "lower_hump_rate_2",
+)
+FIXED_SCALE = "string_stiffness"  # fixes the one scale the data cannot
+
+
+@dataclass(frozen=True)
+class CalibrationRule:
+    prior_rel: float = 0.25  # prior standard deviation, relative to the nominal value [-]
+    identified_ratio: float = 3.0  # prior sd / posterior sd above which a parameter is identified
+    alpha: float = 1e-3  # family-wise level of the "moved" test over the identified parameters
+
+
+def _tanh_cols(p: RigParams, w: np.ndarray):
+    a1 = 0.5 * p.lower_hump_rate_1 * w
+    a2 = 0.5 * p.lower_hump_rate_2 * w
+    t1, t2 = np.tanh(a1), np.tanh(a2)
+    d1 = p.lower_hump_1 * 0.5 * w / np.cosh(a1) ** 2
+    d2 = p.lower_hump_2 * 0.5 * w / np.cosh(a2) ** 2
+    return t1, t2, d1, d2
+
+
+def calibration_columns(eq: RunEquations) -> tuple[np.ndarray, np.ndarray]:
+    """``dr/dp`` at the run's parameters, one column per :data:`CALIBRATED` entry [N m per unit].
+
+    Returns the upper-disk and the lower-disk windows' rows."""
+    h2 = eq.h**2
+    k = len(CALIBRATED)
+    col = {n: i for i, n in enumerate(CALIBRATED)}
+    up, lo = eq.upper, eq.lower
+    xu = np.zeros((len(up), k))
+    if len(up):
+        s = up.sign
+        th = eq.gather(eq.theta_u, up.centers)
+        rate = th @ eq.w_rate / h2
+        xu[:, col["upper_inertia"]] = th @ eq.w_d2 / h2
+        xu[:, col["motor_constant"]] = -(eq.gather(eq.u, up.centers) @ eq.w_zoh) / h2
+        xu[:, col["upper_static_pos"]] = (s > 0).astype(float)
+        xu[:, col["upper_static_neg"]] = -(s < 0).astype(float)
+        xu[:, col["upper_viscous_pos"]] = np.where(s > 0, rate, 0.0)
+        xu[:, col["upper_viscous_neg"]] = np.where(s < 0, rate, 0.0)
+    xl = np.zeros((len(lo), k))
+    if len(lo):
+        s = lo.sign
+        th = eq.gather(eq.theta_l, lo.centers)
+        w = np.abs(eq.gather(eq.speed_l, lo.centers))
+        t1, t2, d1, d2 = _tanh_cols(eq.params, w)
+        xl[:, col["lower_inertia"]] = th @ eq.w_d2 / h2
+        xl[:, col["lower_static"]] = s
+        xl[:, col["lower_viscous"]] = th @ eq.w_rate / h2
+        xl[:, col["lower_hump_1"]] = s * (t1 @ eq.w_tri) / h2
+        xl[:, col["lower_hump_2"]] = s * (t2 @ eq.w_tri) / h2
+        xl[:, col["lower_hump_rate_1"]] = s * (d1 @ eq.w_tri) / h2
+        xl[:, col["lower_hump_rate_2"]] = s * (d2 @ eq.w_tri) / h2
+    return xu, xl
+
+
+@dataclass
+class CalibrationStatistics:
+    """Per-run sufficient statistics of the calibration columns, in noise units.
+
+    ``A = -C / sigma``, so that the residual after a parameter change d is ``z - A d``."""
+
+    name: str
+    ata: np.ndarray  # A'A
+    atz: np.ndarray  # A'z
+    cross: dict[str, np.ndarray] = field(default_factory=dict)  # linear candidate: A'X
+    cross_lag: dict[str, np.ndarray] = field(default_factory=dict)  # lag candidate: A'x per tau (p x n_tau)
+    # Gram matrix of every column [z, A, each linear candidate's columns, each lag candidate's
+    # column per tau] and where each sits in it (keys "z", "A", name, (name, tau index)):
+    # any joint fit of several candidates is a choice of its blocks
+    gram: np.ndarray | None = None
+    index: dict[Any, np.ndarray] = field(default_factory=dict)
+
+
+def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatistics:
+    xu, xl = calibration_columns(eq)
+    a = -np.vstack([xu / eq.upper.sigma[:, None], xl / eq.lower.sigma[:, None]])
+    z = np.concatenate([eq.upper.z, eq.lower.z])
+    st = CalibrationStatistics(name=eq.run.name, ata=a.T @ a, atz=a.T @ z)
+    blocks = [z[:, None], a]
+    index: dict[Any, np.ndarray] = {"z": np.array([0]), "A": np.arange(1, 1 + a.shape[1])}
+    pos = 1 + a.shape[1]
+    for c in candidates:
+        if c.is_lag:
+            cols = np.empty((a.shape[1], c.tau_grid.size))
+            for i, tau in enumerate(c.tau_grid):
+                cu, cl = c.columns(eq, float(tau))
+                x = np.concatenate([cu[:, 0] / eq.upper.sigma, cl[:, 0] / eq.lower.sigma])
+                cols[:, i] = a.T @ x
+                blocks.append(x[:, None])
+                index[(c.name, i)] = np.array([pos])
+                pos += 1
+            st.cross_lag[c.name] = cols
+        else:
+            cu, cl = c.columns(eq)
+            x = np.vstack([cu / eq.upper.sigma[:, None], cl / eq.lower.sigma[:, None]])
+            st.cross[c.name] = a.T @ x
+            blocks.append(x)
+            index[c.name] = np.arange(pos, pos + x.shape[1])
+            pos += x.shape[1]
+    d = np.hstack(blocks)
+    st.gram = d.T @ d
+    st.index = index
+    return st
+
+
+def prior_precision(params: RigParams, rule: CalibrationRule) -> np.ndarray:
+    """Diagonal prior precision of the parameter changes [1/unit^2]."""
+    nominal = np.array([abs(getattr(params, n)) for n in CALIBRATED])
+    sd = rule.prior_rel * np.maximum(nominal, 1e-12)
+    return 1.0 / sd**2
+
+
+def solve_joint(
+    m: np.ndarray, b: np.ndarray, prior: np.ndarray, ridge: float = 1e-9
+) -> tuple[np.ndarray, np.ndarray]:
+    """Posterior mean and (unscaled) covariance of ``z ~ [A X] theta`` with a prior on the first
+    ``prior.size`` coefficients (the parameter changes) and a negligible ridge on the rest."""
+    k = m.shape[0]
+    reg = np.zeros(k)
+    reg[: prior.size] = prior
+    rest = k - prior.size
+    if rest:
+        scale = max(float(np.trace(m[prior.size :, prior.size :])) / rest, 1e-300)
+        reg[prior.size :] = ridge * scale
+    mat = m + np.diag(reg)
+    cov = np.linalg.inv(mat)
+    return cov @ b, cov
+
+
+@dataclass(frozen=True)
+class ParameterFit:
+    """One identified parameter: nominal, value, posterior interval, verdict."""
+
+    name: str
+    nominal: float
+    value: float
+    sd: float  # posterior standard deviation from the window noise (the "moved" test)
+    identified: bool
+    moved: bool
+    sd_interval: float = float("nan")  # the one of the interval, at least sd (see decide.final_parameters)
+
+    @property
+    def ci95(self) -> tuple[float, float]:
+        s = self.sd if not math.isfinite(self.sd_interval) else max(self.sd, self.sd_interval)
+        return (self.value - 1.96 * s, self.value + 1.96 * s)
+
+    def as_dict(self) -> dict[str, Any]:
+        lo, hi = self.ci95
+        return {"nominal": self.nominal, "value": self.value, "ci95": [lo, hi]}
+
+
+def moved_z(n_identified: int, rule: CalibrationRule) -> float:
+    return float(stats.norm.isf(rule.alpha / (2.0 * max(n_identified, 1))))
+
+
+def parameter_fits(
+    nominal: RigParams,
+    base: RigParams,
+    free: list[int],
+    delta: np.ndarray,
+    cov: np.ndarray,
+    rule: CalibrationRule,
+    identified: list[int] | None = None,
+    sd_interval: np.ndarray | None = None,
+) -> list[ParameterFit]:
+    """Fits of every :data:`CALIBRATED` parameter: ``base`` plus ``delta`` on the ``free`` ones,
+    judged against ``nominal``. ``identified`` (default: ``free``) is where the data decide."""
+    identified = free if identified is None else identified
+    z = moved_z(len(identified), rule)
+    out = []
+    pos = {j: i for i, j in enumerate(free)}
+    for j, name in enumerate(CALIBRATED):
+        nom = float(getattr(nominal, name))
+        if j in pos:
+            i = pos[j]
+            value = float(getattr(base, name)) + float(delta[i])
+            sd = float(math.sqrt(max(cov[i, i], 0.0)))
+            moved = j in identified and abs(value - nom) > z * sd
+            si = float(sd_interval[i]) if sd_interval is not None else float("nan")
+            out.append(ParameterFit(name, nom, value, sd, j in identified, bool(moved), si))
+        else:
+            out.append(
+                ParameterFit(name, nom, float(getattr(base, name)), float("nan"), j in identified, False)
+            )
+    return out
+
+
+def calibrated_params(nominal: RigParams, fits: list[ParameterFit]) -> RigParams:
+    """The nominal parameters with the moved ones replaced (effects kept)."""
+    changes = {f.name: f.value for f in fits if f.moved}
+    return nominal.replace(**changes) if changes else nominal
+
+
+def identify(
+    train: list[CalibrationStatistics], nominal: RigParams, rule: CalibrationRule
+) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """Fit every parameter on the training statistics: the identified ones, their changes and
+    unscaled posterior covariance (refitted with the unidentified ones fixed at nominal)."""
+    prior = prior_precision(nominal, rule)
+    ata = sum(s.ata for s in train)
+    atz = sum(s.atz for s in train)
+    _, cov = solve_joint(ata, atz, prior)
+    prior_sd = 1.0 / np.sqrt(prior)
+    post_sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    free = [j for j in range(len(CALIBRATED)) if post_sd[j] * rule.identified_ratio <= prior_sd[j]]
+    idx = np.array(free, dtype=int)
+    delta, cov = solve_joint(ata[np.ix_(idx, idx)], atz[idx], prior[idx])
+    return free, delta, cov
