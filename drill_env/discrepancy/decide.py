@@ -3,7 +3,9 @@
 All statistics are in noise units: every window's residual and candidate columns are
 divided by that window's noise standard deviation, so that the nominal model with
 the right noise floor gives a sum of squares ~ chi^2 with one degree of freedom per
-window. Per run the sufficient statistics (X'X, X'z, z'z) are kept, so refits on
+window. The floor is the encoder's, spectral lines of the quantisation error included
+(:mod:`drill_env.discrepancy.equation_error`): a window where a line of an undithered
+encoder aliases into its pass band weighs little, one where none does weighs much. Per run the sufficient statistics (X'X, X'z, z'z) are kept, so refits on
 other sets of runs, and the bootstrap over runs, cost nothing.
 
 The rule (all numbers in :class:`DecisionRule`):
@@ -19,9 +21,14 @@ The rule (all numbers in :class:`DecisionRule`):
    candidate (largest gain above its threshold) is named when it removes at least
    ``min_explained`` of a significant excess (or when there is no significant excess
    left to explain).
-4. Otherwise the answer is ``unexplained`` if the residual has structure (significant
-   excess, a spectral line at a common frequency, or correlation between neighbouring
-   windows), and ``none`` if it does not.
+4. Otherwise the answer is ``unexplained`` if the residual has structure, and ``none``
+   if it does not. Structure is what the quantisation error cannot make: a significant
+   excess over the floor; a spectral line at one frequency common to the runs and shown
+   by at least ``line_run_fraction`` of them on their own (the lines of the quantisation
+   error sit at each run's own count rate); a correlation of neighbouring windows that
+   stays significant without the run that contributes most to it (at a constant count
+   rate the lines can make the windows of one run depend on each other; a torque the
+   model lacks acts in every run).
 5. The confidence is the fraction of bootstrap replicates (training and held-out runs
    each resampled with replacement, within each kind of run: constant or varying
    voltage) that reach the same answer. A named effect that wins in fewer than

@@ -23,10 +23,39 @@ friction needs a speed, from a cubic Savitzky-Golay derivative whose window is, 
 sample, the shortest one over which the disk moves ``speed_counts`` encoder counts
 (slow motion needs long windows to see through the quantisation). The voltage is a
 zero-order hold, for which the kernel sum is exact. Windows where a disk is slow or
-stuck (set-valued friction) or reverses are dropped, for that disk only. Windows do
-not share samples, so their noise is independent; the noise standard deviation of
-each window is the exact linear propagation of the angle noise (estimated from the
-data, see :func:`estimate_angle_noise`) through all of the above.
+stuck (set-valued friction) or reverses are dropped, for that disk only.
+
+Noise: what an encoder tells. A reading is the floor of the true angle (plus whatever
+noise, "dither", is added before the quantiser) in counts: the true angle is known only
+to within one count. The reading error ``e`` is white only with enough dither (Widrow,
+Kollar & Liu, IEEE TIM 1996: about a count); an incremental encoder adds none. As a
+Fourier series in the true angle,
+
+    e = -step/2 + n + step sum_m sin(2 pi m (theta + n)/step) / (pi m),
+
+and given the true angle the m-th harmonic keeps the coherent amplitude
+``rho_m step/(pi m)``, ``rho_m = exp(-2 pi^2 m^2 s^2/step^2)`` for Gaussian dither n of
+standard deviation s; the rest is independent from sample to sample. At a count rate of
+c counts per sample harmonic m is a spectral line at the digital frequency ``m c``
+(mod 1) (Kavanagh, IEEE TIM 2000), with the encoder's unknown sub-count offset as its
+phase. Every window residual is a fixed linear combination ``sum_k a_k e_k`` of the
+errors of both encoders (exact linearisation, the Savitzky-Golay speed of the Stribeck
+term included), so its noise variance is the white rest times ``sum a_k^2`` plus, for
+each line, its power times ``|A(f)|^2`` at the line's frequency (:func:`line_variance`).
+Where the line is, is known only as well as the count rate: from the counts to about one
+count over the window's support of N samples, and the rate changes within the support
+by what a long Savitzky-Golay derivative shows; so line m is averaged over a band of
+``m (1/N + spread/2)`` about ``m c`` (harmonics 1-256 as lines, the few beyond as white).
+The outcome, for the same undithered data: a window in which a line aliases into its
+pass band (a near-integer or near-p/q number of counts per sample at near-constant
+speed) gets a noise variance up to 40 times the white model's and a small weight; a
+window whose lines all alias outside its pass band gets one 10 or more times below it. With dither the
+lines fade and the white model comes back (1 mrad at 2000 counts/rev: rho_1^2 = 0.02).
+The dither s is what the third differences show above the quantisation floor
+(:func:`estimate_angle_noise`). Windows do not share samples, so the white part of their
+noise is independent; at a constant rate the lines can make the windows of one run
+depend on each other, which the structure tests of :mod:`drill_env.discrepancy.decide`
+allow for.
 
 Every extra effect of the candidate library enters linearly (or, for the two lag
 effects, through a first-order filter of a measured signal) as a column of the same
@@ -123,7 +152,9 @@ def estimate_angle_noise(runs, encoder_step: float, config: EquationErrorConfig 
     At a lag where the disk moves at least two counts per lag the quantisation error is
     close to white, the signal's third difference is negligible and the noise's has
     variance 20 sigma^2; sigma clipping ignores the jerks of stick-slip. Never below
-    the quantisation floor step/sqrt(12).
+    the quantisation floor step/sqrt(12); what lies above it is taken as dither
+    (:meth:`AngleNoise.additive`), which decides how much of the quantisation error is
+    white (see the module docstring).
     """
     cfg = config or EquationErrorConfig()
     q_floor = encoder_step / math.sqrt(12.0)
