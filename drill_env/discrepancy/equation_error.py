@@ -270,7 +270,7 @@ def quantisation_weights(noise: AngleNoise, disk: str, harmonics: int) -> tuple[
 
 
 def line_variance(
-    coef: np.ndarray, rate: np.ndarray, spread: np.ndarray, weights: np.ndarray, chunk: int = 4_000_000
+    coef: np.ndarray, rate: np.ndarray, spread: np.ndarray, weights: np.ndarray, chunk: int = 1_000_000
 ) -> np.ndarray:
     """Variance of ``sum_k coef_k e_k`` from the spectral lines of the quantisation error [rad^2 x coef^2].
 
