@@ -23,9 +23,10 @@ The rule (all numbers in :class:`DecisionRule`):
    left to explain).
 4. Otherwise the answer is ``unexplained`` if the residual has structure, and ``none``
    if it does not. Structure is what the quantisation error cannot make: a significant
-   excess over the floor; a spectral line at one frequency common to the runs and shown
-   by at least ``line_run_fraction`` of them on their own (the lines of the quantisation
-   error sit at each run's own count rate); a correlation of neighbouring windows that
+   excess over the floor; a spectral line at one frequency common to the runs,
+   significant without the run that contributes most to it and shown by at least
+   ``line_run_fraction`` of them on their own (the lines of the quantisation error sit
+   at each run's own count rate); a correlation of neighbouring windows that
    stays significant without the run that contributes most to it (at a constant count
    rate the lines can make the windows of one run depend on each other; a torque the
    model lacks acts in every run).
@@ -204,7 +205,7 @@ class LineScan:
     """Best common spectral line of the nominal residual (per-run amplitude and phase)."""
 
     frequency_hz: float
-    reduction: float  # drop of the sum of squares (noise units)
+    reduction: float  # drop of the sum of squares (noise units), without the run contributing most
     threshold: float
     significant: bool
     dof: int
@@ -220,8 +221,9 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
     """Scan for a sinusoid at one frequency common to the runs in the nominal residual.
 
     Each run and disk gets its own amplitude and phase; the line is significant when the
-    total drop of the sum of squares passes a Bonferroni-corrected chi^2 test and at least
-    ``line_run_fraction`` of the runs show it on their own."""
+    drop of the sum of squares, leaving out the run that contributes most to it, passes a
+    Bonferroni-corrected chi^2 test and at least ``line_run_fraction`` of the runs show
+    it on their own."""
     groups = []
     for eq in eqs:
         for w in (eq.upper, eq.lower):
@@ -248,9 +250,24 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
             except np.linalg.LinAlgError:
                 pass
     red = red_g.sum(axis=0)
-    i = int(np.argmax(red))
     dof = 2 * len(groups)
-    thr = float(stats.chi2.isf(rule.line_alpha / freqs.size, dof))
+    # A line of the quantisation error sits at one run's count rate, and on the grid of
+    # windows it can alias anywhere; a torque the model lacks acts in every run. So the
+    # line is scored without the run that contributes most to it at its frequency.
+    run_of = [eq.run.name for eq, _ in groups]
+    names = sorted(set(run_of))
+    if len(names) > 1:
+        member = np.array([[n == name for n in run_of] for name in names])  # runs x groups
+        per_run = member.astype(float) @ red_g
+        top = np.argmax(per_run, axis=0)
+        robust = red - per_run[top, np.arange(freqs.size)]
+        i = int(np.argmax(robust))
+        dof_robust = dof - 2 * int(member[top[i]].sum())
+    else:
+        robust = red
+        i = int(np.argmax(red))
+        dof_robust = dof
+    thr = float(stats.chi2.isf(rule.line_alpha / freqs.size, max(dof_robust, 1)))
     f = float(freqs[i])
     # a line common to the runs shows in most of them on its own, not in one or two
     # (an undithered encoder at constant speed can alias into a line of a single run)
@@ -275,9 +292,9 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
     related = bool(near) and sum(near) >= 0.5 * len(near)
     return LineScan(
         frequency_hz=f,
-        reduction=float(red[i]),
+        reduction=float(robust[i]),
         threshold=thr,
-        significant=bool(red[i] > thr and common),
+        significant=bool(robust[i] > thr and common),
         dof=dof,
         rotation_ratio=ratios,
         related_to_rotation=related,
