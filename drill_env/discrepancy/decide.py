@@ -3,7 +3,9 @@
 All statistics are in noise units: every window's residual and candidate columns are
 divided by that window's noise standard deviation, so that the nominal model with
 the right noise floor gives a sum of squares ~ chi^2 with one degree of freedom per
-window. Per run the sufficient statistics (X'X, X'z, z'z) are kept, so refits on
+window. The floor is the encoder's, spectral lines of the quantisation error included
+(:mod:`drill_env.discrepancy.equation_error`): a window where a line of an undithered
+encoder aliases into its pass band weighs little, one where none does weighs much. Per run the sufficient statistics (X'X, X'z, z'z) are kept, so refits on
 other sets of runs, and the bootstrap over runs, cost nothing.
 
 The rule (all numbers in :class:`DecisionRule`):
@@ -24,10 +26,16 @@ The rule (all numbers in :class:`DecisionRule`):
    candidate (largest gain above its threshold) is named when it removes at least
    ``min_explained`` of a significant excess (or when there is no significant excess
    left to explain).
-4. Otherwise the answer is ``unexplained`` if the residual has structure (significant
-   excess, a spectral line at a common frequency, or correlation between neighbouring
-   windows), ``recalibrated`` if the recalibrated model lowers the held-out sum of
-   squares of the nominal one significantly, and ``none`` if neither.
+4. Otherwise the answer is ``unexplained`` if the residual has structure,
+   ``recalibrated`` if the recalibrated model lowers the held-out sum of squares of the
+   nominal one significantly, and ``none`` if neither. Structure is what the quantisation
+   error cannot make: a significant excess over the floor; a spectral line at one
+   frequency common to the runs, significant without the run that contributes most to it
+   and shown by at least ``line_run_fraction`` of them on their own (the lines of the
+   quantisation error sit at each run's own count rate); a correlation of neighbouring
+   windows that stays significant without the run that contributes most to it (at a
+   constant count rate the lines can make the windows of one run depend on each other; a
+   torque the model lacks acts in every run).
 5. The confidence is the fraction of bootstrap replicates (training and held-out runs
    each resampled with replacement, within each kind of run: constant or varying
    voltage) that reach the same answer. A named effect that wins in fewer than
@@ -342,7 +350,7 @@ class LineScan:
     """Best common spectral line of the nominal residual (per-run amplitude and phase)."""
 
     frequency_hz: float
-    reduction: float  # drop of the sum of squares (noise units)
+    reduction: float  # drop of the sum of squares (noise units), without the run contributing most
     threshold: float
     significant: bool
     dof: int
@@ -358,8 +366,9 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
     """Scan for a sinusoid at one frequency common to the runs in the nominal residual.
 
     Each run and disk gets its own amplitude and phase; the line is significant when the
-    total drop of the sum of squares passes a Bonferroni-corrected chi^2 test and at least
-    ``line_run_fraction`` of the runs show it on their own."""
+    drop of the sum of squares, leaving out the run that contributes most to it, passes a
+    Bonferroni-corrected chi^2 test and at least ``line_run_fraction`` of the runs show
+    it on their own."""
     groups = []
     for eq in eqs:
         for w in (eq.upper, eq.lower):
@@ -386,9 +395,24 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
             except np.linalg.LinAlgError:
                 pass
     red = red_g.sum(axis=0)
-    i = int(np.argmax(red))
     dof = 2 * len(groups)
-    thr = float(stats.chi2.isf(rule.line_alpha / freqs.size, dof))
+    # A line of the quantisation error sits at one run's count rate, and on the grid of
+    # windows it can alias anywhere; a torque the model lacks acts in every run. So the
+    # line is scored without the run that contributes most to it at its frequency.
+    run_of = [eq.run.name for eq, _ in groups]
+    names = sorted(set(run_of))
+    if len(names) > 1:
+        member = np.array([[n == name for n in run_of] for name in names])  # runs x groups
+        per_run = member.astype(float) @ red_g
+        top = np.argmax(per_run, axis=0)
+        robust = red - per_run[top, np.arange(freqs.size)]
+        i = int(np.argmax(robust))
+        dof_robust = dof - 2 * int(member[top[i]].sum())
+    else:
+        robust = red
+        i = int(np.argmax(red))
+        dof_robust = dof
+    thr = float(stats.chi2.isf(rule.line_alpha / freqs.size, max(dof_robust, 1)))
     f = float(freqs[i])
     # a line common to the runs shows in most of them on its own, not in one or two
     # (an undithered encoder at constant speed can alias into a line of a single run)
@@ -413,9 +437,9 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
     related = bool(near) and sum(near) >= 0.5 * len(near)
     return LineScan(
         frequency_hz=f,
-        reduction=float(red[i]),
+        reduction=float(robust[i]),
         threshold=thr,
-        significant=bool(red[i] > thr and common),
+        significant=bool(robust[i] > thr and common),
         dof=dof,
         rotation_ratio=ratios,
         related_to_rotation=related,
@@ -485,6 +509,16 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates,
     pairs = sum(s.n_pairs for s in train + held)
     rho = s_ab / math.sqrt(s_aa * s_bb) if s_aa > 0 and s_bb > 0 else 0.0
     rho_z = rho * math.sqrt(max(pairs, 1))
+    # At a constant count rate the quantisation error of an encoder is a sum of spectral
+    # lines that can make all windows of one run depend on each other; a torque the model
+    # lacks acts in every run. So the correlation counts only if it stays significant
+    # without whichever run contributes most to it.
+    rho_z_robust = rho_z
+    if len(train + held) > 1:
+        for st in train + held:
+            a, b, c = s_ab - st.neighbour[0], s_aa - st.neighbour[1], s_bb - st.neighbour[2]
+            p = max(pairs - st.n_pairs, 1)
+            rho_z_robust = min(rho_z_robust, a / math.sqrt(b * c) * math.sqrt(p) if b > 0 and c > 0 else 0.0)
     excess_h = q0_h - n_h
     cal_gain, cal_thr = _recalibration_gain(held, cal)
     structure = {
@@ -492,7 +526,8 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates,
         "excess_all": bool(excess_significant(q0_all, n_all)),
         "neighbour_correlation": float(rho),
         "neighbour_correlation_z": float(rho_z),
-        "correlated": bool(rho_z > rule.autocorr_z),
+        "neighbour_correlation_z_without_top_run": float(rho_z_robust),
+        "correlated": bool(rho_z_robust > rule.autocorr_z),
         "line": bool(line.significant) if line is not None else False,
         "recalibration_gain": cal_gain,
         "recalibration_threshold": cal_thr,

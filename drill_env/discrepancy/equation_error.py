@@ -23,10 +23,39 @@ friction needs a speed, from a cubic Savitzky-Golay derivative whose window is, 
 sample, the shortest one over which the disk moves ``speed_counts`` encoder counts
 (slow motion needs long windows to see through the quantisation). The voltage is a
 zero-order hold, for which the kernel sum is exact. Windows where a disk is slow or
-stuck (set-valued friction) or reverses are dropped, for that disk only. Windows do
-not share samples, so their noise is independent; the noise standard deviation of
-each window is the exact linear propagation of the angle noise (estimated from the
-data, see :func:`estimate_angle_noise`) through all of the above.
+stuck (set-valued friction) or reverses are dropped, for that disk only.
+
+Noise: what an encoder tells. A reading is the floor of the true angle (plus whatever
+noise, "dither", is added before the quantiser) in counts: the true angle is known only
+to within one count. The reading error ``e`` is white only with enough dither (Widrow,
+Kollar & Liu, IEEE TIM 1996: about a count); an incremental encoder adds none. As a
+Fourier series in the true angle,
+
+    e = -step/2 + n + step sum_m sin(2 pi m (theta + n)/step) / (pi m),
+
+and given the true angle the m-th harmonic keeps the coherent amplitude
+``rho_m step/(pi m)``, ``rho_m = exp(-2 pi^2 m^2 s^2/step^2)`` for Gaussian dither n of
+standard deviation s; the rest is independent from sample to sample. At a count rate of
+c counts per sample harmonic m is a spectral line at the digital frequency ``m c``
+(mod 1) (Kavanagh, IEEE TIM 2000), with the encoder's unknown sub-count offset as its
+phase. Every window residual is a fixed linear combination ``sum_k a_k e_k`` of the
+errors of both encoders (exact linearisation, the Savitzky-Golay speed of the Stribeck
+term included), so its noise variance is the white rest times ``sum a_k^2`` plus, for
+each line, its power times ``|A(f)|^2`` at the line's frequency (:func:`line_variance`).
+Where the line is, is known only as well as the count rate: from the counts to about one
+count over the window's support of N samples, and the rate changes within the support
+by what a long Savitzky-Golay derivative shows; so line m is averaged over a band of
+``m (1/N + spread/2)`` about ``m c`` (harmonics 1-256 as lines, the few beyond as white).
+The outcome, for the same undithered data: a window in which a line aliases into its
+pass band (a near-integer or near-p/q number of counts per sample at near-constant
+speed) gets a noise variance up to 40 times the white model's and a small weight; a
+window whose lines all alias outside its pass band gets one 10 or more times below it. With dither the
+lines fade and the white model comes back (1 mrad at 2000 counts/rev: rho_1^2 = 0.02).
+The dither s is what the third differences show above the quantisation floor
+(:func:`estimate_angle_noise`). Windows do not share samples, so the white part of their
+noise is independent; at a constant rate the lines can make the windows of one run
+depend on each other, which the structure tests of :mod:`drill_env.discrepancy.decide`
+allow for.
 
 Every extra effect of the candidate library enters linearly (or, for the two lag
 effects, through a first-order filter of a measured signal) as a column of the same
@@ -39,8 +68,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.polynomial import polynomial as P
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
-from scipy.signal import savgol_coeffs, savgol_filter
+from scipy.signal import oaconvolve, savgol_coeffs, savgol_filter
 
 from drill_env.params import RigParams
 
@@ -50,6 +80,8 @@ __all__ = [
     "DiskWindows",
     "RunEquations",
     "estimate_angle_noise",
+    "quantisation_weights",
+    "line_variance",
     "stribeck",
     "stribeck_slope",
 ]
@@ -65,6 +97,7 @@ class EquationErrorConfig:
     speed_counts: float = 16.0  # the shortest window over which the disk moves this many counts is used
     min_speed_rad_s: float = 0.03  # a disk slower than this in a window drops the window [rad/s]
     noise_lag_s: float = 0.01  # lag of the third differences that estimate the angle noise [s]
+    quantisation_harmonics: int = 256  # harmonics of the quantisation error treated as spectral lines
 
 
 def stribeck(params: RigParams, w: np.ndarray) -> np.ndarray:
@@ -92,11 +125,23 @@ class AngleNoise:
     quantisation: float  # step / sqrt(12), the floor set by the encoder alone
     samples_used: int  # third differences behind the estimate (0: quantisation only)
 
+    @property
+    def step(self) -> float:
+        """One encoder count [rad]."""
+        return self.quantisation * math.sqrt(12.0)
+
+    def additive(self, disk: str) -> float:
+        """Standard deviation of the noise added before quantisation (dither) [rad]."""
+        total = self.upper if disk == "upper" else self.lower
+        return math.sqrt(max(total * total - self.quantisation**2, 0.0))
+
     def as_dict(self) -> dict[str, float]:
         return {
             "upper_rad": self.upper,
             "lower_rad": self.lower,
             "quantisation_rad": self.quantisation,
+            "additive_upper_rad": self.additive("upper"),
+            "additive_lower_rad": self.additive("lower"),
             "samples_used": self.samples_used,
         }
 
@@ -107,7 +152,9 @@ def estimate_angle_noise(runs, encoder_step: float, config: EquationErrorConfig 
     At a lag where the disk moves at least two counts per lag the quantisation error is
     close to white, the signal's third difference is negligible and the noise's has
     variance 20 sigma^2; sigma clipping ignores the jerks of stick-slip. Never below
-    the quantisation floor step/sqrt(12).
+    the quantisation floor step/sqrt(12); what lies above it is taken as dither
+    (:meth:`AngleNoise.additive`), which decides how much of the quantisation error is
+    white (see the module docstring).
     """
     cfg = config or EquationErrorConfig()
     q_floor = encoder_step / math.sqrt(12.0)
@@ -154,6 +201,7 @@ class DiskWindows:
     residual: np.ndarray  # unexplained mean torque [N m]
     sigma: np.ndarray  # its noise standard deviation [N m]
     n_total: int  # windows before dropping slow/stuck ones
+    line_share: np.ndarray | None = None  # share of the spectral lines of the quantisation error in sigma^2
 
     @property
     def z(self) -> np.ndarray:
@@ -168,15 +216,101 @@ def run_counts(run, noise: AngleNoise) -> float:
     return 2.0 * math.pi / (noise.quantisation * math.sqrt(12.0))
 
 
+def _savgol(x: np.ndarray, half: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
+    """Cubic Savitzky-Golay filter (``mode="interp"``), by FFT convolution away from the ends
+    (direct convolution costs a window length per sample: minutes at 10 kHz)."""
+    n = 2 * half + 1
+    if x.size <= 4 * n:
+        return savgol_filter(x, n, 3, deriv=deriv, delta=delta, mode="interp")
+    coeffs = savgol_coeffs(n, 3, deriv=deriv, delta=delta)  # convolution order
+    out = np.empty_like(x)
+    out[half:-half] = oaconvolve(x, coeffs, mode="valid")
+    # the ends, as mode="interp": the cubic fitted to the first (last) window, evaluated there
+    t = np.arange(n, dtype=float)
+    for piece, sl in ((x[:n], slice(0, half)), (x[-n:], slice(n - half, n))):
+        c = P.polyder(P.polyfit(t, piece, 3), deriv) / delta**deriv
+        vals = P.polyval(t[sl], c)
+        if sl.start == 0:
+            out[:half] = vals
+        else:
+            out[-half:] = vals
+    return out
+
+
 def _adaptive_speed(theta, halves, dt, travel):
     """Per sample, the Savitzky-Golay speed of the shortest window that covers ``travel`` [rad]."""
-    speeds = [savgol_filter(theta, 2 * g + 1, 3, deriv=1, delta=dt, mode="interp") for g in halves]
+    speeds = [_savgol(theta, g, deriv=1, delta=dt) for g in halves]
     choice = np.full(theta.size, len(halves) - 1, dtype=np.int64)
     for i in range(len(halves) - 2, -1, -1):
         ok = np.abs(speeds[i]) * (2 * halves[i] * dt) >= travel
         choice[ok] = i
     v = np.choose(choice, speeds)
     return v, choice
+
+
+def quantisation_weights(noise: AngleNoise, disk: str, harmonics: int) -> tuple[np.ndarray, float]:
+    """Power of each spectral line of the encoder error, and the white power left [rad^2].
+
+    The error of a floor-quantised reading of ``theta + n`` (n Gaussian dither of standard
+    deviation s) is ``e = -step/2 + n + step sum_m sin(2 pi m (theta + n)/step) / (pi m)``.
+    Given the true angle, its m-th harmonic keeps the coherent amplitude ``rho_m step/(pi m)``
+    with ``rho_m = exp(-2 pi^2 m^2 s^2 / step^2)`` (Widrow, Kollar & Liu 1996: the error is
+    white only when the rho_m vanish); the rest of the error is independent from sample to
+    sample. Returns the line powers ``step^2 rho_m^2 / (2 pi^2 m^2)`` for m = 1..harmonics,
+    and the per-sample variance of the independent rest, ``s^2 + step^2/12`` minus their sum
+    (the few harmonics beyond ``harmonics`` are counted there).
+    """
+    step = noise.step
+    s = noise.additive(disk)
+    m = np.arange(1, harmonics + 1, dtype=float)
+    rho2 = np.exp(-4.0 * math.pi**2 * m**2 * (s / step) ** 2)
+    weights = step**2 * rho2 / (2.0 * math.pi**2 * m**2)
+    white = s * s + step**2 / 12.0 - float(weights.sum())
+    return weights, white
+
+
+def line_variance(
+    coef: np.ndarray, rate: np.ndarray, spread: np.ndarray, weights: np.ndarray, chunk: int = 1_000_000
+) -> np.ndarray:
+    """Variance of ``sum_k coef_k e_k`` from the spectral lines of the quantisation error [rad^2 x coef^2].
+
+    At a count rate of c counts per sample the m-th harmonic of the error is a line at the
+    digital frequency ``m c`` (mod 1) (Kavanagh 2000); with the encoder's sub-count offset
+    uniform it adds ``weights[m-1] |C(m c)|^2`` to the variance, C the Fourier transform of
+    the window's coefficients. The mean rate over a support of N samples is known from the
+    counts only to about 1/N, and it changes by ``spread`` over the support, so harmonic m
+    may sit anywhere within ``m (1/N + spread/2)`` of ``m c``: its term is ``|C|^2`` averaged
+    over that band (over the whole circle, i.e. white, once the band covers it).
+
+    Args:
+        coef: (windows, N) coefficients of each window on its support.
+        rate: (windows,) mean count rate on the support [counts/sample].
+        spread: (windows,) max - min of the count rate on the support [counts/sample].
+        weights: line powers of harmonics 1, 2, ... (:func:`quantisation_weights`).
+    """
+    n, N = coef.shape
+    out = np.zeros(n)
+    if n == 0 or weights.size == 0:
+        return out
+    P = 1 << int(math.ceil(math.log2(2 * N)))
+    m = np.arange(1, weights.size + 1, dtype=float)
+    rows = max(1, chunk // P)
+    for a in range(0, n, rows):
+        b = min(n, a + rows)
+        power = np.abs(np.fft.fft(coef[a:b], P, axis=1)) ** 2
+        cum = np.concatenate(
+            [np.zeros((b - a, 1)), np.cumsum(np.concatenate([power, power], axis=1), axis=1)], axis=1
+        )
+        half = m[None, :] * (1.0 / N + 0.5 * spread[a:b, None])  # [cycles/sample]
+        centre = np.mod(m[None, :] * np.abs(rate[a:b, None]), 1.0)
+        lo = np.floor((centre - half) * P + 0.5).astype(np.int64) % P
+        width = np.maximum(np.floor(2.0 * half * P + 0.5).astype(np.int64), 1)
+        white = width >= P
+        width = np.minimum(width, P)
+        band = (np.take_along_axis(cum, lo + width, axis=1) - np.take_along_axis(cum, lo, axis=1)) / width
+        band = np.where(white, power.mean(axis=1)[:, None], band)
+        out[a:b] = band @ weights
+    return out
 
 
 def _box(n: int) -> np.ndarray:
@@ -242,16 +376,22 @@ class RunEquations:
         self.speed_u, self.choice_u = _adaptive_speed(run.theta_u, halves, dt, cfg.speed_counts * step)
         self.speed_l, self.choice_l = _adaptive_speed(run.theta_l, halves, dt, cfg.speed_counts * step)
         self.halves = halves
+        self.step = step
+        # count rate per sample, for the spread of the spectral lines of the quantisation error
+        # (see line_variance): from the longest Savitzky-Golay window, whose own quantisation
+        # noise is far below the rate changes that matter over a window
+        self.rate_u = _savgol(run.theta_u, g_half, deriv=1) / step
+        self.rate_l = _savgol(run.theta_l, g_half, deriv=1) / step
+        self.q_upper = quantisation_weights(noise, "upper", cfg.quantisation_harmonics)
+        self.q_lower = quantisation_weights(noise, "lower", cfg.quantisation_harmonics)
 
         # Non-overlapping windows whose whole support (angles, speeds) lies in the run.
         reach = L + g_half
         stride = 2 * reach + 1
         centers = np.arange(reach + g_half, n - reach - g_half, stride)
         self.n_windows = centers.size
-        sig_u = self.noise.upper
-        sig_l = self.noise.lower
-        self.upper = self._windows("upper", centers, self.speed_u, reach, sig_u, sig_l)
-        self.lower = self._windows("lower", centers, self.speed_l, reach, sig_u, sig_l)
+        self.upper = self._windows("upper", centers, self.speed_u, reach)
+        self.lower = self._windows("lower", centers, self.speed_l, reach)
 
     # -- kernel machinery --------------------------------------------------------------------
     def _place(self, w: np.ndarray, first: int) -> np.ndarray:
@@ -263,6 +403,22 @@ class RunEquations:
 
     def gather(self, x: np.ndarray, centers: np.ndarray) -> np.ndarray:
         return x[centers[:, None] + self.offsets[None, :]]
+
+    def _angle_variance(self, disk: str, centers: np.ndarray, coef: np.ndarray, reach: int):
+        """Variance of ``sum_k coef_k e_k`` over the support +-reach of each window, e the
+        encoder error of ``disk``: white rest plus spectral lines [rad^2 x coef^2], and the
+        share of the lines in it."""
+        theta = self.theta_u if disk == "upper" else self.theta_l
+        rate = self.rate_u if disk == "upper" else self.rate_l
+        weights, white = self.q_upper if disk == "upper" else self.q_lower
+        coef = np.broadcast_to(coef, (centers.size, 2 * reach + 1))
+        mean_rate = (theta[centers + reach] - theta[centers - reach]) / (self.step * 2 * reach)
+        span = 2 * reach + 1
+        spread = (
+            maximum_filter1d(rate, span, mode="nearest") - minimum_filter1d(rate, span, mode="nearest")
+        )[centers]
+        lines = line_variance(coef, mean_rate, spread, weights)
+        return white * np.sum(coef * coef, axis=1) + lines, lines
 
     def kernel(self, x: np.ndarray, disk: str) -> np.ndarray:
         """K[x]/h^2 at the disk's windows for a signal sampled at the samples [units of x]."""
@@ -286,7 +442,7 @@ class RunEquations:
         return self.gather(delta, c) @ w / self.h**2
 
     # -- nominal residuals ---------------------------------------------------------------------
-    def _windows(self, disk, centers, speed, reach, sig_u, sig_l) -> DiskWindows:
+    def _windows(self, disk, centers, speed, reach) -> DiskWindows:
         p = self.params
         vmin = self.config.min_speed_rad_s
         fwd = minimum_filter1d(speed, 2 * reach + 1, mode="nearest")
@@ -316,17 +472,15 @@ class RunEquations:
             )
             slope = stribeck_slope(p, w) * self.w_tri[None, :]  # d r / d|v| per sample
             choice = self.gather(self.choice_l, c)
-            var = np.empty(c.size)
+            coef = np.tile(lin, (c.size, 1))
             for i in range(c.size):
-                coef = lin.copy()
                 for ci, (g, sg) in enumerate(zip(self.halves, self.sg, strict=False)):
                     a = np.where(choice[i] == ci, slope[i], 0.0)
                     if a.any():
                         lo = G - g
-                        coef[lo : lo + a.size + 2 * g] += np.convolve(a, sg)
-                var[i] = sig_l**2 * float(coef @ coef)
-            var += sig_u**2 * p.string_stiffness**2 * float(self.w_tri @ self.w_tri)
-            var /= h2**2
+                        coef[i, lo : lo + a.size + 2 * g] += np.convolve(a, sg)
+            var, lines = self._angle_variance("lower", c, coef, self.L + G)
+            var_o, lines_o = self._angle_variance("upper", c, p.string_stiffness * self.w_tri, self.L)
         else:
             th = self.gather(self.theta_u, c)
             thl = self.gather(self.theta_l, c)
@@ -338,12 +492,16 @@ class RunEquations:
                 + p.string_stiffness * ((th - thl) @ self.w_tri)
                 + b * (th @ self.w_rate)
             ) / h2 + ts
-            var = np.empty(c.size)
-            for bv in np.unique(b):
-                coef = p.upper_inertia * self.w_d2 + p.string_stiffness * self.w_tri + bv * self.w_rate
-                var[b == bv] = sig_u**2 * float(coef @ coef)
-            var += sig_l**2 * p.string_stiffness**2 * float(self.w_tri @ self.w_tri)
-            var /= h2**2
+            coef = (
+                p.upper_inertia * self.w_d2
+                + p.string_stiffness * self.w_tri
+                + b[:, None] * self.w_rate[None, :]
+            )
+            var, lines = self._angle_variance("upper", c, coef, self.L)
+            var_o, lines_o = self._angle_variance("lower", c, p.string_stiffness * self.w_tri, self.L)
+        var = var + var_o
+        line_share = (lines + lines_o) / np.maximum(var, 1e-300)
+        var /= h2**2
         return DiskWindows(
             disk=disk,
             centers=c,
@@ -352,4 +510,5 @@ class RunEquations:
             residual=r,
             sigma=np.sqrt(var),
             n_total=int(centers.size),
+            line_share=line_share,
         )
