@@ -41,8 +41,8 @@ import numpy as np
 
 from agents.evaluation import IDENTIFIED_SPEED, METRIC_COLUMNS, EpisodeSettings
 from agents.plants import NOMINAL, Plant
-from agents.registry import CONTROLLERS
-from agents.robustness import COLORS, REGIMES, ordered_controllers, robustness_figure, robustness_lines
+from agents.registry import CONTROLLERS, controller_style
+from agents.robustness import REGIMES, ordered_controllers, robustness_figure, robustness_lines
 from drill_env.outputs import atomic_file, atomic_write_text, output_lock
 
 __all__ = [
@@ -886,16 +886,8 @@ def _plants_in(df) -> list[str]:
 
 
 Y_FLOOR = -2.0  # suppression below this is drawn at the floor with its value written
-_MARKERS = {
-    "open_loop": "o",
-    "pi_upper": "v",
-    "pi_lower": "^",
-    "torque_feedback": "s",
-    "lqi": "D",
-    "lqi_angle_ff": "d",
-    "ppo": "P",
-    "sac": "X",
-}
+# Each controller's marker in every figure, from the registry (agents.registry.STYLES).
+_MARKERS = {c: controller_style(c).marker for c in CONTROLLERS}
 
 
 def _figures(df, preset: str, out: Path, plant: str = NOMINAL) -> list[Path]:
@@ -955,7 +947,7 @@ def draw_bifurcation_figure(df, preset: str, diagram=None):
         r = df[df["controller"] == c]
         u = r["voltage"].to_numpy(dtype=float)
         hi, lo = r["x3_max"].to_numpy(dtype=float), r["x3_min"].to_numpy(dtype=float)
-        col, m = COLORS.get(c, "gray"), _MARKERS.get(c, "o")
+        col, m = controller_style(c).colour, controller_style(c).marker
         inside_hi, inside_lo = hi <= y_hi, lo >= y_lo
         both = inside_hi & inside_lo  # a run beyond the scale gets no bar across the panel
         ax.vlines(u[both], lo[both], hi[both], color=col, lw=1.0, alpha=0.8, zorder=4)
@@ -1056,8 +1048,8 @@ def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False) -> Non
             v,
             shown,
             yerr=[shown - np.maximum(lo, Y_FLOOR), np.maximum(hi, Y_FLOOR) - shown],
-            fmt=_MARKERS.get(c, "o") + "-",
-            color=COLORS.get(c, "gray"),
+            fmt=controller_style(c).marker + "-",
+            color=controller_style(c).colour,
             mfc="none",
             mew=1.0,
             ms=3 if small else 6,
@@ -1089,7 +1081,7 @@ def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False) -> Non
                 xytext=(0, -3 - 9 * k),
                 textcoords="offset points",
                 fontsize=7,
-                color=COLORS.get(c, "gray"),
+                color=controller_style(c).colour,
                 ha="center",
                 va="top",
                 zorder=3,
