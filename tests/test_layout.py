@@ -130,3 +130,35 @@ def test_a_controller_added_to_the_list_gets_a_style_of_its_own(monkeypatch, add
     assert len(set(s.colour for s in styles)) == len(styles)
     assert len(set(s.marker for s in styles)) == len(styles)
     assert registry.controller_style("not_a_controller") == ("gray", "o")
+
+
+def test_commands_from_an_entry_point_and_a_missing_package(monkeypatch):
+    import importlib.metadata
+
+    import typer
+
+    from drill_env import cli
+
+    class EntryPoint:
+        def load(self):
+            def register(app):
+                @app.command("hello")
+                def hello() -> None:
+                    typer.echo("hello")
+
+            return register
+
+    seen = []
+
+    def entry_points(group):
+        seen.append(group)
+        return [EntryPoint()]
+
+    app = typer.Typer()
+    monkeypatch.setattr(cli, "app", app)
+    monkeypatch.setattr(cli, "COMMAND_PACKAGES", (*cli.COMMAND_PACKAGES, "no_such_package.commands"))
+    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
+    cli._register_commands()
+    names = {c.name for c in app.registered_commands}
+    assert seen == [cli.ENTRY_POINT_GROUP]
+    assert {"bifurcation", "benchmark", "tune", "train", "hello"} <= names
