@@ -8,5 +8,6 @@
   tuning procedure;
 * :mod:`agents.rl`: PPO / SAC training and trained policies;
 * :mod:`agents.evaluation`: the one evaluation path; :mod:`agents.benchmark`: the grid;
-  :mod:`agents.registry`: the benchmark's controllers by name.
+  :mod:`agents.registry`: the one list of the benchmark's controllers, by name;
+* :mod:`agents.commands`: the ``drill-env`` commands ``tune``, ``train`` and ``benchmark``.
 """

@@ -1,7 +1,8 @@
 """The classical controllers with the gains ``drill-env tune`` wrote for a preset
-(``configs/agents/controllers.yaml``); ``lqi_angle_ff`` uses the LQI's. Apart from :mod:`agents.registry` so that training
-(:mod:`agents.rl`) can build its reference controllers without the registry, which loads
-trained policies through :mod:`agents.rl`."""
+(``configs/agents/controllers.yaml``); ``lqi_angle_ff`` uses the LQI's. The list of
+controllers is :data:`agents.registry.CLASSICAL`; this module builds them, apart from
+:mod:`agents.registry` so that training (:mod:`agents.rl`) can build its reference
+controllers without the registry, which loads trained policies through :mod:`agents.rl`."""
 
 from __future__ import annotations
 
@@ -12,9 +13,8 @@ from typing import Any
 from agents.base import Controller, ControllerSpec
 from drill_env.params import load_yaml
 
-__all__ = ["BUILT_ON", "CLASSICAL", "classical_controller", "gains_path", "load_gains"]
+__all__ = ["BUILT_ON", "classical_controller", "gains_path", "load_gains"]
 
-CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi_angle_ff")
 # Controllers built on another's tuned gains: the LQI with angle-locked adaptive feedforward
 # is the tuned LQI plus an adaptation designed per operating point on the nominal model
 # (agents.angle_feedforward), with nothing tuned of its own.
@@ -53,12 +53,13 @@ def classical_controller(
 ) -> Controller:
     """A classical controller with the tuned gains of ``preset``."""
     from agents.open_loop import OpenLoop
-    from agents.tuning import make_controller
+    from agents.tuning import TUNED_GAINS, make_controller
 
     if kind == "open_loop":
         return OpenLoop(spec)
-    if kind not in CLASSICAL:
-        raise ValueError(f"controller: {kind!r} is not one of {list(CLASSICAL)}")
+    known = ["open_loop", *TUNED_GAINS, *BUILT_ON]
+    if kind not in known:
+        raise ValueError(f"controller: {kind!r} is not one of {known}")
     data = load_gains(gains_file)
     presets = data["presets"]
     tuned = BUILT_ON.get(kind, kind)

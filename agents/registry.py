@@ -18,17 +18,20 @@ from their committed policies.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from agents.base import ControllerSpec
-from agents.gains import CLASSICAL, classical_controller, gains_path, load_gains
+from agents.gains import classical_controller, gains_path, load_gains
 
 __all__ = [
     "CLASSICAL",
     "LEARNED",
     "CONTROLLERS",
+    "STYLES",
+    "ControllerStyle",
     "build_controller",
     "classical_controller",
+    "controller_style",
     "default_agents_dir",
     "gains_path",
     "load_gains",
@@ -36,8 +39,48 @@ __all__ = [
     "policy_path",
 ]
 
+# The one list of the benchmark's controllers, in the order of its tables and legends: the
+# figures, the command-line help and the checks of a controller name all derive from these.
+CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi_angle_ff")
 LEARNED = ("ppo", "sac")
 CONTROLLERS = CLASSICAL + LEARNED
+
+
+class ControllerStyle(NamedTuple):
+    """How a controller is drawn in every figure (matplotlib colour and marker)."""
+
+    colour: str
+    marker: str
+
+
+STYLES = {
+    "open_loop": ControllerStyle("black", "o"),
+    "pi_upper": ControllerStyle("tab:red", "v"),
+    "pi_lower": ControllerStyle("tab:orange", "^"),
+    "torque_feedback": ControllerStyle("tab:green", "s"),
+    "lqi": ControllerStyle("tab:blue", "D"),
+    "lqi_angle_ff": ControllerStyle("tab:cyan", "d"),
+    "ppo": ControllerStyle("tab:purple", "P"),
+    "sac": ControllerStyle("tab:brown", "X"),
+}
+# Styles of controllers added without one of their own, in the order of CONTROLLERS: none of
+# these colours or markers is in STYLES, so a new controller is told apart from every other.
+_SPARE_COLOURS = ("tab:pink", "tab:olive", "tab:gray", "gold", "navy", "teal")
+_SPARE_MARKERS = ("*", "h", "p", "<", ">", "8")
+
+
+def controller_style(name: str) -> ControllerStyle:
+    """The colour and marker of controller ``name`` in the figures: its entry in
+    :data:`STYLES`, else a spare style by its place among the unstyled :data:`CONTROLLERS`
+    (and grey dots for a name the registry does not know, e.g. from an old results file)."""
+    if name in STYLES:
+        return STYLES[name]
+    unstyled = [c for c in CONTROLLERS if c not in STYLES]
+    if name not in unstyled:
+        return ControllerStyle("gray", "o")
+    i = unstyled.index(name)
+    return ControllerStyle(_SPARE_COLOURS[i % len(_SPARE_COLOURS)], _SPARE_MARKERS[i % len(_SPARE_MARKERS)])
+
 
 _ROOT = Path(__file__).resolve().parent.parent
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from agents.plants import NOMINAL
+from agents.registry import CONTROLLERS, controller_style
 
 __all__ = [
     "COLORS",
@@ -42,8 +43,6 @@ REGIMES = {
 
 
 def ordered_controllers(names) -> list[str]:
-    from agents.registry import CONTROLLERS
-
     names = set(names)
     return [c for c in CONTROLLERS if c in names] + sorted(names - set(CONTROLLERS))
 
@@ -148,16 +147,8 @@ def robustness_lines(df, preset: str, plants: Mapping[str, Mapping[str, Any]] | 
     return lines
 
 
-COLORS = {
-    "open_loop": "black",
-    "pi_upper": "tab:red",
-    "pi_lower": "tab:orange",
-    "torque_feedback": "tab:green",
-    "lqi": "tab:blue",
-    "lqi_angle_ff": "tab:cyan",
-    "ppo": "tab:purple",
-    "sac": "tab:brown",
-}
+# Each controller's colour in every figure, from the registry (agents.registry.STYLES).
+COLORS = {c: controller_style(c).colour for c in CONTROLLERS}
 SUPPRESSION_FLOOR = -1.0  # [-] values below are drawn at the floor
 RMS_FLOOR = 1e-4  # [rad/s] log axis floor
 
@@ -207,7 +198,7 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
                 r = reg.get(c)
                 if r is None:
                     continue
-                col_c = COLORS.get(c, "gray")
+                col_c = controller_style(c).colour
                 vals = [shown(v) for v in r["per_plant"].values()]
                 ax.plot(vals, [y] * len(vals), "o", color="0.55", ms=3, alpha=0.7, zorder=2)
                 ax.plot([shown(r["mean"])] * 2, [y - 0.3, y + 0.3], "-", color=col_c, lw=2.5, zorder=3)

@@ -19,7 +19,7 @@ import numpy as np
 
 from agents.evaluation import EpisodeSettings, make_env, run_episode
 from agents.plants import Plant
-from agents.robustness import COLORS
+from agents.registry import controller_style
 
 __all__ = ["run_trace", "timeseries_figures"]
 
@@ -137,7 +137,7 @@ def timeseries_figures(
                 )
             for a, b in _spans(tr.window_t - t0, tr.window_lower_stuck.astype(bool)):
                 ax.axvspan(a, b, color="tab:red", alpha=0.15, lw=0)
-            col = COLORS.get(c, "tab:blue")
+            col = controller_style(c).colour
             ax.plot(tr.window_t - t0, tr.window_lower_speed, color=col, lw=1.0, label=f"{c}: lower disk x3")
             ax.plot(
                 tr.t - t0,

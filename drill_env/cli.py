@@ -158,14 +158,31 @@ def simulate(
         typer.echo(f"wrote {out} ({res.t.size} rows)")
 
 
+# Packages whose every module defines ``register(app)`` adding its command(s): the core's
+# own commands, then those of the controller package built on it (``agents``, shipped in the
+# same distribution, absent from a core-only install). Named here, never imported by the
+# core: the dependency runs from ``agents.commands`` to this app. Other packages add
+# commands through the ``drill_env.commands`` entry-point group (each a ``register``).
+COMMAND_PACKAGES = ("drill_env.commands", "agents.commands")
+ENTRY_POINT_GROUP = "drill_env.commands"
+
+
 def _register_commands() -> None:
     import importlib
     import pkgutil
+    from importlib.metadata import entry_points
 
-    from drill_env import commands
-
-    for mod in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        importlib.import_module(f"drill_env.commands.{mod.name}").register(app)
+    for package_name in COMMAND_PACKAGES:
+        try:
+            package = importlib.import_module(package_name)
+        except ModuleNotFoundError as exc:
+            if exc.name is not None and package_name.startswith(exc.name):
+                continue  # that package is not installed: its commands are not offered
+            raise
+        for mod in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+            importlib.import_module(f"{package_name}.{mod.name}").register(app)
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        ep.load()(app)
 
 
 _register_commands()

@@ -19,6 +19,7 @@ from agents.angle_feedforward import (
     voltage_to_lower_speed,
 )
 from agents.base import ControllerSpec
+from agents.commands.tune import tune_on_model
 from agents.evaluation import EpisodeSettings, evaluate, make_env
 from agents.gains import load_gains
 from agents.linear_model import design_point, equilibrium_observation, sampled_rig
@@ -27,7 +28,6 @@ from agents.open_loop import OpenLoop
 from agents.registry import CLASSICAL, build_controller
 from agents.tuning import design_points
 from drill_env.cli import app
-from drill_env.commands.tune import tune_on_model
 from drill_env.envs.task import nominal_params
 from drill_env.params import load_params
 

@@ -5,6 +5,12 @@ each label placed where it covers no curve or marker; a legend names every line 
 marker style. Where a diagram reaches them, the rig's 5 V amplifier limit and the speed up
 to which the brake friction was identified (12.6 rad/s) are drawn. matplotlib is imported
 inside each function.
+
+This module draws what the analysis computed and imports none of it: it reads the
+attributes named by the protocols below, so that the result objects' ``.plot()`` methods
+(:class:`~drill_env.analysis.diagram.BifurcationDiagram`,
+:class:`~drill_env.analysis.shooting.LimitCycle`,
+:class:`~drill_env.analysis.sweep.BruteForceCheck`) can call it without an import cycle.
 """
 
 from __future__ import annotations
@@ -12,14 +18,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:  # pragma: no cover
-    from drill_env.analysis.diagram import BifurcationDiagram, PeriodicSegment
-    from drill_env.analysis.shooting import LimitCycle
-    from drill_env.analysis.sweep import BruteForceCheck
 
 __all__ = [
     "AMPLIFIER_LIMIT_V",
@@ -33,6 +34,63 @@ __all__ = [
     "plot_limit_cycles",
     "save_figures",
 ]
+
+
+# -- what the figures read of the analysis' results -----------------------------------------
+
+
+class LimitCycle(Protocol):
+    """A periodic orbit (:class:`drill_env.analysis.shooting.LimitCycle`)."""
+
+    u: float  # [V]
+    period: float  # [s]
+    x3_min: float  # [rad/s]
+    x3_max: float  # [rad/s]
+
+    @property
+    def stable(self) -> bool: ...
+
+    @property
+    def stick_slip(self) -> bool: ...
+
+    def orbit(self, n: int = 400) -> Any: ...
+
+
+class PeriodicSegment(Protocol):
+    """A stretch of a periodic branch (:class:`drill_env.analysis.diagram.PeriodicSegment`)."""
+
+    name: str
+    cycles: list[LimitCycle]
+
+    @property
+    def u(self) -> np.ndarray: ...
+
+    @property
+    def stable(self) -> np.ndarray: ...
+
+
+class BifurcationDiagram(Protocol):
+    """A bifurcation diagram (:class:`drill_env.analysis.diagram.BifurcationDiagram`)."""
+
+    preset: str
+    u_min: float  # [V]
+    u_max: float  # [V]
+    equilibrium_branches: list[Any]
+    periodic_segments: list[PeriodicSegment]
+    points: dict[str, Any]
+    hopf: list[Any]
+    branches: list[Any]
+
+    def cycles_at(self, u: float) -> list[LimitCycle]: ...
+
+    def plot(self, kind: str = "fig8", ax: Any = None, **kwargs: Any) -> Any: ...
+
+
+class BruteForceCheck(Protocol):
+    """The simulation check of a diagram (:class:`drill_env.analysis.sweep.BruteForceCheck`)."""
+
+    runs: list[Any]
+
 
 _EQ_COLOR = "k"
 _CYCLE_COLOR = "tab:blue"

@@ -9,8 +9,6 @@ import typer
 
 from drill_env.outputs import fresh_run_folder
 
-ALGOS = ("ppo", "sac")
-
 
 def _fail(message: str) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
@@ -53,6 +51,8 @@ def register(app: typer.Typer) -> None:
         converged by the plateau criterion), OUT/eval.csv, OUT/progress.csv and
         OUT/learning_curve.png; the run's progress.csv and TensorBoard events go to RUN_DIR.
         """
+        from agents.rl import ALGOS
+
         if algo not in ALGOS:
             _fail(f"--algo must be one of {list(ALGOS)}, got {algo!r}")
         if seed < 0:

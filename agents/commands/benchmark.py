@@ -29,6 +29,8 @@ def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
 
 
 def register(app: typer.Typer) -> None:
+    from agents.registry import CONTROLLERS as KNOWN_CONTROLLERS
+
     @app.command("benchmark")
     def benchmark(
         out: Path = typer.Option(..., help="Directory for benchmark.csv, summary.md and the figures."),
@@ -36,7 +38,7 @@ def register(app: typer.Typer) -> None:
         quick: bool = typer.Option(False, "--quick", help="A handful of voltages per preset and one seed."),
         controllers: str | None = typer.Option(
             None,
-            help="Comma-separated subset of: open_loop, pi_upper, pi_lower, torque_feedback, lqi, lqi_angle_ff, ppo, sac (default: all).",
+            help=f"Comma-separated subset of: {', '.join(KNOWN_CONTROLLERS)} (default: all).",
         ),
         voltages: str | None = typer.Option(
             None,

@@ -1,0 +1,316 @@
+"""The benchmark figures: each controller's steady min/max of x3 on the bifurcation diagram
+(``bifurcation_<preset>.png``) and its suppression of the open-loop cycle
+(``suppression_<preset>.png``), per plant or as small multiples."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from agents.evaluation import EpisodeSettings
+from agents.plants import NOMINAL
+from agents.registry import CONTROLLERS, controller_style
+from agents.robustness import REGIMES, ordered_controllers
+
+Y_FLOOR = -2.0  # suppression below this is drawn at the floor with its value written
+# Each controller's marker in every figure, from the registry (agents.registry.STYLES).
+_MARKERS = {c: controller_style(c).marker for c in CONTROLLERS}
+
+
+def _figures(df, preset: str, out: Path, plant: str = NOMINAL) -> list[Path]:
+    """The bifurcation figure (nominal plant only: the analysis is of the nominal model) and
+    the suppression figure of one preset and plant."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    if df.empty:
+        return []
+    ctrls = ordered_controllers(df["controller"])
+    if plant != NOMINAL:
+        return _suppression_figure(df, preset, out, plant, ctrls)
+    return [bifurcation_figure(df, preset, out)] + _suppression_figure(df, preset, out, plant, ctrls)
+
+
+def bifurcation_figure(df, preset: str, out: Path) -> Path:
+    """``bifurcation_<preset>.png``: one panel per controller, each with the nominal model's
+    bifurcation diagram (faded) and, at its exact voltage, every run's steady min and max of
+    x3 joined by a bar. Runs beyond the common scale end in a triangle at the panel's edge;
+    their range is written under the panel's title."""
+    import matplotlib.pyplot as plt
+
+    fig = draw_bifurcation_figure(df, preset)
+    p = out / f"bifurcation_{preset}.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    return p
+
+
+def draw_bifurcation_figure(df, preset: str, diagram=None):
+    """The figure of :func:`bifurcation_figure` (``diagram``: the nominal model's to 5 V,
+    computed if not given); returns the matplotlib figure."""
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from drill_env.analysis import bifurcation_diagram
+    from drill_env.analysis.plots import plot_bifurcation
+
+    ctrls = ordered_controllers(df["controller"])
+    diagram = diagram if diagram is not None else bifurcation_diagram(preset, u_max=5.0)
+    tops = [float(np.max([c.x3_max for c in seg.cycles])) for seg in diagram.periodic_segments]
+    tops += [float(np.max(b.x3)) for b in diagram.equilibrium_branches]
+    y_hi = 1.15 * max(tops + [1.0])
+    y_lo = -0.08 * y_hi
+    ncol = 4
+    nrow = -(-len(ctrls) // ncol)
+    fig, axes = plt.subplots(
+        nrow, ncol, figsize=(17, 3.9 * nrow + 0.6), sharex=True, sharey=True, squeeze=False
+    )
+    flat = [a for row in axes for a in row]
+    handles: list = []
+    for ax, c in zip(flat, ctrls, strict=False):
+        plot_bifurcation(diagram, ax, annotate=False, legend=False, lw=1.0, alpha=0.5)
+        handles = handles or list(ax.diagram_handles)
+        r = df[df["controller"] == c]
+        u = r["voltage"].to_numpy(dtype=float)
+        hi, lo = r["x3_max"].to_numpy(dtype=float), r["x3_min"].to_numpy(dtype=float)
+        col, m = controller_style(c).colour, controller_style(c).marker
+        inside_hi, inside_lo = hi <= y_hi, lo >= y_lo
+        both = inside_hi & inside_lo  # a run beyond the scale gets no bar across the panel
+        ax.vlines(u[both], lo[both], hi[both], color=col, lw=1.0, alpha=0.8, zorder=4)
+        ax.plot(u[inside_hi], hi[inside_hi], m, color=col, ms=4.5, mfc="white", zorder=5)
+        ax.plot(u[inside_lo], lo[inside_lo], m, color=col, ms=4.5, mfc="white", zorder=5)
+        for beyond, y_edge, m_edge in ((~inside_hi, y_hi, "^"), (~inside_lo, y_lo, "v")):
+            if beyond.any():  # on the frame, unclipped (an empty unclipped line would stretch
+                # the layout to the figure's corner)
+                ax.plot(
+                    u[beyond], np.full(beyond.sum(), y_edge), m_edge, color=col, ms=6, clip_on=False, zorder=6
+                )
+        title = c
+        off = ~(inside_hi & inside_lo)
+        if off.any():
+            vs = u[off]
+            title += (
+                f"\n{int(off.sum())} runs off scale ({vs.min():g}-{vs.max():g} V):"
+                f"\nx3 from {lo[off].min():.1f} to {hi[off].max():.1f} rad/s"
+            )
+        ax.set_title(title, fontsize=9, color=col if c != "open_loop" else "black")
+        ax.set_xlabel("")
+        ax.set_ylabel("")
+    for ax in flat[len(ctrls) :]:
+        ax.axis("off")
+    for row in axes:
+        row[0].set_ylabel("steady min / max of x3 [rad/s]", fontsize=9)
+    for ax in axes[-1]:
+        ax.set_xlabel("nominal voltage u [V]", fontsize=9)
+    for k, ax in enumerate(flat[: len(ctrls)]):
+        if k + ncol >= len(ctrls):  # the lowest panel of its column
+            ax.tick_params(labelbottom=True)
+            ax.set_xlabel("nominal voltage u [V]", fontsize=9)
+    ax0 = flat[0]
+    ax0.set_ylim(y_lo, y_hi)
+    ax0.set_xlim(0.0, 5.1)
+    handles = [h for h in handles if "simulation" not in h.get_label()]
+    handles += [
+        Line2D(
+            [],
+            [],
+            color="0.3",
+            marker="o",
+            mfc="white",
+            ms=4.5,
+            lw=1.0,
+            label="a run's steady min and max of x3",
+        ),
+        Line2D(
+            [], [], color="0.3", marker="^", ls="none", ms=6, label="run off scale (range under the title)"
+        ),
+    ]
+    ncol_legend = 4
+    fig.legend(handles=handles, loc="lower center", fontsize=8, ncol=ncol_legend, frameon=False)
+    fig.suptitle(
+        f"{preset}: each controller's closed-loop runs (one per seed; steady state: the last "
+        f"{EpisodeSettings().window:g} s) on the nominal model's bifurcation diagram (faded)",
+        fontsize=11,
+    )
+    legend_rows = -(-len(handles) // ncol_legend)
+    fig.tight_layout(rect=(0, (0.3 + 0.2 * legend_rows) / fig.get_figheight(), 1, 1))
+    return fig
+
+
+def _regime_handles(preset: str) -> list:
+    """Legend entries of the regime shading of the suppression figures."""
+    from matplotlib.patches import Patch
+
+    present = {name for name, _, _ in _regime_spans(preset)}
+    return [
+        Patch(color=_REGIME_SHADES[name], alpha=0.15, label=f"nominal model: {REGIMES[name]}")
+        for name in ("limit_cycle", "stick_slip")
+        if name in present
+    ]
+
+
+_REGIME_SHADES = {"limit_cycle": "tab:orange", "stick_slip": "tab:red"}
+FLOOR_BAND = 0.45  # [-] height of the band under the floor where off-scale means are written
+
+
+def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False) -> None:
+    """Suppression against voltage of each controller (mean over seeds, seed range as bars),
+    every marker at its run's voltage. Means below the floor are drawn on it and written in
+    a band beneath it (only when not ``small``)."""
+    cyc = df[df["open_loop_amplitude"] > 0]
+    for name, lo, hi in _regime_spans(preset):
+        if name in _REGIME_SHADES:
+            ax.axvspan(lo, hi, color=_REGIME_SHADES[name], alpha=0.15, lw=0, zorder=0)
+    floored: list[tuple[float, float, str]] = []
+    for c in ctrls:
+        r = cyc[cyc["controller"] == c]
+        if r.empty:
+            continue
+        g = r.groupby("voltage")["suppression"]
+        v = np.array(sorted(g.groups))
+        mean, lo, hi = g.mean().loc[v].to_numpy(), g.min().loc[v].to_numpy(), g.max().loc[v].to_numpy()
+        shown = np.maximum(mean, Y_FLOOR)
+        ax.errorbar(
+            v,
+            shown,
+            yerr=[shown - np.maximum(lo, Y_FLOOR), np.maximum(hi, Y_FLOOR) - shown],
+            fmt=controller_style(c).marker + "-",
+            color=controller_style(c).colour,
+            mfc="none",
+            mew=1.0,
+            ms=3 if small else 6,
+            lw=0.8 if small else 1,
+            capsize=0 if small else 2,
+            label=c,
+        )
+        floored += [(float(vv), float(mm), c) for vv, mm in zip(v, mean, strict=True) if mm < Y_FLOOR]
+    ax.axhline(0.0, color="gray", lw=0.8)
+    ax.axhline(1.0, color="gray", lw=0.8, ls=":")
+    from drill_env.analysis.plots import AMPLIFIER_LIMIT_V
+
+    ax.axvline(AMPLIFIER_LIMIT_V, color="tab:purple", lw=1.0, ls="-.", zorder=1)
+    lo_y = (
+        min(-0.5, float(np.nanmin(cyc["suppression"])) - 0.05) if cyc["suppression"].notna().any() else -0.5
+    )
+    bottom = max(lo_y, Y_FLOOR - 0.1)
+    if floored and not small:
+        bottom = Y_FLOOR - FLOOR_BAND
+        ax.axhspan(bottom, Y_FLOOR - 0.04, color="white", zorder=2.5)  # a band clear of lines
+        ax.axhline(Y_FLOOR - 0.04, color="0.5", lw=0.6, ls="--", zorder=2.6)
+        rows: dict[float, int] = {}
+        for vv, mm, c in sorted(floored):
+            k = rows.get(vv, 0)
+            rows[vv] = k + 1
+            ax.annotate(
+                f"{mm:.1f}",
+                (vv, Y_FLOOR - 0.04),
+                xytext=(0, -3 - 9 * k),
+                textcoords="offset points",
+                fontsize=7,
+                color=controller_style(c).colour,
+                ha="center",
+                va="top",
+                zorder=3,
+            )
+    ax.set_ylim(bottom, 1.1)
+    ax.set_xlim(0.0, 5.1)
+    ax.grid(alpha=0.3)
+
+
+def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls) -> list[Path]:
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    fig, ax = plt.subplots(figsize=(12.5, 5.2))
+    _draw_suppression(ax, df, preset, ctrls)
+    ax.set_xlabel("nominal voltage u [V]")
+    ax.set_ylabel("suppression = 1 - amplitude / open-loop amplitude [-]")
+    on = "" if plant == NOMINAL else f" on plant {plant} (reference: the open-loop run on it)"
+    ax.set_title(f"{preset}{on}: suppression of the open-loop cycle", fontsize=10)
+    handles, _ = ax.get_legend_handles_labels()
+    handles = [Line2D([], [], ls="none", label="mean over seeds, bar: min-max:"), *handles]
+    handles += [
+        Line2D([], [], color="gray", lw=0.8, ls=":", label="1: cycle removed"),
+        Line2D([], [], color="gray", lw=0.8, label="0: amplitude as open loop"),
+        Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="amplifier limit 5 V"),
+        *_regime_handles(preset),
+    ]
+    if any(t.get_text() for t in ax.texts):
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="0.5",
+                lw=0.6,
+                ls="--",
+                label=f"below {Y_FLOOR:g}: drawn at {Y_FLOOR:g},\nmean written under the dashed line",
+            )
+        )
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    fig.tight_layout()
+    p = out / (f"suppression_{preset}.png" if plant == NOMINAL else f"suppression_{preset}_{plant}.png")
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return [p]
+
+
+def _plants_figure(df, preset: str, out: Path, plants: Sequence[str]) -> Path:
+    """``suppression_<preset>_plants.png``: the suppression figure of every plant other than
+    the nominal one as small multiples (one panel per plant, shared axes)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    ok = df[(df["preset"] == preset) & (df["error"] == "")]
+    ctrls = ordered_controllers(ok["controller"])
+    ncol = 4
+    nrow = -(-(len(plants) + 1) // ncol)  # one slot for the legend
+    fig, axes = plt.subplots(
+        nrow, ncol, figsize=(16, 2.6 * nrow + 1.0), sharex=True, sharey=True, squeeze=False
+    )
+    flat = [a for row in axes for a in row]
+    for k, plant in enumerate(plants):
+        ax = flat[k]
+        _draw_suppression(ax, ok[ok["plant"] == plant], preset, ctrls, small=True)
+        ax.set_title(plant, fontsize=9)
+        ax.set_ylim(Y_FLOOR - 0.1, 1.1)
+        if k % ncol == 0:
+            ax.set_ylabel("suppression [-]")
+        if k + ncol >= len(plants):  # the lowest panel of its column
+            ax.set_xlabel("nominal voltage u [V]")
+            ax.tick_params(labelbottom=True)
+    for ax in flat[len(plants) :]:
+        ax.axis("off")
+    handles, _ = flat[0].get_legend_handles_labels()
+    handles = [Line2D([], [], ls="none", label="mean over seeds, bar: min-max:"), *handles]
+    handles += [
+        Line2D([], [], color="gray", lw=0.8, ls=":", label="1: cycle removed"),
+        Line2D([], [], color="gray", lw=0.8, label="0: amplitude as open loop"),
+        Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="amplifier limit 5 V"),
+        *_regime_handles(preset),
+    ]
+    fig.suptitle(
+        f"{preset}: suppression on each plant, controllers designed on the nominal model "
+        f"(reference: the open-loop run on the same plant; means below {Y_FLOOR:g} drawn at {Y_FLOOR:g})",
+        fontsize=10,
+    )
+    fig.tight_layout(rect=(0, 0, 1, 0.985))
+    # after the layout, which would otherwise shrink every panel to the legend's width
+    flat[len(plants)].legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(0.05, 0.95), fontsize=8, frameon=False, ncol=3
+    )
+    p = out / f"suppression_{preset}_plants.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    return p
+
+
+@functools.lru_cache(maxsize=8)
+def _regime_spans(preset: str) -> list[tuple[str, float, float]]:
+    from drill_env.envs.task import operating_regimes
+    from drill_env.params import load_params
+
+    return list(operating_regimes(load_params(preset)).intervals)

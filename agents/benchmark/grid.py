@@ -1,0 +1,130 @@
+"""The benchmark's grid: presets, voltages, seeds, controllers and plants of a benchmark
+(:class:`BenchmarkConfig`) and its runs (:class:`Job`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from agents.evaluation import EpisodeSettings
+from agents.plants import NOMINAL, Plant
+from agents.registry import CONTROLLERS
+
+# Voltages [V] of the grid per preset. Brake: 0.2-5 V across the three regimes (A = 0.116,
+# Hopf B = 0.583, stick-slip from D = 1.781 V). No brake: every regime of Fig. 8(a)
+# (B = 0.489, D = 0.600, E = 1.294, C = 1.430, F = 1.661 V).
+FULL_GRID: dict[str, tuple[float, ...]] = {
+    "brake": (0.2, 0.3, 0.4, 0.5, 0.7, 0.85, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0),
+    "no_brake": (0.2, 0.3, 0.4, 0.55, 0.7, 0.85, 1.0, 1.15, 1.35, 1.5, 1.6, 1.8, 2.5, 3.5, 5.0),
+}
+QUICK_GRID: dict[str, tuple[float, ...]] = {
+    "brake": (0.4, 1.0, 2.0, 4.0),
+    "no_brake": (0.3, 0.55, 1.0, 1.5),
+}
+FULL_SEEDS = (0, 1, 2, 3, 4)
+QUICK_SEEDS = (0,)
+
+
+@dataclass(frozen=True)
+class Job:
+    controller: str
+    preset: str
+    voltage: float
+    seed: int
+    plant: str = NOMINAL
+
+    @property
+    def key(self) -> tuple[str, str, str, float, int]:
+        return (self.controller, self.preset, self.plant, round(self.voltage, 9), self.seed)
+
+
+@dataclass(frozen=True)
+class BenchmarkConfig:
+    """The grid and the episode settings of a benchmark."""
+
+    presets: tuple[str, ...] = ("brake", "no_brake")
+    controllers: tuple[str, ...] = CONTROLLERS
+    voltages: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(FULL_GRID))
+    seeds: tuple[int, ...] = FULL_SEEDS
+    episode: EpisodeSettings = field(default_factory=EpisodeSettings)
+    agents_dir: str | None = None  # where the trained policies are (default: results/agents)
+    gains_file: str | None = None  # tuned gains (default: configs/agents/controllers.yaml)
+    plants: tuple[Plant, ...] = (Plant(),)  # the rigs every controller runs on
+
+    def __post_init__(self) -> None:
+        from drill_env.envs.task import VOLTAGE_LIMIT
+        from drill_env.params import load_params
+
+        if not self.presets:
+            raise ValueError("presets: expected at least one of ['brake', 'no_brake']")
+        for p in self.presets:
+            if p not in ("brake", "no_brake"):
+                raise ValueError(f"presets: {p!r} is not one of ['brake', 'no_brake']")
+        if not self.controllers:
+            raise ValueError(f"controllers: expected at least one of {list(CONTROLLERS)}")
+        for c in self.controllers:
+            if c not in CONTROLLERS:
+                raise ValueError(f"controllers: {c!r} is not one of {list(CONTROLLERS)}")
+        if not self.seeds:
+            raise ValueError("seeds: expected at least one seed")
+        for s in self.seeds:
+            if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
+                raise ValueError(f"seeds: {s!r} is not an integer >= 0")
+        volts = {}
+        for p in self.presets:
+            vs = tuple(float(v) for v in self.voltages.get(p, ()))
+            if not vs:
+                raise ValueError(f"voltages: no voltages for preset {p!r}")
+            uc1 = load_params(p).uc1
+            for v in vs:
+                if not (math.isfinite(v) and uc1 < v <= VOLTAGE_LIMIT):
+                    raise ValueError(
+                        f"voltages: {v!r} V for {p!r} is outside the allowed range ({uc1:.4g}, {VOLTAGE_LIMIT:g}] V"
+                    )
+            volts[p] = vs
+        if not self.plants or not all(isinstance(p, Plant) for p in self.plants):
+            raise ValueError("plants: expected one or more Plant (default: the nominal model)")
+        names = [p.name for p in self.plants]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"plants: the name(s) {dup} appear twice (a plant is named by its file's stem)")
+        object.__setattr__(self, "plants", tuple(self.plants))
+        object.__setattr__(self, "voltages", volts)
+        object.__setattr__(self, "presets", tuple(self.presets))
+        object.__setattr__(self, "controllers", tuple(self.controllers))
+        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+
+    @classmethod
+    def preset_grid(
+        cls, presets: Sequence[str] = ("brake", "no_brake"), *, quick: bool = False, **kwargs: Any
+    ) -> BenchmarkConfig:
+        grid = QUICK_GRID if quick else FULL_GRID
+        kwargs.setdefault("seeds", QUICK_SEEDS if quick else FULL_SEEDS)
+        return cls(presets=tuple(presets), voltages={p: grid[p] for p in presets}, **kwargs)
+
+    def plant(self, name: str) -> Plant:
+        for p in self.plants:
+            if p.name == name:
+                return p
+        raise ValueError(f"plant: {name!r} is not one of {[p.name for p in self.plants]}")
+
+    def jobs(self) -> list[Job]:
+        return [
+            Job(c, p, v, s, plant.name)
+            for p in self.presets
+            for plant in self.plants
+            for v in self.voltages[p]
+            for s in self.seeds
+            for c in self.controllers
+        ]
+
+    def settings_record(self) -> dict[str, Any]:
+        """What must match for a resumed benchmark (the grid may grow)."""
+        rec: dict[str, Any] = {"episode": self.episode.to_dict()}
+        if any(not p.is_nominal for p in self.plants):
+            rec["plants"] = [p.record() for p in self.plants if not p.is_nominal]
+        return rec

@@ -1,0 +1,117 @@
+"""One benchmark run, in whichever process runs it: the controller on the plant at one
+(controller, preset, plant, voltage, seed) through the one evaluation path."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from typing import Any
+
+from agents.benchmark.grid import BenchmarkConfig, Job
+from agents.benchmark.store import COLUMNS
+from agents.plants import NOMINAL
+
+# [rad/s] below this open-loop amplitude a plant has no cycle to suppress (suppression NaN):
+# the closed loops leave a steady amplitude of 0.005-0.05 rad/s from encoder quantisation on
+# the nominal model, so a smaller "cycle" cannot be suppressed measurably (the smallest cycle
+# the analysis predicts on the grid is 1.2 rad/s)
+OPEN_LOOP_FLOOR = 0.1
+
+_ENVS: dict[tuple[str, str], Any] = {}
+_CONTROLLERS: dict[tuple[Any, ...], Any] = {}
+
+
+def _worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
+    """Evaluate one job; environments and controllers are cached per process. An exception
+    becomes a row with NaN metrics and the message in ``error``."""
+    from agents.evaluation import evaluate, make_env
+    from agents.registry import build_controller, observation_version
+
+    t0 = time.perf_counter()
+    try:
+        # cached per process, keyed by everything they are built from
+        version = observation_version(job.controller, job.preset, cfg.agents_dir)
+        episode_key = json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str)
+
+        def env_of(plant: str, v: int):
+            key = (job.preset, v, episode_key, plant)
+            if key not in _ENVS:
+                q = cfg.plant(plant)
+                _ENVS[key] = make_env(
+                    job.preset, cfg.episode, v, params=q.rig(job.preset), overrides=q.env_overrides()
+                )
+            return _ENVS[key]
+
+        # the controller is built on the nominal model (its design), then run on the plant
+        design_env = env_of(NOMINAL, version)
+        ctrl_key = (job.controller, job.preset, version, episode_key, cfg.agents_dir, cfg.gains_file)
+        ctrl = _CONTROLLERS.get(ctrl_key)
+        if ctrl is None:
+            ctrl = _CONTROLLERS[ctrl_key] = build_controller(
+                job.controller, design_env, job.preset, agents_dir=cfg.agents_dir, gains_file=cfg.gains_file
+            )
+        reference = None if job.plant == NOMINAL else _plant_open_loop(job, cfg, env_of(job.plant, 0))
+        row = evaluate(
+            ctrl,
+            job.preset,
+            job.voltage,
+            job.seed,
+            cfg.episode,
+            name=job.controller,
+            env=env_of(job.plant, version),
+            open_loop_amplitude=reference,
+        ).as_dict()
+        row["plant"] = job.plant
+        row["error"] = ""
+    except Exception as exc:  # recorded, the benchmark goes on
+        row = {c: math.nan for c in COLUMNS}
+        row.update(
+            controller=job.controller, preset=job.preset, plant=job.plant, voltage=job.voltage, seed=job.seed
+        )
+        row.update(regime="", sim_status=-1, wall_time=time.perf_counter() - t0)
+        row["error"] = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+    return row
+
+
+_OPEN_LOOP: dict[tuple[Any, ...], float] = {}
+
+
+def _plant_open_loop(job: Job, cfg: BenchmarkConfig, env: Any) -> float:
+    """The open-loop amplitude on ``job``'s plant at its voltage and seed (cached per process):
+    the reference of the suppression where the bifurcation analysis (nominal model) does not
+    apply. 0 below :data:`OPEN_LOOP_FLOOR` (no cycle: suppression NaN)."""
+    from agents.base import ControllerSpec
+    from agents.evaluation import evaluate
+    from agents.open_loop import OpenLoop
+
+    key = (
+        job.preset,
+        job.plant,
+        round(job.voltage, 9),
+        job.seed,
+        json.dumps(cfg.episode.to_dict(), default=str),
+    )
+    if key not in _OPEN_LOOP:
+        m = evaluate(
+            OpenLoop(ControllerSpec.from_env(env)),
+            job.preset,
+            job.voltage,
+            job.seed,
+            cfg.episode,
+            env=env,
+            open_loop_amplitude=0.0,
+        )
+        _OPEN_LOOP[key] = m.amplitude if m.amplitude >= OPEN_LOOP_FLOOR else 0.0
+    return _OPEN_LOOP[key]
+
+
+def _run_chunk(jobs: list[Job], cfg: BenchmarkConfig) -> list[dict[str, Any]]:
+    _worker_init()
+    return [run_job(j, cfg) for j in jobs]

@@ -1,0 +1,164 @@
+"""Package layout: the core (drill_env) never imports the controllers (agents), no module
+imports another that imports it back (lazy and type-only imports count), and the registry
+is the one list of controllers the figures and the command line draw on."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("drill_env", "agents")
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = path
+    return out
+
+
+def _imports(module: str, path: Path, known: set[str]) -> set[str]:
+    """Every module of ``known`` that ``module`` imports anywhere in its source."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(parent + ([base] if base else []))
+            names = [base] + [f"{base}.{a.name}" for a in node.names]
+        else:
+            continue
+        for name in names:
+            while name and name not in known:
+                name = name.rpartition(".")[0]
+            if name and name != module and not module.startswith(name + "."):
+                found.add(name)
+    return found
+
+
+def _graph() -> dict[str, set[str]]:
+    mods = _modules()
+    return {m: _imports(m, p, set(mods)) for m, p in mods.items()}
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle as a path, or None (depth-first search with colours)."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m: str) -> list[str] | None:
+        state[m] = 1
+        stack.append(m)
+        for n in sorted(graph[m]):
+            if state.get(n) == 1:
+                return stack[stack.index(n) :] + [n]
+            if n not in state and (found := visit(n)):
+                return found
+        state[m] = 2
+        stack.pop()
+        return None
+
+    for m in sorted(graph):
+        if m not in state and (found := visit(m)):
+            return found
+    return None
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) is None
+
+
+def test_relative_and_lazy_imports_are_edges():
+    graph = _graph()
+    assert "drill_env.analysis.plots" in graph["drill_env.analysis.diagram"]  # lazy, in .plot()
+    assert "drill_env.analysis.equilibria" in graph["drill_env.analysis.continuation"]
+
+
+def test_no_import_cycles():
+    assert _cycle(_graph()) is None
+
+
+def test_the_core_does_not_import_the_controllers():
+    graph = _graph()
+    offenders = {m: sorted(d for d in deps if d.split(".")[0] == "agents") for m, deps in graph.items()}
+    assert {m: d for m, d in offenders.items() if m.startswith("drill_env") and d} == {}
+
+
+def test_controller_commands_come_from_the_agents_package():
+    from drill_env.cli import COMMAND_PACKAGES, app
+
+    assert COMMAND_PACKAGES.index("drill_env.commands") < COMMAND_PACKAGES.index("agents.commands")
+    names = {c.name or c.callback.__name__ for c in app.registered_commands}
+    assert {"simulate", "bifurcation", "benchmark", "tune", "train"} <= names
+    modules = {c.name: c.callback.__module__ for c in app.registered_commands if c.name}
+    assert {modules[n] for n in ("benchmark", "tune", "train")} == {
+        "agents.commands.benchmark",
+        "agents.commands.tune",
+        "agents.commands.train",
+    }
+
+
+def test_every_controller_has_its_own_style():
+    from agents.benchmark import _MARKERS
+    from agents.registry import CONTROLLERS, controller_style
+    from agents.robustness import COLORS
+
+    assert set(COLORS) == set(_MARKERS) == set(CONTROLLERS)
+    styles = [controller_style(c) for c in CONTROLLERS]
+    assert len(set(s.colour for s in styles)) == len(styles)
+    assert len(set(s.marker for s in styles)) == len(styles)
+
+
+@pytest.mark.parametrize("added", [("ppo_robust",), ("ppo_robust", "sac_robust", "td3")])
+def test_a_controller_added_to_the_list_gets_a_style_of_its_own(monkeypatch, added):
+    from agents import registry
+
+    monkeypatch.setattr(registry, "CONTROLLERS", registry.CONTROLLERS + added)
+    styles = [registry.controller_style(c) for c in registry.CONTROLLERS]
+    assert len(set(s.colour for s in styles)) == len(styles)
+    assert len(set(s.marker for s in styles)) == len(styles)
+    assert registry.controller_style("not_a_controller") == ("gray", "o")
+
+
+def test_commands_from_an_entry_point_and_a_missing_package(monkeypatch):
+    import importlib.metadata
+
+    import typer
+
+    from drill_env import cli
+
+    class EntryPoint:
+        def load(self):
+            def register(app):
+                @app.command("hello")
+                def hello() -> None:
+                    typer.echo("hello")
+
+            return register
+
+    seen = []
+
+    def entry_points(group):
+        seen.append(group)
+        return [EntryPoint()]
+
+    app = typer.Typer()
+    monkeypatch.setattr(cli, "app", app)
+    monkeypatch.setattr(cli, "COMMAND_PACKAGES", (*cli.COMMAND_PACKAGES, "no_such_package.commands"))
+    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
+    cli._register_commands()
+    names = {c.name for c in app.registered_commands}
+    assert seen == [cli.ENTRY_POINT_GROUP]
+    assert {"bifurcation", "benchmark", "tune", "train", "hello"} <= names
