@@ -86,6 +86,14 @@ def test_position_friction_moves_the_low_voltage_mean_speed(tmp_path):
     assert "rotation" in quiet["model"]
 
 
+def test_a_model_without_the_cycle_reports_no_oscillation_against_the_band():
+    model = dataclasses.replace(load_params("brake"), effects=ModelEffects(string_damping=0.01))
+    rows = _rows(rig_comparison(model))
+    row = rows[("dominant frequency", 0.7)]
+    assert row.model == "no oscillation" and row.agrees is False and row.rig == "0.21-0.22 Hz"
+    assert rows[("torsional vibration", 0.7)].agrees is False
+
+
 def test_params_bad_input_is_one_line(tmp_path):
     bad = tmp_path / "m.yaml"
     bad.write_text("motor_constant: -1\n")

@@ -39,6 +39,9 @@ SIM_DT = 0.01  # [s] output sample period of the simulation
 # a steady state whose lower-disk speed swings by more than this share of its mean (or of
 # 0.05 rad/s near standstill) oscillates
 OSCILLATION_SHARE = 0.1
+# harmonics of the lower disk's rotation left out of the torsional vibration's frequency when
+# the model has position-dependent friction (its modulation and the nonlinear response to it)
+ROTATION_HARMONICS = (1, 2, 3, 4)
 
 # (quantity, voltage [V], value, unit); a frequency band is (low, high).
 RIG_MEASUREMENTS = (
@@ -224,7 +227,7 @@ def simulated_steady_state(params: RigParams, u: float) -> SimulatedSteadyState:
     """Long simulation from rest at the constant voltage ``u``; the record after the transient.
 
     With position-dependent friction the speed carries lines at the rotation rate and its
-    double; they are left out of the torsional vibration's frequency. Without it they are
+    harmonics (:data:`ROTATION_HARMONICS`); they are left out of the torsional vibration's frequency. Without it they are
     not: the paper's limit cycle at 1.0 V lies within 3 % of the rotation rate."""
     from drill_env.simulator import simulate
 
@@ -239,9 +242,9 @@ def simulated_steady_state(params: RigParams, u: float) -> SimulatedSteadyState:
     f_rot = abs(mean) / (2.0 * math.pi)
     eff = params.effects
     position = any(getattr(eff, f"{d}_position_amp_{k}") != 0.0 for d in ("lower", "upper") for k in (1, 2))
-    lines = (f_rot, 2.0 * f_rot) if f_rot > 0.0 else ()
+    lines = tuple(k * f_rot for k in ROTATION_HARMONICS) if f_rot > 0.0 else ()
     rot_amp = 0.0
-    for fx in lines:
+    for fx in lines[:2]:
         ph = 2.0 * math.pi * fx * t
         c = np.column_stack([np.cos(ph), np.sin(ph), np.ones_like(t)])
         coef, *_ = np.linalg.lstsq(c, x3, rcond=None)
@@ -315,7 +318,7 @@ def _frequency_row(u, rig, unit, f: float, extra: str, method: str) -> Compariso
     if isinstance(rig, tuple):
         mid = 0.5 * (rig[0] + rig[1])
         agrees = rig[0] <= f <= rig[1]
-        rig_s = f"{rig[0]:g}-{rig[1]:g} {unit}"
+        rig_s = _fmt(rig, unit)
         edge = rig[1] if f > rig[1] else rig[0]
         note = (
             ""
@@ -362,6 +365,8 @@ def _by_simulation(params: RigParams, active: dict[str, float]) -> RigComparison
                 desc += f" at {s.frequency_hz:.4f} Hz, x3 in [{s.x3_min:.3f}, {s.x3_max:.3f}] rad/s"
             else:
                 desc = f"none (x3 in [{s.x3_min:.3f}, {s.x3_max:.3f}] rad/s)"
+                if s.x3_max - s.x3_min > OSCILLATION_SHARE * max(abs(s.mean_speed), 0.05):
+                    desc += "; the speed swings only at harmonics of the rotation (a cycle entrained or suppressed)"
             if s.rotation_line > 1e-3:
                 desc += f"; speed modulated by the rotation ({s.rotation_line:.3f} rad/s at {s.rotation_hz:.4f} Hz or its double)"
             rows.append(
@@ -397,4 +402,6 @@ def _by_simulation(params: RigParams, active: dict[str, float]) -> RigComparison
 
 
 def _fmt(value, unit: str) -> str:
+    if isinstance(value, tuple):  # a band
+        return f"{value[0]:g}-{value[1]:g} {unit}".strip()
     return f"{value:g} {unit}".strip()
