@@ -94,6 +94,19 @@ def test_a_model_without_the_cycle_reports_no_oscillation_against_the_band():
     assert rows[("torsional vibration", 0.7)].agrees is False
 
 
+def test_recalibrated_parameters_are_not_called_the_papers_model():
+    model = load_params("brake").replace(lower_static=load_params("brake").lower_static * 1.05)
+    comp = rig_comparison(model, method="simulation")
+    assert comp.preset == "brake, modified"
+    assert "not from the paper" in comp.to_markdown()
+    # a higher static friction slows the lower disk at 0.2 V
+    rows = _rows(comp)
+    assert (
+        float(rows[("mean lower-disk speed", 0.2)].model.split()[0])
+        < ANALYSIS[("mean lower-disk speed", 0.2)]
+    )
+
+
 def test_params_bad_input_is_one_line(tmp_path):
     bad = tmp_path / "m.yaml"
     bad.write_text("motor_constant: -1\n")

@@ -29,7 +29,7 @@ import numpy as np
 
 from drill_env.analysis.equilibria import equilibria, hopf_points, nominal_vector
 from drill_env.analysis.shooting import LimitCycle, limit_cycle
-from drill_env.params import RigParams, resolve_params
+from drill_env.params import ParameterError, RigParams, available_presets, load_params, resolve_params
 
 __all__ = ["RIG_MEASUREMENTS", "ComparisonRow", "RigComparison", "SimulatedSteadyState", "rig_comparison"]
 
@@ -276,7 +276,7 @@ def rig_comparison(params: RigParams | str | Path = "brake", *, method: str = "a
         method = "simulation" if active else "analysis"
     if method == "simulation":
         return _by_simulation(params, active)
-    preset = params.name
+    preset = _label(params)
     params, _ = nominal_vector(params)
     cycles: dict[float, LimitCycle | None] = {}
 
@@ -398,7 +398,20 @@ def _by_simulation(params: RigParams, active: dict[str, float]) -> RigComparison
                     has_position=has_position,
                 )
             )
-    return RigComparison(preset=params.name, rows=rows, hopf_u=None, effects=active, method="simulation")
+    return RigComparison(preset=_label(params), rows=rows, hopf_u=None, effects=active, method="simulation")
+
+
+def _label(params: RigParams) -> str:
+    """The preset's name if the parameters (effects aside) are the preset's, else marked modified:
+    a recalibrated model is no longer the paper's."""
+    if params.name not in available_presets():
+        return params.name
+    try:
+        ref = load_params(params.name)
+    except ParameterError:
+        return params.name
+    same = all(getattr(ref, k) == getattr(params, k) for k in RigParams._RANGES)
+    return params.name if same else f"{params.name}, modified"
 
 
 def _fmt(value, unit: str) -> str:
