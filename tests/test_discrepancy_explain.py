@@ -42,14 +42,27 @@ def test_external_torque_is_locked_to_time_with_its_amplitude(seed, amp):
     # the torque acts on the lower disk: what shows on the upper one is much smaller
     assert sig.amplitude_nm.get("upper", 0.0) < 0.2 * sig.amplitude_nm["lower"]
     assert sum(r["shown"] for r in sig.runs) >= len(sig.runs) - 1
+    assert sig.significant and sig.drops["time"] > sig.threshold
     assert "locked to time" in sig.summary()
+
+
+def test_no_effect_gives_no_significant_line():
+    cfg = SynthConfig(
+        voltages=(0.5, 1.0, 2.0), random_runs=1, duration_s=60.0, pre_roll_s=30.0, angle_noise_std=1e-3
+    )
+    syn = make_dataset("none", seed=31, config=cfg)
+    noise = estimate_angle_noise(syn.runs, 2 * np.pi / cfg.encoder_counts_per_rev)
+    eqs = [RunEquations(r, NOMINAL, noise) for r in syn.runs]
+    sig = line_signature(eqs, line_scan(eqs, DecisionRule()).frequency_hz)
+    assert not sig.significant
+    assert sig.summary().startswith("no line stands out")
 
 
 @pytest.mark.parametrize("seed", [13, 14])
 def test_position_locked_line_is_locked_to_the_lower_disk_rotation(seed):
     # position friction outside the candidates considered here: only the signature is asked
     _, sig, syn = _signature("position_friction_lower", seed, 0.12)
-    assert sig.locked_to == "lower disk rotation"
+    assert sig.locked_to == "lower disk rotation" and sig.significant
     assert sig.harmonic == 1
     assert np.isnan(sig.frequency_hz)
     # the runs turn at different rates, so a fixed frequency cannot carry the line

@@ -448,6 +448,8 @@ class LineSignature:
     drops: dict[str, float]  # per hypothesis, drop of the sum of squares (noise units)
     amplitude_nm: dict[str, float]  # per disk: median over the runs that show it [N m]
     runs: list[dict[str, Any]]  # per run: name, voltage, rotation rates, amplitudes, shown
+    threshold: float = float("nan")  # chi^2 level the winning drop must pass (Bonferroni)
+    significant: bool = True
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -463,6 +465,8 @@ class LineSignature:
         shown = f"shows in {len(where)} of {len(self.runs)} runs"
         if volts:
             shown += " (constant voltages " + ", ".join(f"{v:g}" for v in volts) + " V)"
+        if not self.significant:
+            return f"no line stands out (the strongest, {what}, does not pass its test); {shown}"
         return f"{what}; torque amplitude {amp}; {shown}"
 
 
@@ -528,13 +532,15 @@ def _refine_time_frequency(eqs: list[RunEquations], f0: float) -> float:
     return best
 
 
-def line_signature(eqs: list[RunEquations], frequency_hz: float) -> LineSignature:
+def line_signature(eqs: list[RunEquations], frequency_hz: float, alpha: float = 1e-4) -> LineSignature:
     """Which clock a residual line keeps (time, a disk's rotation, the voltage), with its torque.
 
     ``frequency_hz`` is the common line found by :func:`line_scan`; a line locked to a disk's
     rotation shows there only where runs happen to share a speed, so every hypothesis is
     fitted on its own and the largest drop of the sum of squares decides. A run shows the
-    line when the drop on one of its disks passes chi^2_2 at 1 % (chi^2_1 for the voltage)."""
+    line when the drop on one of its disks passes chi^2_2 at 1 % (chi^2_1 for the voltage). The
+    winning drop is significant when it passes chi^2 at ``alpha`` / (number of hypotheses) with
+    its degrees of freedom (2 per run and disk; 1 for the voltage)."""
     freq = _refine_time_frequency(eqs, frequency_hz) if math.isfinite(frequency_hz) else float("nan")
     hyps = ["time"] if math.isfinite(freq) else []
     hyps += [f"{d}_rotation_{k}" for d in ("lower", "upper") for k in LOCK_HARMONICS]
@@ -543,7 +549,10 @@ def line_signature(eqs: list[RunEquations], frequency_hz: float) -> LineSignatur
     fits = {h: _fit_hypothesis(eqs, h, freq) for h in hyps}
     drops = {h: float(sum(d for run in f for d, _ in run.values())) for h, f in fits.items()}
     best = max(drops, key=drops.get)
-    single = float(stats.chi2.isf(0.01, 1 if best == "voltage" else 2))
+    per = 1 if best == "voltage" else 2
+    single = float(stats.chi2.isf(0.01, per))
+    dof = per * sum(len(run) for run in fits[best])
+    threshold = float(stats.chi2.isf(alpha / len(hyps), max(dof, 1)))
     runs = []
     amps: dict[str, list[float]] = {"upper": [], "lower": []}
     for eq, res in zip(eqs, fits[best], strict=True):
@@ -575,6 +584,8 @@ def line_signature(eqs: list[RunEquations], frequency_hz: float) -> LineSignatur
         drops=drops,
         amplitude_nm={d: float(np.median(v)) for d, v in amps.items() if v},
         runs=runs,
+        threshold=threshold,
+        significant=bool(drops[best] > threshold),
     )
 
 
