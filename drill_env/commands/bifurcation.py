@@ -128,6 +128,12 @@ def register(app: typer.Typer) -> None:
     def rig_comparison_cmd(
         preset: str = typer.Option("brake", help="Rig preset; the paper's measurements are with the brake."),
         out: Path | None = typer.Option(None, help="Markdown file to write (a .json beside it)."),
+        params: Path | None = typer.Option(
+            None,
+            "--params",
+            help="A rig YAML to compare instead of the preset (effects included, e.g. a discrepancy "
+            "model.yaml); with effects the values come from long simulations.",
+        ),
     ) -> None:
         """Compare the model's steady states with the measurements quoted in the paper (Sec. 4)."""
         from drill_env.analysis import rig_comparison
@@ -138,7 +144,20 @@ def register(app: typer.Typer) -> None:
                 _fail(f"--out {out}: the Markdown file; its .json goes beside it")
             check_output_file(out, "--out")
             check_output_file(out.with_suffix(".json"), "--out")
-        comp = rig_comparison(preset)
+        model: Any = preset
+        if params is not None:
+            from drill_env.params import ParameterError, load_params
+
+            if params.suffix.lower() not in (".yaml", ".yml"):
+                _fail(f"--params {params}: expected a rig YAML file (.yaml or .yml)")
+            try:
+                model = load_params(params)
+            except ParameterError as exc:
+                _fail(f"--params {params}: {exc}")
+        try:
+            comp = rig_comparison(model)
+        except ValueError as exc:
+            _fail(str(exc))
         text = comp.to_markdown()
         if out is not None:
             out.parent.mkdir(parents=True, exist_ok=True)

@@ -274,6 +274,52 @@ def _sensor_lines(res) -> list[str]:
     ]
 
 
+def _signature_section(res) -> list[str]:
+    """What to look for on the rig when no library effect explains the residual."""
+    sig = getattr(res, "signature", None)
+    if sig is None:
+        return []
+    rows = [
+        [
+            r["run"],
+            "varying" if r["voltage_v"] is None else f"{r['voltage_v']:g}",
+            f"{r['lower_rotation_hz']:.4g}",
+            f"{r['upper_rotation_hz']:.4g}",
+            f"{r['amplitude_nm'].get('lower', float('nan')):.3g}",
+            f"{r['amplitude_nm'].get('upper', float('nan')):.3g}",
+            "yes" if r["shown"] else "no",
+        ]
+        for r in sig.runs
+    ]
+    drops = ", ".join(f"{k} {v:.4g}" for k, v in sorted(sig.drops.items(), key=lambda kv: -kv[1]))
+    return [
+        "## What to look for",
+        "",
+        f"The residual the library does not explain is {sig.summary()}.",
+        "",
+        "Each hypothesis is a sinusoidal torque on both disks with its own amplitude and phase per run, "
+        "fitted through the window kernel of the equation error: a fixed frequency in time (the common "
+        "line, refined), harmonics 1-3 of either disk's angle (a line that moves with that disk's speed "
+        "from run to run), or the measured voltage's deviation from its run mean. The largest drop of "
+        f"the sum of squares (noise units) names the clock the line keeps: {drops}. A run shows the line "
+        "when the drop on one of its disks passes the chi-square test at 1 %.",
+        "",
+        _table(
+            [
+                "run",
+                "u [V]",
+                "lower rotation [Hz]",
+                "upper rotation [Hz]",
+                "lower torque [N m]",
+                "upper torque [N m]",
+                "shows",
+            ],
+            rows,
+        ),
+        "",
+    ]
+
+
 def write_report(res, out: Path, *, figures: bool = True) -> Path:
     d = res.decision
     lines = ["# Model-discrepancy report", ""]
@@ -378,6 +424,9 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         f"({'significant' if ln.significant else 'not significant'}; "
         f"{'locked to the rotation of the lower disk' if ln.related_to_rotation else 'not locked to rotation'}).",
         "",
+    ]
+    lines += _signature_section(res)
+    lines += [
         "## Which effect",
         "",
     ]

@@ -41,11 +41,13 @@ from drill_env.discrepancy.decide import (
     Decision,
     DecisionRule,
     LineScan,
+    LineSignature,
     decide,
     demote,
     final_parameters,
     first_calibration,
     line_scan,
+    line_signature,
     moved_fit,
     run_statistics,
     second_effect,
@@ -86,6 +88,7 @@ class DiscrepancyResult:
     gap_before: dict[str, float]
     gap_after: dict[str, float]
     timings: dict[str, float]
+    signature: LineSignature | None = None  # what an unexplained line is locked to
 
     @property
     def effect(self) -> str:
@@ -109,7 +112,10 @@ class DiscrepancyResult:
                 "candidates": [s.as_dict() for s in d.scores],
                 "excess": d.excess,
                 "structure": d.structure,
-                "spectral_line": self.line.as_dict(),
+                "spectral_line": {
+                    **self.line.as_dict(),
+                    "signature": self.signature.as_dict() if self.signature is not None else None,
+                },
                 "bootstrap_verdicts": d.bootstrap_counts,
                 "calibration": {
                     "fixed_scale": {"string_stiffness": self.params.string_stiffness},
@@ -142,7 +148,9 @@ class DiscrepancyResult:
         cal = f"; recalibrated: {moved}" if moved else ""
         if d.effect in ("none", "unexplained"):
             extra = ""
-            if d.effect == "unexplained" and self.line.significant:
+            if d.effect == "unexplained" and self.signature is not None:
+                extra = f"; signature: {self.signature.summary()}"
+            elif d.effect == "unexplained" and self.line.significant:
                 rel = "locked to rotation" if self.line.related_to_rotation else "unrelated to rotation"
                 extra = f"; signature: line at {self.line.frequency_hz:.3g} Hz common to all runs, {rel}"
             return f"verdict: {d.effect} (confidence {d.confidence:.2f}): {d.reason}{extra}{cal}"
@@ -433,6 +441,9 @@ def analyse(
         gap_after.update(aggregate([after[n] for n in decision.heldout_runs if n in after]))
     else:
         gap_after = dict(gap_before)  # no change: the model is the nominal one
+    signature = None
+    if decision.effect == "unexplained":
+        signature = line_signature(eqs_cal, line.frequency_hz)
     timings["total"] = time.perf_counter() - t0
     return DiscrepancyResult(
         dataset=dataset,
@@ -452,6 +463,7 @@ def analyse(
         gap_before=gap_before,
         gap_after=gap_after,
         timings=timings,
+        signature=signature,
     )
 
 
