@@ -362,7 +362,8 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
         }
         n_total = len(cfg.voltages) * len(cfg.seeds)
         say(
-            f"[4/5] {len(ctrls)} designs x {len(cfg.voltages)} voltages x {len(cfg.seeds)} seeds on the truth plant"
+            f"[4/5] {len(cfg.controllers)} controllers x {len(DESIGNS)} designs and the open loop x "
+            f"{len(cfg.voltages)} voltages x {len(cfg.seeds)} seeds on the truth plant"
         )
         for i, (v, s) in enumerate((v, s) for v in cfg.voltages for s in cfg.seeds):
             ol = _open_loop_run(env, preset, v, s, cfg.episode)
