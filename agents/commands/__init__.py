@@ -1,4 +1,4 @@
-"""The controller commands of ``drill-env``: ``tune``, ``train``, ``benchmark``.
+"""The controller commands of ``drill-env``: ``tune``, ``train``, ``benchmark``, ``sim-to-real``.
 
 They build on the core (:mod:`drill_env`) and on :mod:`agents`, so they live here and the
 core never imports them: :mod:`drill_env.cli` registers every module of this package, as
