@@ -30,13 +30,12 @@ lower angle does not feed back and is not carried.
 
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
 from drill_env import _layout as L
-from drill_env.dynamics import hump
+from drill_env._numba import JIT_ALLOC
+from drill_env.dynamics import hump, hump_slope
 from drill_env.integrator import (
     H_MIN,
     INTERP,
@@ -61,7 +60,7 @@ from drill_env.integrator import (
     stage_state,
 )
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_JIT = JIT_ALLOC
 
 NX = 3  # x1, x2, x3
 NS = 4  # sensitivity columns: d/dx1(0), d/dx2(0), d/dx3(0), d/du
@@ -107,22 +106,6 @@ ERR_MASK = np.ones(NZ)
 
 # Event-log codes: the kind of switch and which disk.
 EV_UPPER, EV_LOWER = 0, 1
-
-
-@nb.njit(**_JIT)
-def hump_slope(p, w):
-    """d/dw of :func:`drill_env.dynamics.hump` (the Stribeck/hump part of eq. 14)."""
-    return 0.5 * p[L.T1] * p[L.BETA1] * _sech2(0.5 * p[L.BETA1] * w) + 0.5 * p[L.T2] * p[L.BETA2] * _sech2(
-        0.5 * p[L.BETA2] * w
-    )
-
-
-@nb.njit(**_JIT)
-def _sech2(x):
-    """sech(x)^2 without overflow for large |x|."""
-    e = math.exp(-abs(x))
-    s = 2.0 * e / (1.0 + e * e)
-    return s * s
 
 
 @nb.njit(**_JIT)
