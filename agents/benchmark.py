@@ -44,6 +44,7 @@ from agents.plants import NOMINAL, Plant
 from agents.registry import CONTROLLERS
 from agents.robustness import COLORS, REGIMES, ordered_controllers, robustness_figure, robustness_lines
 from drill_env.outputs import atomic_file, atomic_write_text, output_lock
+from drill_env.params import PRESETS
 
 __all__ = [
     "BACKENDS",
@@ -104,7 +105,7 @@ class Job:
 class BenchmarkConfig:
     """The grid and the episode settings of a benchmark."""
 
-    presets: tuple[str, ...] = ("brake", "no_brake")
+    presets: tuple[str, ...] = PRESETS
     controllers: tuple[str, ...] = CONTROLLERS
     voltages: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(FULL_GRID))
     seeds: tuple[int, ...] = FULL_SEEDS
@@ -118,10 +119,10 @@ class BenchmarkConfig:
         from drill_env.params import load_params
 
         if not self.presets:
-            raise ValueError("presets: expected at least one of ['brake', 'no_brake']")
+            raise ValueError(f"presets: expected at least one of {list(PRESETS)}")
         for p in self.presets:
-            if p not in ("brake", "no_brake"):
-                raise ValueError(f"presets: {p!r} is not one of ['brake', 'no_brake']")
+            if p not in PRESETS:
+                raise ValueError(f"presets: {p!r} is not one of {list(PRESETS)}")
         if not self.controllers:
             raise ValueError(f"controllers: expected at least one of {list(CONTROLLERS)}")
         for c in self.controllers:
@@ -158,7 +159,7 @@ class BenchmarkConfig:
 
     @classmethod
     def preset_grid(
-        cls, presets: Sequence[str] = ("brake", "no_brake"), *, quick: bool = False, **kwargs: Any
+        cls, presets: Sequence[str] = PRESETS, *, quick: bool = False, **kwargs: Any
     ) -> BenchmarkConfig:
         grid = QUICK_GRID if quick else FULL_GRID
         kwargs.setdefault("seeds", QUICK_SEEDS if quick else FULL_SEEDS)
@@ -671,7 +672,7 @@ def _rewrite_sorted(csv_path: Path, cfg: BenchmarkConfig) -> set[tuple[str, str,
     df = df.drop_duplicates("_key", keep="last")
     df_keys = list(df["_key"])
     order_c = {c: i for i, c in enumerate(CONTROLLERS)}
-    order_p = {p: i for i, p in enumerate(("brake", "no_brake"))}
+    order_p = {p: i for i, p in enumerate(PRESETS)}
     order_q = {q.name: i for i, q in enumerate(cfg.plants)}
     df["_c"] = df["controller"].map(order_c)
     df["_p"] = df["preset"].map(order_p)
@@ -762,7 +763,7 @@ def summary_tables(
     only_nominal = set(df["plant"]) <= {NOMINAL}
     sections = [
         (preset, plant)
-        for preset in ("brake", "no_brake")
+        for preset in PRESETS
         if preset in set(df["preset"])
         for plant in _plants_in(df[df["preset"] == preset])
     ]
@@ -865,7 +866,7 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
         plants = {p["name"]: p for p in rec.get("plant_notes", [])}
     paths = [out / "summary.md"]
     atomic_write_text(paths[0], summary_tables(df, notes, plants) + "\n")
-    for preset in [p for p in ("brake", "no_brake") if p in set(df["preset"])]:
+    for preset in [p for p in PRESETS if p in set(df["preset"])]:
         names = _plants_in(df[df["preset"] == preset])
         others = [q for q in names if q != NOMINAL]
         many = len(others) > SEPARATE_PLANT_FIGURES
