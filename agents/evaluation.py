@@ -55,6 +55,7 @@ from agents.base import PolicyPredictor
 from drill_env.envs import ENV_IDS, ENV_VERSIONS
 from drill_env.envs.task import VOLTAGE_LIMIT
 from drill_env.metrics import stick_slip_metrics
+from drill_env.params import IDENTIFIED_SPEED_RAD_S
 
 __all__ = [
     "IDENTIFIED_SPEED",
@@ -77,7 +78,7 @@ LIMIT_TOL = 1e-6  # [V] a voltage within this of +-5 V counts as at the limit
 # [rad/s] the lower-disk speed up to which a preset's friction was identified from rig data:
 # the brake's measured friction reached about 12.6 rad/s (Sec. 4 of the paper); the no-brake
 # friction has no stated limit.
-IDENTIFIED_SPEED: dict[str, float] = {"brake": 12.6}
+IDENTIFIED_SPEED: dict[str, float] = IDENTIFIED_SPEED_RAD_S
 
 
 def env_id_of(preset: str, observation_version: int = 0) -> str:

@@ -156,7 +156,7 @@ class Plant:
         closest to (None otherwise)."""
         if self.params is None:
             return None
-        from drill_env.params import load_params
+        from drill_env.params import PRESETS, load_params
 
         names = ("lower_static", "lower_viscous", "lower_hump_1", "lower_hump_2")
 
@@ -167,7 +167,7 @@ class Plant:
                 for f in names
             )
 
-        return min(("brake", "no_brake"), key=dist)
+        return min(PRESETS, key=dist)
 
 
 def _scaled(symbol: str, parameters: str | tuple[str, ...], factor: float, what: str) -> Plant:

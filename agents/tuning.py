@@ -69,7 +69,7 @@ from agents.linear_model import (
     sampled_rig,
 )
 from drill_env.analysis import Equilibrium
-from drill_env.params import RigParams
+from drill_env.params import PRESETS, RIG_VOLTAGE_LIMIT, RigParams
 
 __all__ = [
     "TUNED_GAINS",
@@ -84,7 +84,7 @@ __all__ = [
     "tune_all",
 ]
 
-VOLTAGE_LIMIT = 5.0  # [V] the rig's amplifier range
+VOLTAGE_LIMIT = RIG_VOLTAGE_LIMIT  # [V] the rig's amplifier range
 MAX_NOISE_V = 0.05  # [V] bound on the voltage noise caused by encoder quantisation
 MIN_OPEN_LOOP_DECAY = 0.1  # [1/s] design points of step 6: the open loop decays at least this fast
 
@@ -363,7 +363,7 @@ def tune(
 
 
 def tune_all(
-    presets: Sequence[str] = ("brake", "no_brake"),
+    presets: Sequence[str] = PRESETS,
     kinds: Sequence[str] = tuple(TUNED_GAINS),
     control_dt: float = 0.05,
     progress: Callable[[str, str], None] | None = None,

@@ -27,13 +27,13 @@ import math
 import numba as nb
 
 from drill_env import _layout as L
+from drill_env._numba import INLINE, JIT
+from drill_env.friction import hump_law, hump_slope_law
 
-# The compiled functions here never allocate, so they run without numba's reference
-# counting (_nrt=False): with it, every call that passes arrays pays atomic increments
-# and decrements, which cost as much as the arithmetic of a step.
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", _nrt=False)
-# Small helpers are inlined into the right-hand side: it is the innermost loop.
-_INLINE = dict(_JIT, inline="always")
+# The compiled functions here never allocate (drill_env._numba.JIT); small helpers are
+# inlined into the right-hand side: it is the innermost loop.
+_JIT = JIT
+_INLINE = INLINE
 
 
 @nb.njit(**_INLINE)
@@ -73,18 +73,20 @@ def lower_scale(p, t, theta_l):
 
 @nb.njit(**_INLINE)
 def hump(p, w):
-    """Stribeck/hump part of eq. (14): T1 tanh(b1 w/2) + T2 tanh(b2 w/2), for w = |x3| >= 0.
+    """Stribeck/hump part of eq. (14), :func:`drill_env.friction.hump_law`, for w = |x3| >= 0.
 
     Called with ``w = mode * x3``: on its own branch that is |x3|, and a step that
     overshoots the zero crossing (before the event is located) sees the analytic
     continuation of the branch instead of the kink of |x3|, so the error control of
     the integrator is not upset by it.
     """
-    # The paper's own form 1 - 2/(1 + exp(beta w)) = tanh(beta w / 2), cheaper than tanh;
-    # exp overflows to inf for large beta*w, which gives exactly 1.
-    return p[L.T1] * (1.0 - 2.0 / (1.0 + math.exp(p[L.BETA1] * w))) + p[L.T2] * (
-        1.0 - 2.0 / (1.0 + math.exp(p[L.BETA2] * w))
-    )
+    return hump_law(p[L.T1], p[L.BETA1], p[L.T2], p[L.BETA2], w)
+
+
+@nb.njit(**_INLINE)
+def hump_slope(p, w):
+    """d/dw of :func:`hump`, :func:`drill_env.friction.hump_slope_law`."""
+    return hump_slope_law(p[L.T1], p[L.BETA1], p[L.T2], p[L.BETA2], w)
 
 
 @nb.njit(**_INLINE)

@@ -4,19 +4,29 @@ Both laws are set-valued at zero speed: a static band, not a number. Away from
 zero they are smooth, so the simulator integrates each slip branch on its own and
 switches between branches at events; nothing here is smoothed.
 
-Note ``1 - 2/(1 + exp(beta w)) = tanh(beta w / 2)``; the exponentials take |w|.
+The hump (Stribeck) part of eq. (14) and its slope are defined once, here, as
+:func:`hump_law` and :func:`hump_slope_law`: compiled by numba for the kernels of
+:mod:`drill_env.dynamics` (which call them on the flat parameter vector), and the very
+same Python functions run on NumPy arrays for the functions below, which take
+:class:`RigParams`, for users, plots, analysis and tests.
 
-The functions here take :class:`RigParams` and NumPy arrays, for users, plots and
-tests; the compiled kernels in :mod:`drill_env.dynamics` implement the same laws on
-the flat parameter vector.
+Note ``1 - 2/(1 + exp(beta w)) = tanh(beta w / 2)``: the law is written with the
+paper's exponentials, cheaper than tanh in the kernels.
 """
 
 from __future__ import annotations
 
+import math
+from typing import TYPE_CHECKING
+
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
 
-from drill_env.params import RigParams
+from drill_env._numba import INLINE
+
+if TYPE_CHECKING:
+    from drill_env.params import RigParams
 
 __all__ = [
     "upper_slip_friction",
@@ -26,7 +36,46 @@ __all__ = [
     "lower_friction_curve",
     "lower_friction_slope",
     "hump_torque",
+    "hump_slope",
+    "hump_derivatives",
+    "hump_law",
+    "hump_slope_law",
 ]
+
+
+# -- the one definition of the hump part of eq. (14) ---------------------------------------
+# Plain arithmetic and np.exp, so that numba compiles them for scalars and NumPy runs
+# their .py_func on arrays: one source for both.
+
+
+@nb.njit(**INLINE)
+def hump_law(t1, beta1, t2, beta2, w):
+    """T1 (1 - 2/(1 + exp(b1 w))) + T2 (1 - 2/(1 + exp(b2 w))) [N m], eq. (14).
+
+    Odd in w; the lower friction takes it at w = |x3|. exp overflows to inf for large
+    beta*w, which gives exactly 1.
+    """
+    return t1 * (1.0 - 2.0 / (1.0 + np.exp(beta1 * w))) + t2 * (1.0 - 2.0 / (1.0 + np.exp(beta2 * w)))
+
+
+@nb.njit(**INLINE)
+def hump_slope_law(t1, beta1, t2, beta2, w):
+    """d/dw of :func:`hump_law`: T1 (b1/2) sech^2(b1 w/2) + T2 (b2/2) sech^2(b2 w/2) [N m s/rad].
+
+    Even in w; sech^2 is written with exp(-|x|) so that it cannot overflow.
+    """
+    e1 = np.exp(-0.5 * beta1 * np.abs(w))
+    e2 = np.exp(-0.5 * beta2 * np.abs(w))
+    s1 = 2.0 * e1 / (1.0 + e1 * e1)
+    s2 = 2.0 * e2 / (1.0 + e2 * e2)
+    return 0.5 * t1 * beta1 * (s1 * s1) + 0.5 * t2 * beta2 * (s2 * s2)
+
+
+def _hump_coefficients(params: RigParams) -> tuple[float, float, float, float]:
+    return params.lower_hump_1, params.lower_hump_rate_1, params.lower_hump_2, params.lower_hump_rate_2
+
+
+# -- NumPy forms on RigParams --------------------------------------------------------------
 
 
 def upper_slip_friction(params: RigParams, speed: ArrayLike) -> np.ndarray:
@@ -48,9 +97,14 @@ def upper_static_band(params: RigParams) -> tuple[float, float]:
 def hump_torque(params: RigParams, speed: ArrayLike) -> np.ndarray:
     """The Stribeck/hump part T1 tanh(b1|w|/2) + T2 tanh(b2|w|/2) [N m] (zero at w = 0)."""
     a = np.abs(np.asarray(speed, dtype=float))
-    return params.lower_hump_1 * np.tanh(0.5 * params.lower_hump_rate_1 * a) + (
-        params.lower_hump_2 * np.tanh(0.5 * params.lower_hump_rate_2 * a)
-    )
+    with np.errstate(over="ignore"):  # exp(beta w) -> inf gives the limit 1 exactly
+        return np.asarray(hump_law.py_func(*_hump_coefficients(params), a))
+
+
+def hump_slope(params: RigParams, speed: ArrayLike) -> np.ndarray:
+    """d/d|w| of :func:`hump_torque` at |speed| [N m s / rad]."""
+    a = np.abs(np.asarray(speed, dtype=float))
+    return np.asarray(hump_slope_law.py_func(*_hump_coefficients(params), a))
 
 
 def lower_friction_curve(params: RigParams, speed: ArrayLike) -> np.ndarray:
@@ -76,16 +130,25 @@ def lower_static_band(params: RigParams) -> tuple[float, float]:
 
 def lower_friction_slope(params: RigParams, speed: ArrayLike) -> np.ndarray:
     """Friction damping d_l = dT_l/dx3 of eq. (24) at x3 = |speed| > 0 [N m s / rad]."""
-    a = np.abs(np.asarray(speed, dtype=float))
-    b1, b2 = params.lower_hump_rate_1, params.lower_hump_rate_2
-    return (
-        params.lower_hump_1 * 0.5 * b1 * _sech2(0.5 * b1 * a)
-        + params.lower_hump_2 * 0.5 * b2 * _sech2(0.5 * b2 * a)
-        + params.lower_viscous
-    )
+    return hump_slope(params, speed) + params.lower_viscous
 
 
-def _sech2(x: np.ndarray) -> np.ndarray:
-    """sech(x)^2 for x >= 0, written with exp(-x) so that it cannot overflow."""
-    e = np.exp(-x)
-    return (2.0 * e / (1.0 + e * e)) ** 2
+def hump_derivatives(params: RigParams, w: float) -> tuple[float, float, float, float]:
+    """The hump part at w >= 0 and its first three derivatives in w (scalars).
+
+    The value and slope are :func:`hump_law` and :func:`hump_slope_law`; the second and
+    third derivatives (for the first Lyapunov coefficient of a Hopf point) follow from
+    ``d/dx tanh = sech^2 = 1 - tanh^2`` with ``tanh(b w/2)`` the law of one term.
+    """
+    t1, b1, t2, b2 = _hump_coefficients(params)
+    with np.errstate(over="ignore"):
+        h = float(hump_law.py_func(t1, b1, t2, b2, w))
+    d1 = float(hump_slope_law.py_func(t1, b1, t2, b2, w))
+    d2 = d3 = 0.0
+    for T, beta in ((t1, b1), (t2, b2)):
+        k = 0.5 * beta
+        th = math.tanh(k * w)
+        s2 = 1.0 - th * th  # sech^2
+        d2 += T * k * k * (-2.0 * s2 * th)
+        d3 += T * k**3 * (-2.0) * (s2 * s2 - 2.0 * s2 * th * th)
+    return h, d1, d2, d3

@@ -31,13 +31,14 @@ import numpy as np
 
 from drill_env import _dop853 as _dop
 from drill_env import _layout as L
+from drill_env._numba import INLINE, JIT
 from drill_env.dynamics import n_active, rhs
 
 # The compiled functions here never allocate, so they run without numba's reference
 # counting (_nrt=False): with it, every call that passes arrays pays atomic increments
 # and decrements, which cost as much as the arithmetic of a step.
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", _nrt=False)
-_INLINE = dict(_JIT, inline="always")
+_JIT = JIT
+_INLINE = INLINE
 
 N_STAGES = _dop.N_STAGES  # 12
 A = np.ascontiguousarray(_dop.A[:N_STAGES, :N_STAGES])

@@ -32,6 +32,7 @@ import numba as nb
 import numpy as np
 
 from drill_env import _layout as L
+from drill_env._numba import INLINE, JIT, JIT_ALLOC
 from drill_env.dynamics import (
     decide_lower,
     decide_upper,
@@ -72,9 +73,9 @@ from drill_env.integrator import (
 # Everything but run() (which allocates its scratch space) runs without numba's reference
 # counting (_nrt=False): with it, every call that passes arrays pays atomic increments and
 # decrements, which cost as much as the arithmetic of a step.
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", _nrt=False)
-_JIT_ALLOC = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
-_INLINE = dict(_JIT, inline="always")
+_JIT = JIT
+_JIT_ALLOC = JIT_ALLOC
+_INLINE = INLINE
 
 STATUS_MESSAGES = {
     0: "The end of the integration interval was reached.",

@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from drill_env.friction import lower_friction_curve
+
 __all__ = [
     "ModelEffects",
     "RigParams",
@@ -30,6 +32,7 @@ __all__ = [
     "MAX_YAML_BYTES",
     "RIG_VOLTAGE_LIMIT",
     "IDENTIFIED_SPEED_RAD_S",
+    "PRESETS",
     "validity_warnings",
 ]
 
@@ -43,6 +46,9 @@ RIG_VOLTAGE_LIMIT = 5.0  # [V] the amplifier input range of the rig, Sec. 2.1
 # the brake's measured friction reached about 12.6 rad/s (Sec. 4 of the paper); the no-brake
 # friction has no stated limit.
 IDENTIFIED_SPEED_RAD_S: dict[str, float] = {"brake": 12.6}
+# The presets shipped with the package (``configs/rig/<name>.yaml``): the lower disk with the
+# brake, parameters (17), the configuration of the experiments in Sec. 4; and without it, (16).
+PRESETS: tuple[str, ...] = ("brake", "no_brake")
 
 
 def validity_warnings(
@@ -178,12 +184,7 @@ class RigParams:
             raise ParameterError(f"effects: expected ModelEffects, got {type(self.effects).__name__}")
         # Eq. (4): friction is dissipative, T_lp(w) > 0 for all w >= 0.
         w = np.linspace(0.0, 50.0, 2001)
-        slip = (
-            self.lower_static
-            + self.lower_hump_1 * np.tanh(0.5 * self.lower_hump_rate_1 * w)
-            + self.lower_hump_2 * np.tanh(0.5 * self.lower_hump_rate_2 * w)
-            + self.lower_viscous * w
-        )
+        slip = lower_friction_curve(self, w)
         if np.any(slip[1:] <= 0.0):
             raise ParameterError(
                 "lower_hump_1/lower_hump_2: the lower-disk slip friction becomes <= 0 "

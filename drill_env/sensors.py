@@ -38,6 +38,8 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
 
+from drill_env._numba import INLINE, JIT, JIT_ALLOC
+
 __all__ = [
     "SensorConfig",
     "Measurements",
@@ -47,10 +49,9 @@ __all__ = [
     "MAX_DELAY_SAMPLES",
 ]
 
-_JIT_ALLOC = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
-# Functions that allocate nothing run without reference counting (see drill_env.kernel).
-_JIT = dict(_JIT_ALLOC, _nrt=False)
-_INLINE = dict(_JIT, inline="always")
+_JIT_ALLOC = JIT_ALLOC
+_JIT = JIT  # allocates nothing: no reference counting
+_INLINE = INLINE
 
 MAX_DELAY_SAMPLES = 10_000  # [samples] bound of the delay line (10 s at 1 kHz)
 

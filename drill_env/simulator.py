@@ -19,6 +19,7 @@ import numpy as np
 from numba.core.ccallback import CFunc
 
 from drill_env import _layout as L
+from drill_env._numba import JIT_ALLOC
 from drill_env.kernel import (
     INPUT_SIGNATURE,
     N_STATS,
@@ -467,7 +468,7 @@ def simulate(
     )
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(**JIT_ALLOC)
 def _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats_all, ev_count):
     n = P.shape[0]
     cap = 1

@@ -1,12 +1,25 @@
 """Friction laws (12) and (14): slip branches, static bands, the slope d_l, and the
-statements of the paper about them (condition (21), T_l(13 rad/s) ~ T_sl)."""
+statements of the paper about them (condition (21), T_l(13 rad/s) ~ T_sl).
+
+The hump part of eq. (14) has one definition (drill_env.friction.hump_law and its slope);
+its compiled form (inside the simulator's right-hand side and the sensitivity flow's
+Jacobian) and its NumPy form are checked here against an independent transcription of
+the paper's formula and against central finite differences.
+"""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from drill_env import _layout as L
+from drill_env.analysis.equilibria import equilibrium_jacobian
+from drill_env.analysis.variational import jacobian as flow_jacobian
+from drill_env.dynamics import hump, hump_slope, rhs
+from drill_env.friction import hump_slope as hump_slope_numpy
 from drill_env.friction import (
     hump_torque,
     lower_friction_curve,
@@ -118,3 +131,127 @@ def test_brake_friction_returns_to_static_level_at_13_rad_s(brake):
     assert np.all(lower_friction_curve(brake, w) > brake.lower_static)
     # Beyond it the brake friction drops below the static level.
     assert lower_friction_curve(brake, 20.0) < brake.lower_static
+
+
+# -- one law, two forms ---------------------------------------------------------------------
+
+
+def eq14_as_in_notes(p, w):
+    """T_fl(w) = (T_sl + T1 tanh(b1|w|/2) + T2 tanh(b2|w|/2)) sign(w) + b_l w, w != 0."""
+    a = abs(w)
+    tl = (
+        p.lower_static
+        + p.lower_hump_1 * math.tanh(p.lower_hump_rate_1 * a / 2)
+        + p.lower_hump_2 * math.tanh(p.lower_hump_rate_2 * a / 2)
+    )
+    return tl * (1.0 if w > 0 else -1.0) + p.lower_viscous * w
+
+
+def central_difference(f, x, h):
+    return (f(x + h) - f(x - h)) / (2 * h)
+
+
+def compiled_lower_friction(p_vec, w, any_effect):
+    """T_fl(w) as the simulator's right-hand side applies it: x1 = 0 (no string torque),
+    the lower disk slipping at w, so Jl x3' = -T_fl(w). ``any_effect`` takes the general
+    path (effects switched on, all of size zero) instead of the paper's short path."""
+    p = p_vec.copy()
+    p[L.ANY_EFFECT] = 1.0 if any_effect else 0.0
+    y = np.zeros(L.NY)
+    y[L.X3] = w
+    y[L.WL] = abs(w)
+    dy = np.zeros(L.NY)
+    rhs(0.0, y, 0.0, p, 0, 1 if w > 0 else -1, dy)
+    return -dy[L.X3] / p[L.INV_JL]
+
+
+GRID = np.concatenate([-np.geomspace(1e-9, 60.0, 151)[::-1], np.geomspace(1e-9, 60.0, 151)])
+
+
+def test_compiled_and_numpy_forms_are_eq_14(params):
+    p_vec = params.as_array()
+    paper = np.array([eq14_as_in_notes(params, w) for w in GRID])
+    # round-off relative to the torques summed
+    scale = params.lower_static + abs(params.lower_hump_1) + abs(params.lower_hump_2) + np.abs(paper)
+    numpy_form = lower_slip_friction(params, GRID)
+    np.testing.assert_array_less(np.abs(numpy_form - paper), 1e-14 * scale)
+    for any_effect in (False, True):
+        compiled = np.array([compiled_lower_friction(p_vec, w, any_effect) for w in GRID])
+        np.testing.assert_array_less(np.abs(compiled - paper), 1e-14 * scale)
+        np.testing.assert_array_less(np.abs(compiled - numpy_form), 1e-14 * scale)
+    # the hump itself, compiled (at w = |x3|, as the kernel calls it) and NumPy, zero at rest
+    hump_paper = np.array([eq14_as_in_notes(params, w) for w in np.abs(GRID)])
+    hump_paper -= params.lower_static + params.lower_viscous * np.abs(GRID)
+    hump_compiled = np.array([hump(p_vec, abs(w)) for w in GRID])
+    tol = 1e-14 * (abs(params.lower_hump_1) + abs(params.lower_hump_2))
+    np.testing.assert_array_less(np.abs(hump_compiled - hump_paper), tol)
+    np.testing.assert_array_less(np.abs(hump_torque(params, GRID) - hump_paper), tol)
+    assert hump(p_vec, 0.0) == 0.0
+    assert hump(p_vec, 1e300) == params.lower_hump_1 + params.lower_hump_2
+
+
+def test_compiled_and_numpy_slopes_are_central_differences_of_eq_14(params):
+    p_vec = params.as_array()
+    w = np.concatenate([np.linspace(0.005, 40.0, 400), [1e-4, 100.0]])
+    h = 1e-5
+    fd = np.array([central_difference(lambda v: eq14_as_in_notes(params, v), x, h) for x in w])
+    fd_hump = fd - params.lower_viscous
+    # truncation ~ h^2 |T'''| / 6 <= 1e-10 * 0.3 * 6.4^3 / 6, cancellation ~ 1e-16 * 0.4 / h
+    atol = 2e-9
+    np.testing.assert_allclose(lower_friction_slope(params, w), fd, rtol=0, atol=atol)
+    np.testing.assert_allclose(hump_slope_numpy(params, w), fd_hump, rtol=0, atol=atol)
+    compiled = np.array([hump_slope(p_vec, x) for x in w])
+    np.testing.assert_allclose(compiled, fd_hump, rtol=0, atol=atol)
+    # even in w (the kernel evaluates it at mode * x3), the same in both forms
+    np.testing.assert_array_equal(np.array([hump_slope(p_vec, -x) for x in w]), compiled)
+    np.testing.assert_allclose(hump_slope_numpy(params, w), compiled, rtol=1e-14, atol=1e-17)
+    # far out the exponentials underflow to zero instead of overflowing
+    assert hump_slope(p_vec, 1e300) == 0.0
+    assert hump_slope_numpy(params, 1e300) == 0.0
+
+
+def slip_field(p, x, u):
+    """Eq. (36) on a slip branch of both disks, x = (x1, x2, x3), with eq. (14) as in NOTES."""
+    x1, x2, x3 = x
+    ts = p.string_stiffness * x1
+    if x2 > 0:
+        tfu = p.upper_static_pos + p.upper_viscous_pos * x2
+    else:
+        tfu = -p.upper_static_neg + p.upper_viscous_neg * x2
+    return np.array(
+        [
+            x2 - x3,
+            (p.motor_constant * u - ts - tfu) / p.upper_inertia,
+            (ts - eq14_as_in_notes(p, x3)) / p.lower_inertia,
+        ]
+    )
+
+
+def flow_jacobian_at(params, x2, x3):
+    J = np.zeros((3, 4))
+    flow_jacobian(x3, params.as_array(), int(np.sign(x2)), int(np.sign(x3)), J)
+    return J
+
+
+@pytest.mark.parametrize(
+    "state", [(0.3, 1.5, 0.8), (-0.2, -0.7, -2.5), (1.0, 0.2, 6.0), (0.05, 3.0, -0.01), (-0.4, -1.0, 12.0)]
+)
+def test_slip_jacobian_is_the_central_difference_of_eq_36(params, state):
+    x = np.array(state, dtype=float)
+    u = 1.3
+    J = flow_jacobian_at(params, x[1], x[2])
+    fd = np.zeros((3, 4))
+    h = 1e-6
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = h
+        fd[:, j] = (slip_field(params, x + e, u) - slip_field(params, x - e, u)) / (2 * h)
+    fd[:, 3] = (slip_field(params, x, u + h) - slip_field(params, x, u - h)) / (2 * h)
+    # entries up to |dT/dx3| / Jl ~ 10 s^-1; central differences good to ~1e-8 here
+    np.testing.assert_allclose(J, fd, rtol=1e-7, atol=1e-7)
+
+
+@pytest.mark.parametrize("x3", [0.4, 3.0, -1.2])
+def test_equilibrium_jacobian_is_the_slip_jacobian(params, x3):
+    # at a slip equilibrium both disks turn at x3: the analysis uses the flow's Jacobian
+    np.testing.assert_array_equal(equilibrium_jacobian(params, x3), flow_jacobian_at(params, x3, x3)[:, :3])

@@ -57,6 +57,13 @@ def test_available_presets():
     assert {"brake", "no_brake"} <= set(drill_env.available_presets())
 
 
+def test_preset_list_is_the_shipped_rig_files():
+    # the one list every command and benchmark iterates: exactly the files shipped, each loads
+    assert sorted(drill_env.params.PRESETS) == drill_env.available_presets()
+    for name in drill_env.params.PRESETS:
+        assert load_params(name).name == name
+
+
 def test_uc1_is_point_a(brake, no_brake):
     # Point A, uc1 = (Tsup + Tsl)/km, from the tabulated values.
     assert brake.uc1 == pytest.approx((0.3216 + 0.0940) / 3.5693, rel=1e-15)

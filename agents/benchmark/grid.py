@@ -13,6 +13,7 @@ import numpy as np
 from agents.evaluation import EpisodeSettings
 from agents.plants import NOMINAL, Plant
 from agents.registry import CONTROLLERS
+from drill_env.params import PRESETS
 
 # Voltages [V] of the grid per preset. Brake: 0.2-5 V across the three regimes (A = 0.116,
 # Hopf B = 0.583, stick-slip from D = 1.781 V). No brake: every regime of Fig. 8(a)
@@ -46,7 +47,7 @@ class Job:
 class BenchmarkConfig:
     """The grid and the episode settings of a benchmark."""
 
-    presets: tuple[str, ...] = ("brake", "no_brake")
+    presets: tuple[str, ...] = PRESETS
     controllers: tuple[str, ...] = CONTROLLERS
     voltages: Mapping[str, tuple[float, ...]] = field(default_factory=lambda: dict(FULL_GRID))
     seeds: tuple[int, ...] = FULL_SEEDS
@@ -60,10 +61,10 @@ class BenchmarkConfig:
         from drill_env.params import load_params
 
         if not self.presets:
-            raise ValueError("presets: expected at least one of ['brake', 'no_brake']")
+            raise ValueError(f"presets: expected at least one of {list(PRESETS)}")
         for p in self.presets:
-            if p not in ("brake", "no_brake"):
-                raise ValueError(f"presets: {p!r} is not one of ['brake', 'no_brake']")
+            if p not in PRESETS:
+                raise ValueError(f"presets: {p!r} is not one of {list(PRESETS)}")
         if not self.controllers:
             raise ValueError(f"controllers: expected at least one of {list(CONTROLLERS)}")
         for c in self.controllers:
@@ -100,7 +101,7 @@ class BenchmarkConfig:
 
     @classmethod
     def preset_grid(
-        cls, presets: Sequence[str] = ("brake", "no_brake"), *, quick: bool = False, **kwargs: Any
+        cls, presets: Sequence[str] = PRESETS, *, quick: bool = False, **kwargs: Any
     ) -> BenchmarkConfig:
         grid = QUICK_GRID if quick else FULL_GRID
         kwargs.setdefault("seeds", QUICK_SEEDS if quick else FULL_SEEDS)

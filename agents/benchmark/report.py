@@ -15,6 +15,7 @@ from agents.evaluation import IDENTIFIED_SPEED
 from agents.plants import NOMINAL
 from agents.robustness import REGIMES, ordered_controllers, robustness_figure, robustness_lines
 from drill_env.outputs import atomic_write_text
+from drill_env.params import PRESETS
 
 REGIME_TITLES = REGIMES  # regime -> the title of its table
 # up to this many plants besides the nominal one get a suppression figure each; more are
@@ -96,7 +97,7 @@ def summary_tables(
     only_nominal = set(df["plant"]) <= {NOMINAL}
     sections = [
         (preset, plant)
-        for preset in ("brake", "no_brake")
+        for preset in PRESETS
         if preset in set(df["preset"])
         for plant in _plants_in(df[df["preset"] == preset])
     ]
@@ -199,7 +200,7 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
         plants = {p["name"]: p for p in rec.get("plant_notes", [])}
     paths = [out / "summary.md"]
     atomic_write_text(paths[0], summary_tables(df, notes, plants) + "\n")
-    for preset in [p for p in ("brake", "no_brake") if p in set(df["preset"])]:
+    for preset in [p for p in PRESETS if p in set(df["preset"])]:
         names = _plants_in(df[df["preset"] == preset])
         others = [q for q in names if q != NOMINAL]
         many = len(others) > SEPARATE_PLANT_FIGURES

@@ -21,6 +21,7 @@ from agents.evaluation import IDENTIFIED_SPEED, METRIC_COLUMNS
 from agents.plants import NOMINAL
 from agents.registry import CONTROLLERS
 from drill_env.outputs import atomic_file
+from drill_env.params import PRESETS
 
 COLUMNS = METRIC_COLUMNS[:2] + ("plant",) + METRIC_COLUMNS[2:] + ("error",)
 KEY = ("controller", "preset", "plant", "voltage", "seed")
@@ -189,7 +190,7 @@ def _rewrite_sorted(csv_path: Path, cfg: BenchmarkConfig) -> set[tuple[str, str,
     df = df.drop_duplicates("_key", keep="last")
     df_keys = list(df["_key"])
     order_c = {c: i for i, c in enumerate(CONTROLLERS)}
-    order_p = {p: i for i, p in enumerate(("brake", "no_brake"))}
+    order_p = {p: i for i, p in enumerate(PRESETS)}
     order_q = {q.name: i for i, q in enumerate(cfg.plants)}
     df["_c"] = df["controller"].map(order_c)
     df["_p"] = df["preset"].map(order_p)

@@ -8,7 +8,9 @@ from pathlib import Path
 
 import typer
 
-PRESETS = ("all", "brake", "no_brake")
+from drill_env.params import PRESETS as RIG_PRESETS
+
+PRESETS = ("all", *RIG_PRESETS)
 
 
 TIMESERIES_VOLTAGE = 1.0  # [V] the rig's operating region, where position friction hurts most
@@ -116,7 +118,7 @@ def register(app: typer.Typer) -> None:
 
         if backend not in BACKENDS:
             _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
-        presets = ("brake", "no_brake") if "all" in names else tuple(dict.fromkeys(names))
+        presets = RIG_PRESETS if "all" in names else tuple(dict.fromkeys(names))
         ctrls = CONTROLLERS
         if controllers is not None:
             ctrls = tuple(c.strip() for c in controllers.split(",") if c.strip())

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
+from drill_env.friction import hump_derivatives, lower_friction_curve, lower_friction_slope
 from drill_env.params import RigParams, resolve_params
 
 __all__ = [
@@ -53,31 +54,17 @@ def nominal_vector(params: RigParams | str) -> tuple[RigParams, np.ndarray]:
 # -- friction of the lower disk on its slip branch, with its derivatives ------------------
 
 
-def _hump_derivatives(params: RigParams, w: float) -> tuple[float, float, float, float]:
-    """Hump part of eq. (14) at w >= 0 and its first three derivatives in w."""
-    h = d1 = d2 = d3 = 0.0
-    for T, beta in (
-        (params.lower_hump_1, params.lower_hump_rate_1),
-        (params.lower_hump_2, params.lower_hump_rate_2),
-    ):
-        k = 0.5 * beta
-        th = math.tanh(k * w)
-        s2 = 1.0 - th * th  # sech^2
-        h += T * th
-        d1 += T * k * s2
-        d2 += T * k * k * (-2.0 * s2 * th)
-        d3 += T * k**3 * (-2.0) * (s2 * s2 - 2.0 * s2 * th * th)
-    return h, d1, d2, d3
+_hump_derivatives = hump_derivatives
 
 
 def _lower_curve(params: RigParams, w: float) -> float:
     """T_l(w) of eq. (19) for w >= 0 [N m]."""
-    return params.lower_static + _hump_derivatives(params, w)[0] + params.lower_viscous * w
+    return float(lower_friction_curve(params, w))
 
 
 def _lower_slope(params: RigParams, w: float) -> float:
     """d_l = dT_l/dx3 at |x3| = w, eq. (24) [N m s / rad]."""
-    return _hump_derivatives(params, w)[1] + params.lower_viscous
+    return float(lower_friction_slope(params, w))
 
 
 def _voltage_of_speed(params: RigParams, x3: float) -> float:

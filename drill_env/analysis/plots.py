@@ -22,6 +22,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from drill_env.params import IDENTIFIED_SPEED_RAD_S, RIG_VOLTAGE_LIMIT
+
 __all__ = [
     "AMPLIFIER_LIMIT_V",
     "IDENTIFIED_SPEED_RAD_S",
@@ -98,10 +100,7 @@ _POINT_COLOR = "tab:red"
 _LIMIT_COLOR = "tab:purple"
 _SIM_COLOR = "tab:orange"
 
-AMPLIFIER_LIMIT_V = 5.0  # [V] the rig's amplifier takes inputs in [-5, 5] V (Sec. 2.1)
-# [rad/s] the lower-disk speed up to which a preset's friction was identified from rig
-# data: the brake's measurements reached about 12.6 rad/s (Sec. 4); none stated without it.
-IDENTIFIED_SPEED_RAD_S: dict[str, float] = {"brake": 12.6}
+AMPLIFIER_LIMIT_V = RIG_VOLTAGE_LIMIT  # [V] the rig's amplifier takes inputs in [-5, 5] V (Sec. 2.1)
 
 POINT_MEANINGS = "A: start of motion, B, C: Hopf, D, E: stick-slip begins, ends, F: fold of cycles"
 # How the brute-force check started each simulation (drill_env.analysis.sweep).

@@ -30,13 +30,12 @@ lower angle does not feed back and is not carried.
 
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
 from drill_env import _layout as L
-from drill_env.dynamics import hump
+from drill_env._numba import INLINE, JIT_ALLOC
+from drill_env.dynamics import hump, hump_slope
 from drill_env.integrator import (
     H_MIN,
     INTERP,
@@ -61,7 +60,8 @@ from drill_env.integrator import (
     stage_state,
 )
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_JIT = JIT_ALLOC
+_INLINE = INLINE
 
 NX = 3  # x1, x2, x3
 NS = 4  # sensitivity columns: d/dx1(0), d/dx2(0), d/dx3(0), d/du
@@ -110,22 +110,6 @@ EV_UPPER, EV_LOWER = 0, 1
 
 
 @nb.njit(**_JIT)
-def hump_slope(p, w):
-    """d/dw of :func:`drill_env.dynamics.hump` (the Stribeck/hump part of eq. 14)."""
-    return 0.5 * p[L.T1] * p[L.BETA1] * _sech2(0.5 * p[L.BETA1] * w) + 0.5 * p[L.T2] * p[L.BETA2] * _sech2(
-        0.5 * p[L.BETA2] * w
-    )
-
-
-@nb.njit(**_JIT)
-def _sech2(x):
-    """sech(x)^2 without overflow for large |x|."""
-    e = math.exp(-abs(x))
-    s = 2.0 * e / (1.0 + e * e)
-    return s * s
-
-
-@nb.njit(**_JIT)
 def field(x1, x2, x3, u, p, mu, ml):
     """Eq. (36) in modes (mu, ml): returns (x1', x2', x3')."""
     ts = p[L.KTH] * x1
@@ -143,6 +127,21 @@ def field(x1, x2, x3, u, p, mu, ml):
     return f1, f2, f3
 
 
+@nb.njit(**_INLINE)
+def slip_jacobian(x3, p, mu, ml):
+    """The entries of the Jacobian of :func:`field` in modes (mu, ml) that are not 0 or +-1:
+    (dx2'/dx1, dx2'/dx2, dx2'/du, dx3'/dx1, dx3'/dx3); zero for a stuck disk."""
+    a10 = a11 = a13 = a20 = a22 = 0.0
+    if mu != 0:
+        a10 = -p[L.KTH] / p[L.JU]
+        a11 = -(p[L.BUP] if mu > 0 else p[L.BUN]) / p[L.JU]
+        a13 = p[L.KM] / p[L.JU]
+    if ml != 0:
+        a20 = p[L.KTH] / p[L.JL]
+        a22 = -(hump_slope(p, ml * x3) + p[L.BL]) / p[L.JL]
+    return a10, a11, a13, a20, a22
+
+
 @nb.njit(**_JIT)
 def jacobian(x3, p, mu, ml, J):
     """Jacobian of :func:`field` with respect to (x1, x2, x3, u), into J (3 x 4)."""
@@ -151,13 +150,7 @@ def jacobian(x3, p, mu, ml, J):
             J[i, j] = 0.0
     J[0, 1] = 1.0
     J[0, 2] = -1.0
-    if mu != 0:
-        J[1, 0] = -p[L.KTH] / p[L.JU]
-        J[1, 1] = -(p[L.BUP] if mu > 0 else p[L.BUN]) / p[L.JU]
-        J[1, 3] = p[L.KM] / p[L.JU]
-    if ml != 0:
-        J[2, 0] = p[L.KTH] / p[L.JL]
-        J[2, 2] = -(hump_slope(p, ml * x3) + p[L.BL]) / p[L.JL]
+    J[1, 0], J[1, 1], J[1, 3], J[2, 0], J[2, 2] = slip_jacobian(x3, p, mu, ml)
 
 
 @nb.njit(**_JIT)
@@ -167,18 +160,7 @@ def aug_rhs(z, u, p, mu, ml, dz):
     dz[0] = f1
     dz[1] = f2
     dz[2] = f3
-    a10 = 0.0
-    a11 = 0.0
-    a13 = 0.0
-    if mu != 0:
-        a10 = -p[L.KTH] / p[L.JU]
-        a11 = -(p[L.BUP] if mu > 0 else p[L.BUN]) / p[L.JU]
-        a13 = p[L.KM] / p[L.JU]
-    a20 = 0.0
-    a22 = 0.0
-    if ml != 0:
-        a20 = p[L.KTH] / p[L.JL]
-        a22 = -(hump_slope(p, ml * z[2]) + p[L.BL]) / p[L.JL]
+    a10, a11, a13, a20, a22 = slip_jacobian(z[2], p, mu, ml)
     for j in range(NS):
         s0 = z[NX + j]
         s1 = z[NX + NS + j]

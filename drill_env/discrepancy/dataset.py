@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.outputs import atomic_file, atomic_write_text, output_lock
+from drill_env.params import RIG_VOLTAGE_LIMIT
 
 __all__ = [
     "COLUMNS",
@@ -51,7 +52,6 @@ __all__ = [
 ]
 
 COLUMNS = ("t", "u", "theta_u", "theta_l")
-RIG_VOLTAGE_LIMIT = 5.0  # [V] amplifier input range of the rig, Sec. 2.1 of the paper
 MIN_RATE_HZ = 100.0
 MAX_RATE_HZ = 10_000.0
 MIN_DURATION_S = 10.0  # shorter runs hold too few equation-error windows

@@ -72,6 +72,7 @@ from numpy.polynomial import polynomial as P
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from scipy.signal import oaconvolve, savgol_coeffs, savgol_filter
 
+from drill_env.friction import hump_slope, hump_torque
 from drill_env.params import RigParams
 
 __all__ = [
@@ -102,18 +103,12 @@ class EquationErrorConfig:
 
 def stribeck(params: RigParams, w: np.ndarray) -> np.ndarray:
     """Stribeck/hump part S(w) of the lower friction at w = |x3| [N m]."""
-    return params.lower_hump_1 * np.tanh(0.5 * params.lower_hump_rate_1 * w) + params.lower_hump_2 * np.tanh(
-        0.5 * params.lower_hump_rate_2 * w
-    )
+    return hump_torque(params, w)
 
 
 def stribeck_slope(params: RigParams, w: np.ndarray) -> np.ndarray:
     """dS/dw [N m s / rad]."""
-    b1, b2 = params.lower_hump_rate_1, params.lower_hump_rate_2
-    return (
-        params.lower_hump_1 * 0.5 * b1 / np.cosh(0.5 * b1 * w) ** 2
-        + params.lower_hump_2 * 0.5 * b2 / np.cosh(0.5 * b2 * w) ** 2
-    )
+    return hump_slope(params, w)
 
 
 @dataclass(frozen=True)

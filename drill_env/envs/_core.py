@@ -20,6 +20,7 @@ import numba as nb
 import numpy as np
 
 from drill_env import _layout as L
+from drill_env._numba import JIT, JIT_ALLOC
 from drill_env.kernel import N_STATS, ST_H, WORK_ROWS, run_ws
 from drill_env.sensors import (
     C_ANGLE_NOISE,
@@ -38,9 +39,9 @@ from drill_env.sensors import (
 
 # Cached on disk in a directory keyed by the package's source (drill_env._cache), so a
 # change to the kernel cannot leave a stale copy compiled into these functions.
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # see drill_env._cache
+_JIT = JIT_ALLOC
 # Functions that allocate nothing run without reference counting (see drill_env.kernel).
-_NO_NRT = dict(_JIT, _nrt=False)
+_NO_NRT = JIT
 
 
 # -- per-rig episode scalars ------------------------------------------------------------------

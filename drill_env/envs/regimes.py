@@ -31,6 +31,7 @@ import numba as nb
 import numpy as np
 
 from drill_env import _layout as L
+from drill_env._numba import JIT_ALLOC
 from drill_env.envs.equilibrium import (
     critical_friction_slope,
     equilibrium_speed,
@@ -45,7 +46,7 @@ __all__ = ["REGIMES", "OperatingRegimes", "operating_regimes"]
 
 REGIMES = ("equilibrium", "limit_cycle", "stick_slip")
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # see drill_env._cache
+_JIT = JIT_ALLOC
 
 
 @nb.njit(**_JIT)
