@@ -17,7 +17,7 @@ paper's exponentials, cheaper than tanh in the kernels.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numba as nb
 import numpy as np
@@ -25,8 +25,22 @@ from numpy.typing import ArrayLike
 
 from drill_env._numba import INLINE
 
-if TYPE_CHECKING:
-    from drill_env.params import RigParams
+
+class RigParams(Protocol):
+    """The friction parameters these laws read (:class:`drill_env.params.RigParams` has them):
+    the laws are the lower layer, the validated parameter set is built on them."""
+
+    upper_static_pos: float  # [N m] T_sup
+    upper_static_neg: float  # [N m] T_sun
+    upper_viscous_pos: float  # [N m s/rad] b_up
+    upper_viscous_neg: float  # [N m s/rad] b_un
+    lower_static: float  # [N m] T_sl
+    lower_viscous: float  # [N m s/rad] b_l
+    lower_hump_1: float  # [N m] T_1
+    lower_hump_rate_1: float  # [s/rad] beta_1
+    lower_hump_2: float  # [N m] T_2
+    lower_hump_rate_2: float  # [s/rad] beta_2
+
 
 __all__ = [
     "upper_slip_friction",
