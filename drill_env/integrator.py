@@ -73,6 +73,7 @@ GOLDEN = 0.6180339887498949  # (sqrt(5) - 1) / 2
 DIP_WIDTH = 1e-13  # fraction of a step to which the bottom of a speed dip is bracketed
 SURFACE_WALK_START = 2.0**-50  # first fraction sampled after a start on a switching surface
 EPS = 2.0**-52  # spacing of doubles at 1
+INSIDE = 5e-324  # the least positive double: a violation of -INSIDE is inside a band, barely
 
 
 # -- the step: stage states, solution, error norm --------------------------------------

@@ -49,6 +49,7 @@ from drill_env.integrator import (
     EVENT_TIME_TOL,
     GOLDEN,
     H_MIN,
+    INSIDE,
     INTERP,
     MAX_BRACKET_ITERATIONS,
     MAX_EVENTS_AT_ONE_INSTANT,
@@ -100,7 +101,6 @@ H_MAX = 1.0  # [s]
 # refined), so a breakaway is found however briefly the load leaves the band.
 STUCK_H_MAX = 0.01  # [s]
 STUCK_SAMPLES = 8
-INSIDE = 5e-324  # the least positive double: a violation of -INSIDE is inside the band, barely
 
 
 # The voltage as a function of time reaches the compiled code as a C function pointer of

@@ -387,3 +387,35 @@ def test_lower_edge_start_moving_outward_below_resolution(speed, tol):
     assert t_lower[0] == 0.0 and 0.0 <= t_lower[1] < 1e-8
     assert np.all(res.mode_l == 0) and np.all(res.x3 == 0.0)
     check_stick_is_exact(res)
+
+
+@pytest.mark.parametrize(
+    ("u", "x0", "n_events"),
+    [
+        (0.0, (1.0, -1e-5, 0.0), 1),  # lower load on its edge, moving inward: stays stuck
+        (0.0, (-1.0, 1e-8, 0.0), 1),
+        (-3.0, (1.0, 1e-3, 0.0), 3),  # moving outward, back within 0.13 ms: slips and re-sticks
+        (-3.0, (1.0, 1e-4, 0.0), 3),
+        ("upper", (0.0, 0.0, -1e-6), 1),  # upper load on its edge, moving inward
+    ],
+)
+def test_sensitivity_flow_follows_the_simulator_from_band_edges(u, x0, n_events):
+    # The flow with sensitivities of the bifurcation analysis shares the simulator's rule for
+    # a disk on its band edge: the same number of switches and the same state.
+    from drill_env.analysis import variational
+
+    p = PRESETS["brake"]
+    kth, km = p.string_stiffness, p.motor_constant
+    if u == "upper":
+        u = nudge(p.upper_static_pos / km, p.upper_static_pos, lambda v: km * v)
+    else:
+        sign = x0[0]
+        x1 = nudge(sign * p.lower_static / kth, sign * p.lower_static, lambda x: kth * x)
+        x0 = (x1, *x0[1:])
+    t_end = 0.05
+    x, _, modes, info = variational.flow_map(p.as_array(), u, np.array(x0), t_end, rtol=1e-12, atol=1e-14)
+    res = drill_env.simulate(p, u, t_end, x0=x0, dt=t_end, **TIGHT)
+    assert len(res.events) == n_events, res.events.kinds()
+    assert info[variational.I_EVENTS] == n_events
+    assert tuple(modes) == (res.mode_u[-1], res.mode_l[-1])
+    np.testing.assert_allclose(x, [res.x1[-1], res.x2[-1], res.x3[-1]], rtol=0, atol=1e-9)
