@@ -9,7 +9,10 @@ which its indicator changes sign:
 
 * a slipping disk reaches zero speed: it sticks if the torque that would hold it lies
   in its (closed) static band, otherwise it keeps or reverses its direction;
-* the torque that holds a stuck disk leaves the band: it slips towards that side.
+* the torque that holds a stuck disk leaves the band: it slips towards that side. A
+  stuck disk whose torque sits exactly on an edge of its band leaves it at once if the
+  torque's rate points out of the band (its next nonzero derivative, where the rate is
+  zero), and otherwise stays stuck until the torque is beyond the edge.
 
 A slipping disk's speed can also touch zero and recover inside one step (next to a
 grazing orbit), with the same sign at both ends: when the speed falls at the start of a
