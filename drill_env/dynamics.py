@@ -236,3 +236,71 @@ def decide_lower(p, t, y):
     if need < -half:
         return -1
     return 0
+
+
+# -- a stuck disk exactly on a band edge ----------------------------------------------------
+
+
+@nb.njit(**_INLINE)
+def _scale_rate(a1, p1, a2, p2, angle, angle_rate):
+    """Time derivative of 1 + a1 cos(angle + p1) + a2 cos(2 angle + p2)."""
+    if a1 == 0.0 and a2 == 0.0:
+        return 0.0
+    return -(a1 * math.sin(angle + p1) + 2.0 * a2 * math.sin(2.0 * angle + p2)) * angle_rate
+
+
+@nb.njit(**_INLINE)
+def _hump_rate(p, w):
+    """d hump / d w."""
+    e1 = math.exp(-p[L.BETA1] * w)  # sech^2(b w / 2) = 4 e / (1 + e)^2 with e = exp(-b w)
+    e2 = math.exp(-p[L.BETA2] * w)
+    return 2.0 * (p[L.T1] * p[L.BETA1] * e1 / (1.0 + e1) ** 2 + p[L.T2] * p[L.BETA2] * e2 / (1.0 + e2) ** 2)
+
+
+@nb.njit(**_JIT)
+def upper_edge_rate(p, y, u, dy):
+    """Rate at which the stuck upper disk's load leaves its band (> 0) or enters it (< 0),
+    when it sits exactly on one of its edges; ``dy`` is the state's time derivative.
+
+    The rate of the held voltage is taken as zero (a zero-order hold, or a function of time
+    whose derivative is not known): then only the higher derivatives decide (the caller's).
+    """
+    need = upper_required(p, y, u)
+    lo, hi = upper_band(p, y)
+    motor_rate = dy[L.TM] if p[L.TAU_M] > 0.0 else 0.0
+    need_rate = motor_rate - p[L.KTH] * dy[L.X1] + p[L.BTH] * dy[L.X3]
+    su_rate = _scale_rate(
+        p[L.POSU_A1], p[L.POSU_P1], p[L.POSU_A2], p[L.POSU_P2], y[L.X1] + y[L.THL], dy[L.X1] + dy[L.THL]
+    )
+    if need - hi >= lo - need:
+        return need_rate - su_rate * p[L.TSUP]
+    return -su_rate * p[L.TSUN] - need_rate
+
+
+@nb.njit(**_JIT)
+def lower_edge_rate(p, t, y, dy):
+    """Rate at which the stuck lower disk's load leaves its band (> 0) or enters it (< 0),
+    when it sits exactly on one of its edges; ``dy`` is the state's time derivative."""
+    need = lower_required(p, t, y)
+    need_rate = p[L.KTH] * dy[L.X1] + p[L.BTH] * dy[L.X2]
+    if p[L.DIST_A] != 0.0:
+        need_rate += p[L.DIST_A] * p[L.DIST_W] * math.cos(p[L.DIST_W] * t + p[L.DIST_P])
+    # half = s(theta_l) (1 + drift t) (T_sl + max(S(w), 0)): product rule
+    pos = 1.0
+    if p[L.POSL_A1] != 0.0 or p[L.POSL_A2] != 0.0:
+        pos = (
+            1.0
+            + p[L.POSL_A1] * math.cos(y[L.THL] + p[L.POSL_P1])
+            + p[L.POSL_A2] * math.cos(2.0 * y[L.THL] + p[L.POSL_P2])
+        )
+    pos_rate = _scale_rate(p[L.POSL_A1], p[L.POSL_P1], p[L.POSL_A2], p[L.POSL_P2], y[L.THL], dy[L.THL])
+    drift = 1.0 + p[L.DRIFT] * t
+    level = p[L.TSL]
+    level_rate = 0.0
+    if p[L.TAU_F] > 0.0 and hump(p, y[L.WL]) > 0.0:
+        level += hump(p, y[L.WL])
+        level_rate = _hump_rate(p, y[L.WL]) * dy[L.WL]
+    half_rate = (pos_rate * drift + pos * p[L.DRIFT]) * level + pos * drift * level_rate
+    if need >= 0.0:
+        return need_rate - half_rate
+    return -half_rate - need_rate

@@ -73,6 +73,8 @@ MAX_BRACKET_ITERATIONS = 200
 GOLDEN = 0.6180339887498949  # (sqrt(5) - 1) / 2
 DIP_WIDTH = 1e-13  # fraction of a step to which the bottom of a speed dip is bracketed
 SURFACE_WALK_START = 2.0**-50  # first fraction sampled after a start on a switching surface
+EPS = 2.0**-52  # spacing of doubles at 1
+INSIDE = 5e-324  # the least positive double: a violation of -INSIDE is inside a band, barely
 
 
 # -- the step: stage states, solution, error norm --------------------------------------
@@ -189,6 +191,17 @@ def dense_component(theta, y, F, j):
     return y[j] + acc * theta
 
 
+@nb.njit(**_INLINE)
+def dense_roundoff(theta, F, j):
+    """Bound on the rounding error of the change of component j from the start of the
+    step to fraction ``theta`` as :func:`dense_component` evaluates it, for small theta:
+    a few units in the last place of the coefficients, times theta."""
+    s = 0.0
+    for i in range(INTERP):
+        s += abs(F[i, j])
+    return 8.0 * EPS * theta * s
+
+
 @nb.njit(**_JIT)
 def dense_eval(theta, y, F, n, out):
     """First ``n`` components of the state at fraction ``theta`` of the step."""
@@ -297,8 +310,14 @@ def speed_zero(j, mode, y, F, h, b0):
     on the switching surface at its start. The speed first moves into the slip direction
     and the event is where it comes back to zero, not the start: the fractions
     SURFACE_WALK_START, 2 SURFACE_WALK_START, 4 ... are walked through to bracket the end
-    of that first excursion, so that it is found however short it is; a disk that never
-    leaves zero that way switches at once (0.0).
+    of that first excursion, so that it is found however short it is. The excursion starts
+    with the first sample beyond the round-off of the dense output (:func:`dense_roundoff`):
+    where the speed leaves zero at second order (a breakaway with zero acceleration), the
+    samples closest to the start are round-off of either sign, and an excursion read from
+    them would end at once and put the disk back where it broke away. A disk whose speed
+    shows no such excursion switches at the first sample at which its speed is against
+    ``mode`` beyond round-off (any excursion before it is below what the dense output
+    resolves), or at once (0.0) if there is none.
     """
     a = 0.0
     b = b0
@@ -308,10 +327,11 @@ def speed_zero(j, mode, y, F, h, b0):
         return 0.0
     if ga == 0.0:
         found = False
+        against = 0.0  # first fraction at which the speed is against the mode beyond round-off
         c = SURFACE_WALK_START
         while c < b0:
             gc = -mode * dense_component(c, y, F, j)
-            if gc < 0.0:
+            if gc < 0.0 and (found or gc < -dense_roundoff(c, F, j)):
                 a = c
                 ga = gc
                 found = True
@@ -319,9 +339,11 @@ def speed_zero(j, mode, y, F, h, b0):
                 b = c
                 gb = gc
                 break
+            elif against == 0.0 and gc > dense_roundoff(c, F, j):
+                against = c
             c *= 2.0
         if not found:
-            return 0.0
+            return against
     side = 0
     for _ in range(MAX_BRACKET_ITERATIONS):
         if bracket_closed(a, b, h):

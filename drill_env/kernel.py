@@ -9,7 +9,10 @@ which its indicator changes sign:
 
 * a slipping disk reaches zero speed: it sticks if the torque that would hold it lies
   in its (closed) static band, otherwise it keeps or reverses its direction;
-* the torque that holds a stuck disk leaves the band: it slips towards that side.
+* the torque that holds a stuck disk leaves the band: it slips towards that side. A
+  stuck disk whose torque sits exactly on an edge of its band leaves it at once if the
+  torque's rate points out of the band (its next nonzero derivative, where the rate is
+  zero), and otherwise stays stuck until the torque is beyond the edge.
 
 A slipping disk's speed can also touch zero and recover inside one step (next to a
 grazing orbit), with the same sign at both ends: when the speed falls at the start of a
@@ -37,10 +40,12 @@ from drill_env.dynamics import (
     decide_lower,
     decide_upper,
     lower_band_half,
+    lower_edge_rate,
     lower_required,
     n_active,
     rhs,
     upper_band,
+    upper_edge_rate,
     upper_required,
 )
 from drill_env.integrator import (
@@ -48,12 +53,14 @@ from drill_env.integrator import (
     EVENT_TIME_TOL,
     GOLDEN,
     H_MIN,
+    INSIDE,
     INTERP,
     MAX_BRACKET_ITERATIONS,
     MAX_EVENTS_AT_ONE_INSTANT,
     N_EXT,
     N_STAGES,
     ORDER_EXP,
+    SURFACE_WALK_START,
     C,
     bracket_closed,
     dense_component,
@@ -150,6 +157,34 @@ def _stuck_violation(disk, p, t, h, c, y, F, mu, ml, u_seg, u_func, use_func, u_
 
 
 @nb.njit(**_JIT)
+def _edge_direction(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp, b0):
+    """Whether a stuck disk whose load sits exactly on an edge of its (closed) band at the
+    start of the step leaves the band there (+1) or not (-1).
+
+    Decided by the rate of the load relative to the edge, from the vector field; when that
+    rate is zero (both disks at rest), by the next nonzero derivative: the side to which the
+    load first moves on the dense output, walked through at the fractions
+    SURFACE_WALK_START, 2 SURFACE_WALK_START, ... below ``b0``.
+    """
+    u = input_at(t, u_seg, u_func, use_func, u_limit)
+    rhs(t, y, u, p, mu, ml, ytmp)
+    rate = upper_edge_rate(p, y, u, ytmp) if disk == 0 else lower_edge_rate(p, t, y, ytmp)
+    if rate > 0.0:
+        return 1
+    if rate < 0.0:
+        return -1
+    c = SURFACE_WALK_START
+    while c < b0:
+        g = _stuck_violation(disk, p, t, h, c, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+        if g > 0.0:
+            return 1
+        if g < 0.0:
+            return -1
+        c *= 2.0
+    return -1
+
+
+@nb.njit(**_JIT)
 def _stuck_exit(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp):
     """Fraction of the step at which a stuck disk's load is outside its band, if anywhere
     inside the step, else 2.0 (the step's end points are checked by the caller).
@@ -161,6 +196,11 @@ def _stuck_exit(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, y
     """
     n = STUCK_SAMPLES
     g_prev = _stuck_violation(disk, p, t, h, 0.0, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+    if (
+        g_prev == 0.0
+        and _edge_direction(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp, 1.0) > 0
+    ):
+        return 0.0  # on the edge and leaving the band at once, however briefly
     best = g_prev
     i_best = 0
     rise = 0.0  # largest change between neighbouring samples next to the maximum
@@ -235,8 +275,15 @@ def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp,
     a = 0.0
     b = b0
     ga = _violation(disk, p, t, y, input_at(t, u_seg, u_func, use_func, u_limit), mu, ml)
-    if ga >= 0.0:
+    if ga > 0.0:
         return 0.0  # outside the band already at the start: switch at once
+    on_edge = ga == 0.0
+    if on_edge:
+        if _edge_direction(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp, b0) > 0:
+            return 0.0  # on the (closed) band's edge and leaving it: switch at once
+        # The load moves into the band: the event is where it is next beyond the edge, so
+        # a load still exactly on the edge counts as inside.
+        ga = -INSIDE
     gb = _stuck_violation(disk, p, t, h, b, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
     side = 0
     for _ in range(MAX_BRACKET_ITERATIONS):
@@ -244,6 +291,8 @@ def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp,
             break
         c = illinois_point(a, b, ga, gb, h)
         gc = _stuck_violation(disk, p, t, h, c, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp)
+        if on_edge and gc == 0.0:
+            gc = -INSIDE
         a, b, ga, gb, side = illinois_update(a, b, ga, gb, side, c, gc)
     return b
 

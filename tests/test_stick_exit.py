@@ -317,6 +317,29 @@ def test_disturbance_just_below_breakaway_never_moves_the_disks(excess):
     assert np.all(res.x3 == 0.0) and np.all(res.x2 == 0.0)
 
 
+@pytest.mark.parametrize(("phase", "tol"), [(0.0, TIGHT), (0.0, {}), (math.pi, TIGHT), (math.pi, {})])
+def test_disturbance_from_the_band_edge(phase, tol):
+    # Both disks at rest, the twist holding the lower disk exactly on its band edge
+    # (k_theta x1 = T_sl) and an external torque A sin(w t + phase) starting from zero: with
+    # phase 0 the torque pushes the load out of the closed band at once (breakaway at t = 0);
+    # with phase pi it pulls the load into the band, which it leaves again at t = pi / w.
+    amp, freq = 0.05 * BRAKE.lower_static, 20.0
+    p = drill_env.load_params("brake", disturbance_amp=amp, disturbance_freq=freq, disturbance_phase=phase)
+    kth = p.string_stiffness
+    x1 = p.lower_static / kth
+    for _ in range(8):
+        if kth * x1 == p.lower_static:
+            break
+        x1 = float(np.nextafter(x1, math.inf if kth * x1 < p.lower_static else -math.inf))
+    assert kth * x1 == p.lower_static
+    res = drill_env.simulate(p, 0.0, 0.3, x0=(x1, 0.0, 0.0), dt=1e-3, **tol)
+    assert res.status == 0
+    assert res.events.kinds()[0] == "lower stick->slip+"
+    exact = 0.0 if phase == 0.0 else math.pi / freq
+    assert res.events.t[0] == pytest.approx(exact, abs=1e-9)
+    assert np.all(res.x3[res.t < exact] == 0.0) and np.all(res.x2 == 0.0)
+
+
 # -- bang-bang zero-order hold from states at a band edge ------------------------------------------
 
 EDGE_CASE = {"u": [-5, 0, 0, 5, 5, 5, 0, 0], "x0": (-0.649256831283175, 0.0, 0.0)}

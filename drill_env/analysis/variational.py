@@ -38,12 +38,14 @@ from drill_env._numba import INLINE, JIT_ALLOC
 from drill_env.dynamics import hump, hump_slope
 from drill_env.integrator import (
     H_MIN,
+    INSIDE,
     INTERP,
     MAX_BRACKET_ITERATIONS,
     MAX_EVENTS_AT_ONE_INSTANT,
     N_EXT,
     N_EXTRA,
     N_STAGES,
+    SURFACE_WALK_START,
     bracket_closed,
     dense_coefficients,
     dense_eval,
@@ -244,6 +246,51 @@ def _locate(kind, sgn, a, b, ga, gb, h, z, F, u, p, mu, ml, ztmp):
 
 
 @nb.njit(**_JIT)
+def _edge_leaves(kind, z, F, u, p, mu, ml, ztmp):
+    """Whether a stuck disk whose load sits exactly on an edge of its band at the start of
+    the step leaves the band at once: the simulator's rule (``drill_env.kernel``), by the
+    rate of the load, k_theta times that of the twist, or where that is zero by the side to
+    which the load first moves on the dense output."""
+    twist_rate = z[1] - z[2]
+    if kind == K_UPPER:
+        need = p[L.KM] * u - p[L.KTH] * z[0]
+        high = need - p[L.TSUP] >= -p[L.TSUN] - need
+        rate = -p[L.KTH] * twist_rate if high else p[L.KTH] * twist_rate
+    else:
+        rate = p[L.KTH] * twist_rate if z[0] >= 0.0 else -p[L.KTH] * twist_rate
+    if rate != 0.0:
+        return rate > 0.0
+    c = SURFACE_WALK_START
+    while c < 1.0:
+        dense_eval(c, z, F, NX, ztmp)
+        g = _indicator(kind, ztmp, u, p, mu, ml)
+        if g != 0.0:
+            return g > 0.0
+        c *= 2.0
+    return False
+
+
+@nb.njit(**_JIT)
+def _locate_from_edge(kind, gb, h, z, F, u, p, mu, ml, ztmp):
+    """First fraction at which a stuck disk's load, on its band edge at the start and moving
+    into the band, is beyond the edge (> 0, not on it); > 0 at the end of the step."""
+    a = 0.0
+    b = 1.0
+    ga = -INSIDE
+    side = 0
+    for _ in range(MAX_BRACKET_ITERATIONS):
+        if bracket_closed(a, b, h):
+            break
+        c = illinois_point(a, b, ga, gb, h)
+        dense_eval(c, z, F, NX, ztmp)
+        gc = _indicator(kind, ztmp, u, p, mu, ml)
+        if gc == 0.0:
+            gc = -INSIDE
+        a, b, ga, gb, side = illinois_update(a, b, ga, gb, side, c, gc)
+    return b
+
+
+@nb.njit(**_JIT)
 def _extremum(comp, theta, z, F, u, p, mu, ml, ztmp, info):
     """Record the value of component ``comp`` at fraction ``theta`` in its min/max slots."""
     dense_eval(theta, z, F, NX, ztmp)
@@ -420,22 +467,30 @@ def flow(z, u, p, modes, t_max, to_section, rtol, atol, h_max, max_steps, info, 
         th_s = 2.0
         gu0 = _upper_violation(z, u, p, mu)
         gu1 = _upper_violation(z_new, u, p, mu)
-        if (gu1 > 0.0) if mu == 0 else (gu1 >= 0.0):
+        if mu == 0 and gu0 == 0.0 and _edge_leaves(K_UPPER, z, F, u, p, mu, ml, ztmp):
+            th_u = 0.0  # on the band's edge and leaving it, however briefly
+        elif (gu1 > 0.0) if mu == 0 else (gu1 >= 0.0):
             if mu != 0:
                 th_u = speed_zero(1, mu, z, F, h, 1.0)
             elif gu0 < 0.0:
                 th_u = _locate(K_UPPER, 1.0, 0.0, 1.0, gu0, gu1, h, z, F, u, p, mu, ml, ztmp)
+            elif gu0 == 0.0:
+                th_u = _locate_from_edge(K_UPPER, gu1, h, z, F, u, p, mu, ml, ztmp)
             else:
                 th_u = 0.0
         else:
             th_u = _dip(0, h, z, F, d0, d1, mu, ml)
         gl0 = _lower_violation(z, p, ml)
         gl1 = _lower_violation(z_new, p, ml)
-        if (gl1 > 0.0) if ml == 0 else (gl1 >= 0.0):
+        if ml == 0 and gl0 == 0.0 and _edge_leaves(K_LOWER, z, F, u, p, mu, ml, ztmp):
+            th_l = 0.0  # on the band's edge and leaving it, however briefly
+        elif (gl1 > 0.0) if ml == 0 else (gl1 >= 0.0):
             if ml != 0:
                 th_l = speed_zero(2, ml, z, F, h, 1.0)
             elif gl0 < 0.0:
                 th_l = _locate(K_LOWER, 1.0, 0.0, 1.0, gl0, gl1, h, z, F, u, p, mu, ml, ztmp)
+            elif gl0 == 0.0:
+                th_l = _locate_from_edge(K_LOWER, gl1, h, z, F, u, p, mu, ml, ztmp)
             else:
                 th_l = 0.0
         else:
