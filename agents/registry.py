@@ -17,6 +17,7 @@ from their committed policies.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -26,9 +27,12 @@ from agents.gains import classical_controller, gains_path, load_gains
 __all__ = [
     "CLASSICAL",
     "LEARNED",
+    "AGENTS_DIR_ENV",
     "CONTROLLERS",
     "STYLES",
     "ControllerStyle",
+    "PACKAGED_AGENTS_DIR",
+    "agents_dir_source",
     "build_controller",
     "classical_controller",
     "controller_style",
@@ -83,26 +87,65 @@ def controller_style(name: str) -> ControllerStyle:
 
 
 _ROOT = Path(__file__).resolve().parent.parent
+# the variable naming the folder of trained policies when --agents-dir is not given
+AGENTS_DIR_ENV = "DRILL_ENV_AGENTS_DIR"
+# the committed policies as the wheel installs them (pyproject.toml, force-include)
+PACKAGED_AGENTS_DIR = _ROOT / "drill_env" / "_results" / "agents"
+
+
+def _checkout_agents_dir() -> Path | None:
+    """``results/agents/`` of the source tree this package runs from, or None when it runs
+    from an installed wheel (no ``pyproject.toml`` beside the packages)."""
+    path = _ROOT / "results" / "agents"
+    return path if (_ROOT / "pyproject.toml").is_file() and path.is_dir() else None
+
+
+def agents_dir_source(agents_dir: str | Path | None = None) -> tuple[Path, str]:
+    """The folder of trained policies and where it came from, first found of: ``agents_dir``
+    (``--agents-dir``), the environment variable ``DRILL_ENV_AGENTS_DIR`` (if set and not
+    empty), ``results/agents/`` of the source tree when running from a checkout, the copy of
+    the committed policies installed with the package."""
+    if agents_dir is not None:
+        return Path(agents_dir), "--agents-dir"
+    env = os.environ.get(AGENTS_DIR_ENV, "")
+    if env:
+        return Path(env), AGENTS_DIR_ENV
+    checkout = _checkout_agents_dir()
+    if checkout is not None:
+        return checkout, "source tree"
+    return PACKAGED_AGENTS_DIR, "installed package"
 
 
 def default_agents_dir() -> Path:
-    return _ROOT / "results" / "agents"
+    """Where the trained policies are found without ``--agents-dir``: see
+    :func:`agents_dir_source`."""
+    return agents_dir_source()[0]
 
 
 def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) -> Path:
     """The trained policy of ``algo`` for ``preset``: ``<agents_dir>/<algo>/policy.zip`` for
-    the braked rig, ``<agents_dir>/<algo>_<preset>/policy.zip`` for any other preset. A
-    missing policy is an error naming that file, never a policy trained on another rig."""
+    the braked rig, ``<agents_dir>/<algo>_<preset>/policy.zip`` for any other preset
+    (``agents_dir`` as :func:`agents_dir_source` finds it). A missing policy is an error
+    naming that file, never a policy trained on another rig."""
     if algo not in LEARNED:
         raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
-    root = Path(agents_dir) if agents_dir is not None else default_agents_dir()
+    root, source = agents_dir_source(agents_dir)
     name = algo if preset == "brake" else f"{algo}_{preset}"
     path = root / name / "policy.zip"
     if not path.is_file():
+        # The config's name works from any folder (train resolves it against the packaged
+        # configs); without a folder of the user's own, train writes a fresh run folder.
+        config = f"{root.name}/{name}" if root.name.startswith("v") and root.name[1:].isdigit() else name
+        if source in ("--agents-dir", AGENTS_DIR_ENV):
+            how = f"`drill-env train --algo {algo} --config {config} --out {root / name}`"
+        else:
+            how = (
+                f"`drill-env train --algo {algo} --config {config}` and pass the folder it prints "
+                f"with --agents-dir or {AGENTS_DIR_ENV}"
+            )
         raise ValueError(
-            f"policy: no trained {algo} policy for preset {preset!r} at {path}; train one with "
-            f"`drill-env train --algo {algo} --config configs/agents/{name}.yaml --out {root / name}` "
-            "or pass --agents-dir"
+            f"policy: no trained {algo} policy for preset {preset!r} at {path} "
+            f"(agents folder from {source}); train one with {how}"
         )
     return path
 

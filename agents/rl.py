@@ -34,7 +34,7 @@ improved the return by less than ``tolerance`` (5 %) of the level it reached (an
 Policy files are code: a stable-baselines3 ``.zip`` stores some of its objects (the spaces,
 the policy class and its arguments, the schedules) as pickles, and unpickling can run
 arbitrary code. :func:`load_policy` loads the policies committed under ``results/agents/``
-silently and warns (:class:`UntrustedPolicyWarning`) for any other file unless told
+(and their copy installed with the package) silently and warns (:class:`UntrustedPolicyWarning`) for any other file unless told
 ``trusted=True``. :func:`policy_observation_version` reads only the zip's JSON and unpickles
 nothing.
 """
@@ -66,6 +66,7 @@ __all__ = [
     "load_config",
     "load_policy",
     "COMMITTED_POLICY_DIR",
+    "PACKAGED_POLICY_DIR",
     "UntrustedPolicyWarning",
     "untrusted_policy_note",
     "policy_observation_version",
@@ -79,6 +80,8 @@ ALGOS = ("ppo", "sac")
 VEC_ENVS = ("native", "dummy")
 # The policies of the repository (reviewed with it); any other policy file is untrusted.
 COMMITTED_POLICY_DIR = Path(__file__).resolve().parent.parent / "results" / "agents"
+# The same files as the wheel installs them (pyproject.toml, force-include).
+PACKAGED_POLICY_DIR = Path(__file__).resolve().parent.parent / "drill_env" / "_results" / "agents"
 
 
 def _algo_class(algo: str):
@@ -337,7 +340,7 @@ def untrusted_policy_note(path: str | Path) -> str | None:
     """Why loading ``path`` needs trust, or None for a policy committed under
     ``results/agents/`` (symbolic links resolved: a link out of it is not committed)."""
     resolved = Path(path).resolve()
-    if resolved.is_relative_to(COMMITTED_POLICY_DIR.resolve()):
+    if any(resolved.is_relative_to(d.resolve()) for d in (COMMITTED_POLICY_DIR, PACKAGED_POLICY_DIR)):
         return None
     return (
         f"policy: {path} is not one of the committed policies in results/agents/; loading a "

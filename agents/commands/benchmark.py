@@ -59,7 +59,12 @@ def register(app: typer.Typer) -> None:
         ray_address: str | None = typer.Option(
             None, help="Ray cluster address (default: a local Ray instance)."
         ),
-        agents_dir: Path | None = typer.Option(None, help="Trained policies (default: results/agents)."),
+        agents_dir: Path | None = typer.Option(
+            None,
+            help="Trained policies, laid out like results/agents. Default: $DRILL_ENV_AGENTS_DIR if "
+            "set, else results/agents/ of the source tree in a checkout, else the committed "
+            "policies installed with the package.",
+        ),
         plant: list[str] | None = typer.Option(
             None,
             "--plant",
@@ -194,7 +199,9 @@ def register(app: typer.Typer) -> None:
                     for p in cfg.presets:
                         policy_path(c, p, cfg.agents_dir)
         except ValueError as exc:
-            _fail(f"--agents-dir: {exc}" if "policy" in str(exc) else f"--gains: {exc}")
+            if "policy" not in str(exc):
+                _fail(f"--gains: {exc}")
+            _fail(f"--agents-dir: {exc}" if agents_dir is not None else str(exc))
         from drill_env.outputs import OutputFolderError, check_output_folder, output_lock
 
         check_output_folder(out, "--out")

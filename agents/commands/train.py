@@ -15,11 +15,47 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _config_dirs() -> list[Path]:
+    """The training configs: the source tree's configs/agents/ in a checkout, the copy
+    installed with the package otherwise."""
+    here = Path(__file__).resolve().parent.parent
+    return [here.parent / "configs" / "agents", here / "_configs" / "agents"]
+
+
+def config_names() -> list[str]:
+    """The names ``--config`` accepts in place of a path (``ppo``, ``v0/sac``, ...)."""
+    names: set[str] = set()
+    for d in _config_dirs():
+        if d.is_dir():
+            names.update(p.relative_to(d).with_suffix("").as_posix() for p in d.glob("**/*.yaml"))
+    return sorted(n for n in names if not n.startswith("rl_zoo3/") and n != "controllers")
+
+
+def resolve_config(config: Path) -> Path:
+    """``config`` itself if it is a file, else the config of that name (see
+    :func:`config_names`); a ValueError naming both when neither exists."""
+    if config.is_file() or config.suffix.lower() in (".yaml", ".yml"):
+        return config  # a path: load_config reports a missing or bad file
+    name = config.as_posix()
+    if name in config_names():
+        for d in _config_dirs():
+            if (d / f"{name}.yaml").is_file():
+                return d / f"{name}.yaml"
+    raise ValueError(
+        f"config: no file {str(config)!r} and no config of that name (names: {', '.join(config_names())})"
+    )
+
+
 def register(app: typer.Typer) -> None:
     @app.command("train")
     def train(
         algo: str = typer.Option(..., help="Algorithm: ppo or sac."),
-        config: Path = typer.Option(..., help="Training config (YAML), e.g. configs/agents/ppo.yaml."),
+        config: Path = typer.Option(
+            ...,
+            help="Training config: a YAML file, or the name of one shipped with the package "
+            "(from configs/agents/, works from any folder): ppo, sac, ppo_no_brake, sac_no_brake, "
+            "v0/ppo, ...",
+        ),
         seed: int = typer.Option(0, help="Random seed of the training run (>= 0)."),
         out: Path | None = typer.Option(
             None,
@@ -63,6 +99,7 @@ def register(app: typer.Typer) -> None:
         from agents.rl import train as run_training
 
         try:
+            config = resolve_config(config)
             cfg = load_config(config, total_timesteps=total_timesteps)
         except ValueError as exc:
             _fail(str(exc))
