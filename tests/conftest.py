@@ -68,3 +68,9 @@ def brake_2v(brake) -> drill_env.SimulationResult:
 def brake_1v(brake) -> drill_env.SimulationResult:
     """300 s of the braked rig at 1 V from rest: a limit cycle without stick (Fig. 9)."""
     return drill_env.simulate(brake, 1.0, 300.0)
+
+
+@pytest.fixture(autouse=True)
+def _no_user_agents_dir(monkeypatch):
+    """A developer's own DRILL_ENV_AGENTS_DIR must not change which policies the tests load."""
+    monkeypatch.delenv("DRILL_ENV_AGENTS_DIR", raising=False)
