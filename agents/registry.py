@@ -12,7 +12,11 @@ from their committed policies.
   missing one is an error, never the other rig's policy run in its place. Each runs
   on the observation version it was trained on (:func:`observation_version`), so the
   version-0 policies of ``results/agents/v0/`` are evaluated with ``agents_dir`` pointing
-  there.
+  there;
+* ``ppo_robust``: PPO trained with domain randomisation over the standard plant family
+  (``configs/agents/ppo_robust.yaml``; a residual policy on a classical controller where its
+  ``config.yaml`` says so, :mod:`agents.residual`), kept beside the nominal ones as
+  ``results/agents/ppo_robust[_<preset>]/policy.zip``.
 """
 
 from __future__ import annotations
@@ -36,7 +40,9 @@ __all__ = [
     "policy_path",
 ]
 
-LEARNED = ("ppo", "sac")
+LEARNED = ("ppo", "sac", "ppo_robust")
+# the algorithm of each learned controller
+_ALGO = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo"}
 CONTROLLERS = CLASSICAL + LEARNED
 
 _ROOT = Path(__file__).resolve().parent.parent
@@ -58,7 +64,7 @@ def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) ->
     if not path.is_file():
         raise ValueError(
             f"policy: no trained {algo} policy for preset {preset!r} at {path}; train one with "
-            f"`drill-env train --algo {algo} --config configs/agents/{name}.yaml --out {root / name}` "
+            f"`drill-env train --algo {_ALGO[algo]} --config configs/agents/{name}.yaml --out {root / name}` "
             "or pass --agents-dir"
         )
     return path
@@ -78,7 +84,7 @@ def build_controller(
     if name in LEARNED:
         from agents.rl import load_policy
 
-        policy = load_policy(policy_path(name, preset, agents_dir), algo=name, name=name)
+        policy = load_policy(policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name)
         policy.check_env(env)
         return policy
     raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")

@@ -36,7 +36,7 @@ def register(app: typer.Typer) -> None:
         quick: bool = typer.Option(False, "--quick", help="A handful of voltages per preset and one seed."),
         controllers: str | None = typer.Option(
             None,
-            help="Comma-separated subset of: open_loop, pi_upper, pi_lower, torque_feedback, lqi, lqi_angle_ff, ppo, sac (default: all).",
+            help="Comma-separated subset of: open_loop, pi_upper, pi_lower, torque_feedback, lqi, lqi_angle_ff, ppo, sac, ppo_robust (default: all).",
         ),
         voltages: str | None = typer.Option(
             None,
