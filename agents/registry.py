@@ -13,10 +13,10 @@ from their committed policies.
   on the observation version it was trained on (:func:`observation_version`), so the
   version-0 policies of ``results/agents/v0/`` are evaluated with ``agents_dir`` pointing
   there;
-* ``ppo_robust``: PPO trained with domain randomisation over the standard plant family
-  (``configs/agents/ppo_robust.yaml``; a residual policy on a classical controller where its
-  ``config.yaml`` says so, :mod:`agents.residual`), kept beside the nominal ones as
-  ``results/agents/ppo_robust[_<preset>]/policy.zip``.
+* ``ppo_robust``: PPO trained with domain randomisation over the standard plant family, kept
+  beside the nominal ones as ``results/agents/ppo_robust[_<preset>]/policy.zip``; the
+  committed ones are residual policies on ``lqi_angle_ff`` (``configs/agents/ppo_residual*.yaml``,
+  :mod:`agents.residual`; a policy's ``config.yaml`` says which it is).
 """
 
 from __future__ import annotations
@@ -43,6 +43,8 @@ __all__ = [
 LEARNED = ("ppo", "sac", "ppo_robust")
 # the algorithm of each learned controller
 _ALGO = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo"}
+# the training config (configs/agents/<name>[_<preset>].yaml) of each
+_CONFIG = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo_residual"}
 CONTROLLERS = CLASSICAL + LEARNED
 
 _ROOT = Path(__file__).resolve().parent.parent
@@ -60,11 +62,12 @@ def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) ->
         raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
     root = Path(agents_dir) if agents_dir is not None else default_agents_dir()
     name = algo if preset == "brake" else f"{algo}_{preset}"
+    config = _CONFIG[algo] if preset == "brake" else f"{_CONFIG[algo]}_{preset}"
     path = root / name / "policy.zip"
     if not path.is_file():
         raise ValueError(
             f"policy: no trained {algo} policy for preset {preset!r} at {path}; train one with "
-            f"`drill-env train --algo {_ALGO[algo]} --config configs/agents/{name}.yaml --out {root / name}` "
+            f"`drill-env train --algo {_ALGO[algo]} --config configs/agents/{config}.yaml --out {root / name}` "
             "or pass --agents-dir"
         )
     return path
