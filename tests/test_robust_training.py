@@ -114,7 +114,6 @@ def _tiny_robust_config(residual=None) -> TrainConfig:
     return TrainConfig(**cfg)
 
 
-@pytest.mark.slow
 def test_a_tiny_robust_training_run_writes_a_policy_the_benchmark_loads(tmp_path):
     cfg = _tiny_robust_config()
     agents_dir = tmp_path / "agents"
