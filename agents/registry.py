@@ -12,7 +12,11 @@ from their committed policies.
   missing one is an error, never the other rig's policy run in its place. Each runs
   on the observation version it was trained on (:func:`observation_version`), so the
   version-0 policies of ``results/agents/v0/`` are evaluated with ``agents_dir`` pointing
-  there.
+  there;
+* ``ppo_robust``: PPO trained with domain randomisation over the standard plant family, kept
+  beside the nominal ones as ``results/agents/ppo_robust[_<preset>]/policy.zip``; the
+  committed ones are residual policies on ``lqi_angle_ff`` (``configs/agents/ppo_residual*.yaml``,
+  :mod:`agents.residual`; a policy's ``config.yaml`` says which it is).
 """
 
 from __future__ import annotations
@@ -46,7 +50,11 @@ __all__ = [
 # The one list of the benchmark's controllers, in the order of its tables and legends: the
 # figures, the command-line help and the checks of a controller name all derive from these.
 CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi_angle_ff")
-LEARNED = ("ppo", "sac")
+LEARNED = ("ppo", "sac", "ppo_robust")
+# the algorithm of each learned controller
+_ALGO = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo"}
+# the training config (configs/agents/<name>[_<preset>].yaml) of each
+_CONFIG = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo_residual"}
 CONTROLLERS = CLASSICAL + LEARNED
 
 
@@ -131,16 +139,21 @@ def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) ->
         raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
     root, source = agents_dir_source(agents_dir)
     name = algo if preset == "brake" else f"{algo}_{preset}"
+    base_config = _CONFIG[algo] if preset == "brake" else f"{_CONFIG[algo]}_{preset}"
     path = root / name / "policy.zip"
     if not path.is_file():
         # The config's name works from any folder (train resolves it against the packaged
         # configs); without a folder of the user's own, train writes a fresh run folder.
-        config = f"{root.name}/{name}" if root.name.startswith("v") and root.name[1:].isdigit() else name
+        config = (
+            f"{root.name}/{base_config}"
+            if root.name.startswith("v") and root.name[1:].isdigit()
+            else base_config
+        )
         if source in ("--agents-dir", AGENTS_DIR_ENV):
-            how = f"`drill-env train --algo {algo} --config {config} --out {root / name}`"
+            how = f"`drill-env train --algo {_ALGO[algo]} --config {config} --out {root / name}`"
         else:
             how = (
-                f"`drill-env train --algo {algo} --config {config}` and pass the folder it prints "
+                f"`drill-env train --algo {_ALGO[algo]} --config {config}` and pass the folder it prints "
                 f"with --agents-dir or {AGENTS_DIR_ENV}"
             )
         raise ValueError(
@@ -164,7 +177,7 @@ def build_controller(
     if name in LEARNED:
         from agents.rl import load_policy
 
-        policy = load_policy(policy_path(name, preset, agents_dir), algo=name, name=name)
+        policy = load_policy(policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name)
         policy.check_env(env)
         return policy
     raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")

@@ -16,6 +16,14 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
                                     # learning_rate / clip_range may be lin_<value> (linear decay)
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
+    residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
+                                        # (agents.residual); absent or null: the policy is the controller
+
+Domain randomisation is the environment's ``domain_randomization`` argument in
+``env_kwargs`` (:class:`drill_env.envs.config.DomainRandomization`: relative ranges of the
+friction, inertia, stiffness and motor constant, ``(low, high)`` ranges of the sensor noise and
+of any effect of :class:`drill_env.params.ModelEffects`); it is validated when the config is
+read, each bad entry named with its field (``env_kwargs.domain_randomization.effects.<name>``).
 
 Learning curve: every ``every_steps`` environment steps the deterministic policy is run
 by :func:`agents.evaluation.run_episode` (the one evaluation path) on a fixed set of
@@ -122,6 +130,7 @@ class TrainConfig:
     hyperparameters: Mapping[str, Any] = field(default_factory=dict)
     evaluation: EvalConfig = field(default_factory=EvalConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
+    residual: Any = None  # agents.residual.ResidualConfig, or None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -170,6 +179,17 @@ class TrainConfig:
             raise ValueError(
                 f"convergence.min_evaluations: expected an integer >= 2, got {c.min_evaluations!r}"
             )
+        from agents.residual import ResidualConfig
+
+        object.__setattr__(self, "residual", ResidualConfig.from_any(self.residual))
+        dr = self.env_kwargs.get("domain_randomization")
+        if dr is not None:
+            from drill_env.envs.config import DomainRandomization
+
+            try:
+                DomainRandomization.from_any(dr)
+            except ValueError as exc:
+                raise ValueError(f"env_kwargs.{exc}") from None
         object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
         object.__setattr__(self, "hyperparameters", copy.deepcopy(dict(self.hyperparameters)))
 
@@ -186,6 +206,7 @@ class TrainConfig:
             "hyperparameters": copy.deepcopy(dict(self.hyperparameters)),
             "evaluation": vars(self.evaluation).copy(),
             "convergence": vars(self.convergence).copy(),
+            **({"residual": self.residual.to_dict()} if self.residual is not None else {}),
         }
 
 
@@ -373,7 +394,17 @@ def load_policy(
 
     torch.set_num_threads(1)
     model = _algo_class(algo).load(str(path), device="cpu")
-    return SB3Policy(model, name or algo, str(path))
+    policy = SB3Policy(model, name or algo, str(path))
+    config = path.parent / "config.yaml"
+    residual = yaml.safe_load(config.read_text()).get("residual") if config.is_file() else None
+    if residual is None:
+        return policy
+    from agents.residual import ResidualPolicy, base_controller
+
+    cfg = load_config(config)
+    return ResidualPolicy(
+        policy, base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs), cfg.residual.scale
+    )
 
 
 def policy_observation_version(path: str | Path) -> int:
@@ -559,10 +590,16 @@ def make_train_vec_env(cfg: TrainConfig, seed: int):
 
         from drill_env.envs.sb3 import sb3_vec_env
 
-        return VecMonitor(sb3_vec_env(cfg.env_id, cfg.n_envs, seed=seed, **cfg.env_kwargs))
-    from stable_baselines3.common.env_util import make_vec_env
+        venv = VecMonitor(sb3_vec_env(cfg.env_id, cfg.n_envs, seed=seed, **cfg.env_kwargs))
+    else:
+        from stable_baselines3.common.env_util import make_vec_env
 
-    return make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs))
+        venv = make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs))
+    if cfg.residual is None:
+        return venv
+    from agents.residual import ResidualVecEnv, base_controller
+
+    return ResidualVecEnv(venv, base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs), cfg.residual.scale)
 
 
 def train(
@@ -600,7 +637,18 @@ def train(
 
     eval_env = gym.make(cfg.env_id, **cfg.env_kwargs)
     episodes = evaluation_episodes(cfg.evaluation)
-    policy = SB3Policy(model, cfg.algo)
+    base = None
+    if cfg.residual is not None:
+        from agents.residual import ResidualPolicy, base_controller
+
+        base = base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs)
+
+    def current_policy() -> Any:
+        # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
+        # moment, and the learner updates them in place
+        policy: Any = SB3Policy(model, cfg.algo)
+        return policy if base is None else ResidualPolicy(policy, base, cfg.residual.scale)
+
     rows: list[dict[str, Any]] = []
     best = {"return": -math.inf, "step": 0}
     t_start = time.perf_counter()
@@ -608,7 +656,7 @@ def train(
 
     def run_eval(step: int) -> None:
         t0 = time.perf_counter()
-        rets = evaluate_on_episodes(eval_env, policy, episodes)
+        rets = evaluate_on_episodes(eval_env, current_policy(), episodes)
         eval_time[0] += time.perf_counter() - t0
         k = cfg.evaluation.episodes_per_regime
         row = {

@@ -237,7 +237,11 @@ class DomainRandomization:
     uniformly from ``[1 - rel, 1 + rel]``; a draw that makes the lower friction
     non-dissipative (eq. 4) is redrawn. The encoder resolution is drawn from
     ``encoder_counts`` (empty: keep the sensors' value) and the noise levels uniformly
-    from their ``(low, high)`` ranges.
+    from their ``(low, high)`` ranges. ``effects`` maps fields of
+    :class:`~drill_env.params.ModelEffects` to ``(low, high)``: each is drawn uniformly per
+    episode (after the factors, in the order of ModelEffects' fields), e.g.
+    ``{"lower_position_amp_1": (0, 0.15), "lower_position_phase_1": (0, 6.2832)}``; the
+    other effects keep the preset's values.
     """
 
     friction_rel: float = 0.1  # [-]
@@ -247,6 +251,7 @@ class DomainRandomization:
     encoder_counts: tuple[int, ...] = (1000, 2000, 4000)  # [counts/rev]
     angle_noise_std: tuple[float, float] = (0.0, 5e-4)  # [rad]
     speed_noise_std: tuple[float, float] = (0.0, 0.05)  # [rad/s]
+    effects: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)  # SI units
 
     def __post_init__(self) -> None:
         for name in ("friction_rel", "inertia_rel", "stiffness_rel", "motor_constant_rel"):
@@ -275,6 +280,7 @@ class DomainRandomization:
                     f"domain_randomization.{name}: expected finite 0 <= low <= high, got {rng!r}"
                 )
             object.__setattr__(self, name, (lo, hi))
+        object.__setattr__(self, "effects", _effect_ranges(self.effects))
 
     @classmethod
     def from_any(cls, value: Any) -> DomainRandomization | None:
@@ -283,6 +289,48 @@ class DomainRandomization:
         if value is True:
             return cls()
         return config_from_any(cls, value, "domain_randomization")
+
+
+def _effect_ranges(value: Any) -> dict[str, tuple[float, float]]:
+    """Validated ``domain_randomization.effects``: ModelEffects fields (in their order) to
+    finite ``(low, high)``, both ends valid effect values and the largest magnitudes
+    together a valid ModelEffects."""
+    from drill_env.params import ModelEffects
+
+    if not isinstance(value, Mapping):
+        raise ValueError(
+            f"domain_randomization.effects: expected a mapping of effect names to (low, high), got {value!r}"
+        )
+    order = [f.name for f in fields(ModelEffects)]
+    unknown = sorted(set(value) - set(order))
+    if unknown:
+        raise ValueError(f"domain_randomization.effects: unknown effect(s) {unknown}; allowed: {order}")
+    out: dict[str, tuple[float, float]] = {}
+    for name in order:
+        if name not in value:
+            continue
+        rng = value[name]
+        field_name = f"domain_randomization.effects.{name}"
+        try:
+            if isinstance(rng, (str, bytes)):
+                raise TypeError
+            lo, hi = (float(v) for v in rng)
+        except (TypeError, ValueError):
+            raise ValueError(f"{field_name}: expected (low, high), got {rng!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise ValueError(f"{field_name}: expected finite low <= high, got {rng!r}")
+        for v in (lo, hi):
+            try:
+                ModelEffects(**{name: v})
+            except ParameterError as exc:
+                raise ValueError(f"domain_randomization.{exc}") from None
+        out[name] = (lo, hi)
+    worst = {n: max(abs(lo), abs(hi)) for n, (lo, hi) in out.items() if "_position_amp_" in n}
+    try:
+        ModelEffects(**worst)
+    except ParameterError as exc:
+        raise ValueError(f"domain_randomization.{exc} at the ends of the ranges") from None
+    return out
 
 
 @dataclass(frozen=True)
@@ -528,6 +576,8 @@ class EnvSettings:
                 for (name, rel), f in zip(rels, factors, strict=True)
                 if rel > 0
             }
+            if dr.effects:
+                changes.update({n: float(rng.uniform(lo, hi)) for n, (lo, hi) in dr.effects.items()})
             try:
                 return base.replace(**changes)
             except ParameterError:

@@ -1,0 +1,160 @@
+"""Residual policies: a learned correction on top of a classical controller.
+
+The voltage applied to the rig is the classical controller's plus a bounded correction,
+
+    a = clip(a_base(obs) + scale * a_policy(obs), -1, 1)      (normalised actions, 1 = 5 V)
+
+with ``a_policy`` in [-1, 1]: the policy can move the voltage by at most ``scale`` of the
+amplifier range either way, and a policy that outputs zero is the classical controller
+exactly. This is residual reinforcement learning (Johannink et al., ICRA 2019; for
+vibration damping, Yonezawa et al., arXiv 2504.19715): the base controller carries the
+regulation it was designed for (tracking, the integral action), the policy learns only what
+the base misses on the plants it is trained on.
+
+A training config asks for it with ``residual: {base: lqi, scale: 0.2}``
+(:class:`ResidualConfig`); the base is built with the tuned gains of
+``configs/agents/controllers.yaml`` on the nominal model of the training environment (domain
+randomisation changes the plant, never the design), during training by
+:class:`ResidualVecEnv` and at inference by :class:`ResidualPolicy`, both the same function
+of the observation and of the base's state.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["RESIDUAL_BASES", "ResidualConfig", "ResidualPolicy", "ResidualVecEnv", "base_controller"]
+
+# Classical controllers a policy can act on top of (those with integral action and tuned gains).
+RESIDUAL_BASES = ("lqi", "lqi_angle_ff", "torque_feedback")
+
+
+@dataclass(frozen=True)
+class ResidualConfig:
+    """``residual`` of a training config: the base controller and the correction's bound."""
+
+    base: str = "lqi"
+    scale: float = 0.2  # [-] largest correction, fraction of the action range (1 = 5 V)
+
+    def __post_init__(self) -> None:
+        if self.base not in RESIDUAL_BASES:
+            raise ValueError(f"residual.base: {self.base!r} is not one of {list(RESIDUAL_BASES)}")
+        s = self.scale
+        if isinstance(s, bool) or not isinstance(s, (int, float)) or not (math.isfinite(s) and 0 < s <= 1):
+            raise ValueError(f"residual.scale: {s!r} is outside the allowed range (0, 1]")
+        object.__setattr__(self, "scale", float(s))
+
+    @classmethod
+    def from_any(cls, value: Any) -> ResidualConfig | None:
+        if value is None or isinstance(value, cls):
+            return value
+        if not isinstance(value, Mapping):
+            raise ValueError(f"residual: expected a mapping {{base, scale}} or null, got {value!r}")
+        allowed = ("base", "scale")
+        unknown = sorted(set(value) - set(allowed))
+        if unknown:
+            raise ValueError(f"residual: unknown key(s) {unknown}; allowed: {list(allowed)}")
+        return cls(**value)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"base": self.base, "scale": self.scale}
+
+
+def base_controller(cfg: ResidualConfig, env_id: str, env_kwargs: Mapping[str, Any]):
+    """The classical base of a residual policy, designed on the nominal model of the training
+    environment (``env_kwargs`` without its domain randomisation)."""
+    import gymnasium as gym
+
+    from agents.base import ControllerSpec
+    from agents.gains import classical_controller
+    from drill_env.envs import ENV_IDS
+
+    kwargs = {k: v for k, v in env_kwargs.items() if k != "domain_randomization"}
+    env = gym.make(env_id, **kwargs)
+    try:
+        spec = ControllerSpec.from_env(env)
+    finally:
+        env.close()
+    return classical_controller(cfg.base, spec, ENV_IDS[env_id])
+
+
+def _combine(base_action: np.ndarray, correction: np.ndarray, scale: float) -> np.ndarray:
+    a = np.asarray(base_action, dtype=np.float32) + np.float32(scale) * np.asarray(
+        correction, dtype=np.float32
+    )
+    return np.clip(a, -1.0, 1.0).astype(np.float32)
+
+
+class ResidualPolicy:
+    """A trained correction ``policy`` on top of ``base`` behind SB3's ``predict`` (the
+    benchmark's one evaluation path); the state is the base's."""
+
+    def __init__(self, policy: Any, base: Any, scale: float, name: str | None = None):
+        self.policy, self.base, self.scale = policy, base, float(scale)
+        self.name = name or getattr(policy, "name", "residual")
+        self.path = getattr(policy, "path", None)
+
+    @property
+    def observation_space(self):
+        return self.policy.observation_space
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        base_action, state = self.base.predict(observation, state=state, episode_start=episode_start)
+        correction, _ = self.policy.predict(observation, deterministic=deterministic)
+        return _combine(base_action, correction, self.scale), state
+
+    def check_env(self, env: Any) -> None:
+        self.policy.check_env(env)
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "path": self.path,
+            "residual_on": self.base.describe(),
+            "scale": self.scale,
+        }
+
+
+def _vec_env_wrapper():
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    class _ResidualVecEnv(VecEnvWrapper):
+        """Training rigs whose action is the policy's correction: each step the base controller
+        (batched over the rigs, its state reset where an episode starts) gives its action and
+        the rigs receive ``clip(base + scale * correction, -1, 1)``."""
+
+        def __init__(self, venv, base: Any, scale: float):
+            super().__init__(venv)
+            self.base, self.scale = base, float(scale)
+            self._obs: np.ndarray | None = None
+            self._state: np.ndarray | None = None
+            self._start = np.ones(venv.num_envs, dtype=bool)
+
+        def reset(self):
+            self._obs = self.venv.reset()
+            self._state = None
+            self._start = np.ones(self.num_envs, dtype=bool)
+            return self._obs
+
+        def step_async(self, actions: np.ndarray) -> None:
+            base_action, self._state = self.base.predict(
+                self._obs, state=self._state, episode_start=self._start
+            )
+            self.venv.step_async(_combine(base_action, np.reshape(actions, base_action.shape), self.scale))
+
+        def step_wait(self):
+            obs, reward, done, info = self.venv.step_wait()
+            self._obs, self._start = obs, np.asarray(done, dtype=bool).copy()
+            return obs, reward, done, info
+
+    return _ResidualVecEnv
+
+
+def ResidualVecEnv(venv, base: Any, scale: float):  # noqa: N802 (a class built on demand)
+    """Wrap SB3 vector env ``venv`` so that its action is a correction on ``base``."""
+    return _vec_env_wrapper()(venv, base, scale)

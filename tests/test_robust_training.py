@@ -1,0 +1,215 @@
+"""Robust learned policies: domain randomisation of the library's effects, its validation in
+the training config, a tiny randomised training run the benchmark loads, residual policies."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from agents.base import ControllerSpec
+from agents.evaluation import EpisodeSettings, evaluate, make_env
+from agents.gains import classical_controller
+from agents.registry import build_controller, observation_version
+from agents.residual import ResidualConfig, ResidualPolicy, base_controller
+from agents.rl import TrainConfig, UntrustedPolicyWarning, load_config, make_train_vec_env, train
+from drill_env.cli import app
+from drill_env.envs.config import DomainRandomization
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIGS = ROOT / "configs" / "agents"
+
+EFFECTS = {
+    "lower_position_amp_1": (0.02, 0.15),
+    "lower_position_phase_1": (0.0, 2.0 * math.pi),
+    "motor_lag": (0.005, 0.02),
+}
+
+
+def _plants(dr, seeds):
+    env = gym.make("DrillString-v1", domain_randomization=dr, warmup_time=1.0, warmup_jitter=0.0)
+    out = []
+    for s in seeds:
+        env.reset(seed=s)
+        out.append(env.unwrapped.true_params)
+    env.close()
+    return out
+
+
+def test_effects_are_drawn_within_their_ranges_after_the_factors():
+    seeds = range(31, 43)
+    # friction +-10 %: no draw is redrawn for being non-dissipative (a draw that is, with or
+    # without the effects, is redrawn whole, and the two streams part)
+    with_effects = _plants({"friction_rel": 0.1, "effects": EFFECTS}, seeds)
+    without = _plants({"friction_rel": 0.1}, seeds)
+    for p, q in zip(with_effects, without, strict=True):
+        for name, (lo, hi) in EFFECTS.items():
+            assert lo <= getattr(p.effects, name) <= hi
+        # the factors are drawn first: the same friction as without effects for the seed
+        assert p.lower_static == q.lower_static and p.upper_inertia == q.upper_inertia
+        assert q.effects.active == ()
+        assert p.effects.upper_position_amp_1 == 0.0  # an effect not listed keeps its value
+    amps = np.array([p.effects.lower_position_amp_1 for p in with_effects])
+    assert np.ptp(amps) > 0.05  # drawn per episode, not once
+
+
+@pytest.mark.parametrize(
+    ("effects", "field"),
+    [
+        ({"lower_position_amp_1": [0.0, 1.2]}, "effects.lower_position_amp_1"),
+        ({"motor_lag": [-0.01, 0.02]}, "effects.motor_lag"),
+        ({"motor_lag": [0.02, 0.01]}, "effects.motor_lag"),
+        ({"motor_lag": [0.0, float("nan")]}, "effects.motor_lag"),
+        ({"motor_lag": 0.02}, "effects.motor_lag"),
+        ({"lower_position_amp_1": [0, 0.6], "lower_position_amp_2": [-0.5, 0]}, "lower_position_amp_1/_2"),
+        ({"a1": [0.0, 0.1]}, "effects: unknown effect(s) ['a1']"),
+    ],
+)
+def test_a_bad_randomisation_range_is_a_one_line_error_naming_the_field(tmp_path, effects, field):
+    cfg = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())
+    cfg["env_kwargs"]["domain_randomization"]["effects"] = effects
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(ValueError) as err:
+        load_config(path)
+    msg = str(err.value)
+    assert msg.startswith("env_kwargs.domain_randomization.") and field in msg and "\n" not in msg
+    res = CliRunner().invoke(app, ["train", "--algo", "ppo", "--config", str(path), "--no-progress"])
+    assert res.exit_code == 2 and field in res.output and "Traceback" not in res.output
+    # the other entries of domain_randomization are checked the same way
+    cfg["env_kwargs"]["domain_randomization"] = {"friction_rel": 0.9}
+    with pytest.raises(ValueError, match=r"^env_kwargs\.domain_randomization\.friction_rel: 0\.9 is outside"):
+        TrainConfig(**cfg)
+
+
+def test_residual_config_validation():
+    assert ResidualConfig.from_any(None) is None
+    assert ResidualConfig.from_any({"base": "lqi", "scale": 0.3}).scale == 0.3
+    with pytest.raises(ValueError, match=r"^residual\.scale: 1\.5 is outside the allowed range \(0, 1\]$"):
+        ResidualConfig(scale=1.5)
+    with pytest.raises(ValueError, match=r"^residual\.base: 'ppo' is not one of"):
+        ResidualConfig(base="ppo")
+    with pytest.raises(ValueError, match=r"^residual: unknown key\(s\) \['gain'\]"):
+        ResidualConfig.from_any({"gain": 1.0})
+
+
+def _tiny_robust_config(residual=None) -> TrainConfig:
+    cfg = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
+    cfg.update(total_timesteps=512, n_envs=2, torch_threads=1)
+    cfg["evaluation"] = {"every_steps": 256, "episodes_per_regime": 1, "seed": 5}
+    cfg["env_kwargs"] = {
+        "warmup_time": 2.0,
+        "warmup_jitter": 0.5,
+        "domain_randomization": {"friction_rel": 0.1, "effects": EFFECTS},
+    }
+    cfg["hyperparameters"].update(n_steps=128, batch_size=64, n_epochs=2)
+    if residual is not None:
+        cfg["residual"] = residual
+    return TrainConfig(**cfg)
+
+
+def test_a_tiny_robust_training_run_writes_a_policy_the_benchmark_loads(tmp_path):
+    cfg = _tiny_robust_config()
+    agents_dir = tmp_path / "agents"
+    summary = train(cfg, 2, agents_dir / "ppo_robust", tmp_path / "logs", progress_bar=False)
+    assert summary["total_timesteps"] >= 512 and np.isfinite(summary["best_eval_return"])
+    # each evaluation runs the policy of its moment, not the one at the start
+    curve = np.loadtxt(agents_dir / "ppo_robust" / "eval.csv", delimiter=",", skiprows=1, usecols=2)
+    assert curve.size == 3 and len(set(curve.tolist())) > 1
+    saved = yaml.safe_load((agents_dir / "ppo_robust" / "config.yaml").read_text())
+    assert saved["env_kwargs"]["domain_randomization"]["effects"]["motor_lag"] == [0.005, 0.02]
+    # as the benchmark loads it: by name, from --agents-dir, on the observation it was trained on
+    assert observation_version("ppo_robust", "brake", agents_dir) == 1
+    settings = EpisodeSettings(duration=3.0, window=1.0, warmup_time=5.0, warmup_jitter=0.0)
+    env = make_env("brake", settings, 1)
+    with pytest.warns(UntrustedPolicyWarning):
+        policy = build_controller("ppo_robust", env, "brake", agents_dir=agents_dir)
+    m = evaluate(policy, "brake", 1.0, 0, settings, name="ppo_robust", env=env)
+    assert m.controller == "ppo_robust" and m.sim_status == 0 and np.isfinite(m.rms_error)
+    with pytest.raises(ValueError, match="no trained ppo_robust policy for preset 'no_brake'"):
+        build_controller("ppo_robust", env, "no_brake", agents_dir=agents_dir)
+
+
+class _ConstantPolicy:
+    """A stand-in for a trained policy: always the same normalised action."""
+
+    def __init__(self, value: float):
+        self.value = np.float32(value)
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        obs = np.asarray(observation)
+        shape = (1,) if obs.ndim == 1 else (obs.shape[0], 1)
+        return np.full(shape, self.value, dtype=np.float32), None
+
+
+@pytest.mark.parametrize("base_name", ["lqi", "torque_feedback"])
+def test_residual_action_is_the_base_controllers_when_the_policy_outputs_zero(base_name):
+    env = gym.make("DrillString-v1", warmup_time=10.0, warmup_jitter=0.0)
+    spec = ControllerSpec.from_env(env)
+    base = classical_controller(base_name, spec, "brake")
+    twin = classical_controller(base_name, spec, "brake")  # run alone, its own state
+    zero = ResidualPolicy(_ConstantPolicy(0.0), base, 0.2)
+    push = ResidualPolicy(_ConstantPolicy(1.0), classical_controller(base_name, spec, "brake"), 0.2)
+    obs, _ = env.reset(seed=4, options={"regime": "limit_cycle"})
+    s_res = s_base = s_push = None
+    start = np.ones(1, dtype=bool)
+    for _ in range(60):
+        a_res, s_res = zero.predict(obs, s_res, start)
+        a_base, s_base = twin.predict(obs, s_base, start)
+        a_push, s_push = push.predict(obs, s_push, start)
+        np.testing.assert_array_equal(a_res, a_base)
+        np.testing.assert_allclose(a_push, np.minimum(a_base + 0.2, 1.0), atol=1e-6)
+        start = np.zeros(1, dtype=bool)
+        obs, *_ = env.step(a_res)
+    env.close()
+
+
+def test_residual_training_rigs_with_a_zero_correction_run_the_base_controller():
+    """The training wrapper applies base + scale x correction, with the base's state reset where
+    an episode ends: with zero corrections the rigs follow a plain rig set driven by the base
+    controller, over an episode boundary."""
+    cfg = _tiny_robust_config({"base": "lqi", "scale": 0.2})
+    cfg_plain = TrainConfig(**{**cfg.to_dict(), "residual": None})
+    residual_rigs = make_train_vec_env(cfg, 11)
+    plain_rigs = make_train_vec_env(cfg_plain, 11)
+    base = base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs)
+    obs_r, obs_p = residual_rigs.reset(), plain_rigs.reset()
+    state, start = None, np.ones(2, dtype=bool)
+    n_done = 0
+    for _ in range(420):  # the episodes last 400 steps
+        a, state = base.predict(obs_p, state, start)
+        obs_r, rew_r, done_r, _ = residual_rigs.step(np.zeros((2, 1), dtype=np.float32))
+        obs_p, rew_p, done_p, _ = plain_rigs.step(a)
+        np.testing.assert_array_equal(obs_r, obs_p)
+        np.testing.assert_array_equal(rew_r, rew_p)
+        start = done_p
+        n_done += int(done_p.sum())
+    assert n_done == 2
+    residual_rigs.close()
+    plain_rigs.close()
+
+
+@pytest.mark.parametrize("folder", ["ppo_robust", "ppo_robust_no_brake"])
+def test_committed_robust_policies_were_trained_over_the_family(folder):
+    """The committed ppo_robust policies were trained with the shipped randomisation (the
+    same ranges in every robust config) and load as what their config says."""
+    shipped = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())["env_kwargs"]["domain_randomization"]
+    for name in ("ppo_residual.yaml", "ppo_residual_no_brake.yaml"):
+        assert yaml.safe_load((CONFIGS / name).read_text())["env_kwargs"]["domain_randomization"] == shipped
+    dr = DomainRandomization.from_any(shipped)
+    assert dr.effects["lower_position_amp_1"] == (0.0, 0.15)
+    path = ROOT / "results" / "agents" / folder
+    committed = yaml.safe_load((path / "config.yaml").read_text())
+    assert committed["env_kwargs"]["domain_randomization"] == shipped
+    preset = "brake" if folder == "ppo_robust" else "no_brake"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # committed: loads without a warning
+        env = make_env(preset, EpisodeSettings(), 1)
+        policy = build_controller("ppo_robust", env, preset)
+    assert isinstance(policy, ResidualPolicy) == ("residual" in committed)
