@@ -53,15 +53,30 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     runs = {r.name: r for r in res.dataset.runs}
 
     # candidate gains
+    from matplotlib.patches import Patch
+
     fig, ax = plt.subplots(figsize=(7, 3.2))
     names = [s.name for s in d.scores]
-    gains = [max(s.gain, 1e-2) for s in d.scores]
+    # A candidate can make the held-out fit worse (gain <= 0): a symmetric-log axis draws
+    # those as bars to the left of zero instead of stubs at an arbitrary floor.
+    gains = [s.gain for s in d.scores]
     colors = ["tab:green" if s.significant else "tab:gray" for s in d.scores]
     ax.barh(names, gains, color=colors)
-    ax.scatter([s.threshold for s in d.scores], names, marker="|", s=200, color="k", label="threshold")
-    ax.set_xscale("log")
-    ax.set_xlabel("held-out gain (drop of the sum of squares, noise units)")
-    ax.legend(loc="lower right", fontsize=8)
+    ax.scatter([s.threshold for s in d.scores], names, marker="|", s=200, color="k", zorder=3)
+    ax.axvline(0.0, color="k", lw=0.6)
+    ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_xlabel("held-out gain: drop of the sum of squares [noise units] (< 0: worse)")
+    ax.set_title("Candidate effects on the held-out runs", fontsize=9)
+    ax.legend(
+        handles=[
+            Patch(color="tab:green", label="significant"),
+            Patch(color="tab:gray", label="not significant"),
+            plt.Line2D([], [], color="k", marker="|", ls="", ms=12, label="significance threshold"),
+        ],
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1.0),
+        fontsize=7,
+    )
     fig.tight_layout()
     fig.savefig(out / "candidates.png", dpi=110)
     plt.close(fig)
@@ -77,12 +92,19 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
                 continue
             x = i + w.t / max(eq.run.duration, 1e-9) * 0.9
             ax.plot(x, w.z, ".", ms=2)
-        ax.axhline(3, color="k", lw=0.5, ls=":")
+        ax.axhline(3, color="k", lw=0.5, ls=":", label="+-3 noise floors")
         ax.axhline(-3, color="k", lw=0.5, ls=":")
-        ax.set_ylabel(f"{disk} residual / noise")
+        ax.set_ylabel(f"{disk} disk: residual torque\n/ its noise floor [-]", fontsize=8)
         ax.set_yscale("symlog", linthresh=3)
+        lim = max(10.0, float(np.max(np.abs(ax.get_ylim()))))
+        ticks = [t for t in (1000, 100, 30, 10, 3) if t <= lim]
+        ax.set_yticks([-t for t in ticks] + [0] + ticks[::-1])
+        ax.set_yticklabels([f"{-t:g}" for t in ticks] + ["0"] + [f"{t:g}" for t in ticks[::-1]], fontsize=7)
+    axes[0].legend(loc="upper right", fontsize=7)
+    axes[0].set_title("Nominal equation error per window (each run's windows in time order)", fontsize=9)
     axes[1].set_xticks(np.arange(len(eqs)) + 0.45)
     axes[1].set_xticklabels([eq.run.label.replace(" (", "\n(") for eq in eqs], fontsize=6)
+    axes[1].set_xlabel("run (windows from the start to the end of each recording)")
     fig.tight_layout()
     fig.savefig(out / "equation_error.png", dpi=110)
     plt.close(fig)
@@ -124,7 +146,9 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
                 )
             ax.set_title(runs[name].label, fontsize=9)
             ax.set_xlabel("frequency [Hz]")
-            ax.set_ylabel("PSD of speed residual")
+            ax.set_ylabel(
+                "PSD of lower-disk speed residual\n(2 s prediction - measured) [(rad/s)^2/Hz]", fontsize=8
+            )
         axes[0][0].legend(fontsize=7)
         fig.tight_layout()
         fig.savefig(out / "residual_spectra.png", dpi=110)

@@ -237,21 +237,30 @@ def _plot(out, summary, effects):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-    for e, d in summary["detection_vs_magnitude"].items():
-        xs = [float(k) for k in d]
-        axes[0].plot(xs, list(d.values()), "o-", label=e)
-    axes[0].set_xscale("log")
-    axes[0].set_xlabel("magnitude / lower end of the detectable range")
-    axes[0].set_ylabel("detection rate")
-    axes[0].set_ylim(-0.05, 1.05)
-    for e, d in summary["detection_vs_noise"].items():
-        xs = [max(float(k), 1e-4) for k in d]
-        axes[1].plot(xs, list(d.values()), "o-", label=e)
-    axes[1].set_xscale("log")
-    axes[1].set_xlabel("angle noise [rad] (0 drawn at 1e-4)")
-    axes[1].set_ylim(-0.05, 1.05)
-    axes[1].legend(fontsize=6)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
+    # Many curves sit on 1.0: distinct markers, dash patterns and marker sizes keep each
+    # visible where they coincide (values are drawn as they are, never offset).
+    markers = ("o", "s", "^", "v", "D", "P", "X", "*", "h")
+    dashes = ("-", "--", "-.", ":")
+    styles = {e: (markers[i % len(markers)], dashes[i % len(dashes)]) for i, e in enumerate(effects)}
+    sizes = {e: 9 - 0.6 * i for i, e in enumerate(effects)}
+    for ax, key in zip(axes, ("detection_vs_magnitude", "detection_vs_noise"), strict=True):
+        for e, d in summary[key].items():
+            xs = [max(float(k), 1e-4) if key == "detection_vs_noise" else float(k) for k in d]
+            m, ls = styles.get(e, ("o", "-"))
+            ax.plot(
+                xs, list(d.values()), marker=m, ls=ls, ms=sizes.get(e, 5), mfc="none", alpha=0.85, label=e
+            )
+        ax.set_xscale("log")
+        ax.set_ylim(-0.05, 1.08)
+        ax.grid(alpha=0.3)
+    axes[0].set_title("Detection against the effect's magnitude", fontsize=10)
+    axes[0].set_xlabel("magnitude / lower end of the detectable range [-]")
+    axes[0].set_ylabel("detection rate (share of datasets named right) [-]")
+    axes[1].set_title("Detection against the encoder's added angle noise", fontsize=10)
+    axes[1].set_xlabel("angle noise standard deviation [rad] (none drawn at 1e-4)")
+    axes[1].legend(fontsize=7, title="true effect", title_fontsize=7, loc="lower left")
+    fig.suptitle("Hidden-effect study: how often the workflow names the true effect", fontsize=11)
     fig.tight_layout()
     with atomic_file(out / "detection.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
