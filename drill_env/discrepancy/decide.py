@@ -17,6 +17,9 @@ The rule (all numbers in :class:`DecisionRule`):
 1. Fit each candidate on the training runs; its *held-out gain* is the drop of the
    held-out sum of squares ``D = Q_ref - Q_c``, divided by ``max(1, Q_c/n)`` so that a
    residual left far above the noise floor cannot make a partial fit look significant.
+   Each held-out sum is predictive: whitened by the uncertainty of the parameters refitted
+   on the training runs (:func:`_predictive`), so that a refit extrapolated to held-out
+   runs that fix a parameter more sharply than the training runs is not read as a gain.
 2. A candidate is *significant* when it passes the Benjamini-Hochberg step-up rule at
    false-discovery level alpha over the admissible candidates (p-values of the gain,
    chi^2 with k degrees of freedom) and its gain exceeds the BIC penalty ``k ln n``
