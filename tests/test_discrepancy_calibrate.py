@@ -230,3 +230,18 @@ def test_parameter_errors_are_never_named_as_effects(changes, seed):
     truth = syn.answer["parameters_at_nominal_string_stiffness"]
     for name, entry in res.result_json()["recalibrated"].items():
         assert entry["ci95"][0] <= truth[name] <= entry["ci95"][1], (name, entry, truth[name])
+
+
+def test_predictive_heldout_sum_of_squares_matches_its_covariance():
+    # r'(I + A C A')^-1 r for the held-out residual of a parameter refit with covariance C
+    from drill_env.discrepancy.decide import _predictive
+
+    rng = np.random.default_rng(5)
+    a = rng.standard_normal((40, 4)) * np.array([1.0, 10.0, 0.1, 3.0])
+    p_train = np.diag([2.0, 0.5, 7.0, 1.0]) + 0.1
+    r = rng.standard_normal(40)
+    explicit = float(r @ np.linalg.solve(np.eye(40) + a @ np.linalg.solve(p_train, a.T), r))
+    got = _predictive(float(r @ r), a.T @ r, a.T @ a, p_train)
+    assert got == pytest.approx(explicit, rel=1e-10)
+    assert got < float(r @ r)
+    assert _predictive(3.5, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0))) == 3.5

@@ -17,6 +17,9 @@ The rule (all numbers in :class:`DecisionRule`):
 1. Fit each candidate on the training runs; its *held-out gain* is the drop of the
    held-out sum of squares ``D = Q_ref - Q_c``, divided by ``max(1, Q_c/n)`` so that a
    residual left far above the noise floor cannot make a partial fit look significant.
+   Each held-out sum is predictive: whitened by the uncertainty of the parameters refitted
+   on the training runs (:func:`_predictive`), so that a refit extrapolated to held-out
+   runs that fix a parameter more sharply than the training runs is not read as a gain.
 2. A candidate is *significant* when it passes the Benjamini-Hochberg step-up rule at
    false-discovery level alpha over the admissible candidates (p-values of the gain,
    chi^2 with k degrees of freedom) and its gain exceeds the BIC penalty ``k ln n``
@@ -250,11 +253,39 @@ def _ss(group, theta, m, b) -> float:
     return float(sum(s.ztz for s in group) - 2.0 * theta @ b + theta @ m @ theta)
 
 
+def _predictive(q_h: float, grad: np.ndarray, h_held: np.ndarray, p_train: np.ndarray) -> float:
+    """Held-out sum of squares whitened by the uncertainty of the refitted parameters.
+
+    The parameters refitted on the training runs carry their posterior covariance
+    ``C = p_train^-1`` (the training precision of the parameter block, prior included), so
+    the held-out residual ``r`` has covariance ``I + A_h C A_h'``, not ``I``. Its predictive
+    sum of squares ``r' (I + A_h C A_h')^-1 r = q_h - g' (p_train + A_h'A_h)^-1 g`` with
+    ``g = A_h' r`` (Woodbury) is chi^2 with one degree of freedom per held-out window when
+    the model is right, however much more precisely the held-out windows pin a parameter
+    than the training windows do. The plain ``q_h`` is not: with the quantisation-aware
+    floor a held-out run at a speed the training runs do not cover can see the friction
+    curve a hundred times more sharply, the extrapolated refit then leaves thousands in
+    ``q_h`` on data without any effect, and any candidate whose columns shift that refit
+    "gains" (a false discovery). The same ``p_train`` (the parameter block, conditional on
+    the candidate's coefficients) is used for the model with and without a candidate, so
+    only the candidate's own prediction is scored."""
+    if grad.size == 0:
+        return float(q_h)
+    return float(q_h - grad @ np.linalg.solve(p_train + h_held, grad))
+
+
 def _fit_linear_joint(train, held, cal: CalibrationSetup, name: str | None, rule: DecisionRule) -> JointFit:
     m, b = _joint(train, cal, name)
     theta, cov = solve_joint(m, b, cal.prior[cal.free], rule.ridge)
     mh, bh = _joint(held, cal, name)
-    return JointFit(theta, cov, _ss(train, theta, m, b), sum(s.n for s in train), _ss(held, theta, mh, bh))
+    nf = len(cal.free)
+    q_h = _predictive(
+        _ss(held, theta, mh, bh),
+        bh[:nf] - mh[:nf] @ theta,
+        mh[:nf, :nf],
+        m[:nf, :nf] + np.diag(cal.prior[cal.free]),
+    )
+    return JointFit(theta, cov, _ss(train, theta, m, b), sum(s.n for s in train), q_h)
 
 
 def _fit_lag_joint(train, held, cal: CalibrationSetup, c: Candidate, rule: DecisionRule, i: int) -> JointFit:
@@ -269,6 +300,7 @@ def _fit_lag_joint(train, held, cal: CalibrationSetup, c: Candidate, rule: Decis
     atxh = sum((cal.stats[s.name].cross_lag[c.name][f, i] for s in held), np.zeros(f.size))
     q_h = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in held))
     q_h += float(-2.0 * theta @ (atzh - atxh) + theta @ ath @ theta)
+    q_h = _predictive(q_h, atzh - atxh - ath @ theta, ath, ata + np.diag(cal.prior[cal.free]))
     return JointFit(theta, cov, q_tr, sum(s.n for s in train), q_h, tau=float(c.tau_grid[i]))
 
 
@@ -948,6 +980,10 @@ def _gram_fit(group, cal: CalibrationSetup, free_keys, offset_keys, held, rule: 
     q_tr = yy - 2.0 * theta @ dy + theta @ m @ theta
     mh, dyh, yyh = parts(held)
     q_h = yyh - 2.0 * theta @ dyh + theta @ mh @ theta
+    nf = len(cal.free)
+    q_h = _predictive(
+        q_h, dyh[:nf] - mh[:nf] @ theta, mh[:nf, :nf], m[:nf, :nf] + np.diag(cal.prior[cal.free])
+    )
     if with_cov:
         return theta, float(q_tr), float(q_h), cov
     return theta, float(q_tr), float(q_h)
