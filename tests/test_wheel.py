@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 import agents.registry as registry
+from agents.commands.train import resolve_config
 from agents.registry import AGENTS_DIR_ENV, LEARNED, agents_dir_source, default_agents_dir, policy_path
-from drill_env.commands.train import resolve_config
 
 ROOT = Path(__file__).resolve().parent.parent
 PRESETS = ("brake", "no_brake")
