@@ -90,3 +90,30 @@ def test_unexplained_external_torque_names_its_clock_in_result_and_report(tmp_pa
     path = write_report(res, tmp_path, figures=False)
     text = path.read_text()
     assert "## What to look for" in text and "lower torque [N m]" in text
+
+
+def test_data_beyond_the_identified_speed_are_flagged():
+    """Measured lower speeds above the brake friction's identified 12.6 rad/s are named in a
+    warning (result.json evidence, report, command line); below it, or without the brake, not."""
+    from types import SimpleNamespace
+
+    from drill_env.discrepancy.workflow import DiscrepancyResult
+
+    t = np.arange(0.0, 10.0, 0.002)
+
+    def fake(preset, speed):
+        run = SimpleNamespace(t=t, theta_l=speed * t + 0.3 * np.sin(t))
+        return SimpleNamespace(dataset=SimpleNamespace(preset=preset, runs=[run]))
+
+    top = DiscrepancyResult.max_lower_speed.fget(fake("brake", 13.0))
+    assert top == pytest.approx(13.3, abs=2e-3)  # 13 + 0.3 cos(t) at its peak, over 0.1 s windows
+
+    def warnings(preset, speed):
+        r = fake(preset, speed)
+        r.max_lower_speed = DiscrepancyResult.max_lower_speed.fget(r)
+        return DiscrepancyResult.validity_warnings.fget(r)
+
+    (note,) = warnings("brake", 13.0)
+    assert "12.6 rad/s" in note and "13.3 rad/s" in note
+    assert warnings("brake", 12.0) == []
+    assert warnings("no_brake", 30.0) == []

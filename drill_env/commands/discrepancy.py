@@ -131,6 +131,8 @@ def discrepancy(
             )
     except (DatasetError, ValueError) as exc:
         _fail(str(exc))
+    for note in res.validity_warnings:
+        typer.secho(f"warning: {note}", fg=typer.colors.YELLOW, err=True)
     typer.echo(res.verdict_line())
 
 

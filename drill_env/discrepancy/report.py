@@ -348,6 +348,8 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
     d = res.decision
     lines = ["# Model-discrepancy report", ""]
     lines += [f"**{res.verdict_line()}**", ""]
+    for note in res.validity_warnings:
+        lines += [f"> Warning: {note}.", ""]
     ds = res.dataset
     lines += [
         f"Dataset: {len(ds.runs)} runs, preset `{ds.preset}`, {ds.encoder_counts_per_rev} encoder counts "

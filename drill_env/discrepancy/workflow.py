@@ -62,7 +62,7 @@ from drill_env.discrepancy.equation_error import (
     estimate_angle_noise,
 )
 from drill_env.outputs import atomic_write_text, output_lock
-from drill_env.params import ParameterError, RigParams, load_params
+from drill_env.params import ParameterError, RigParams, load_params, validity_warnings
 
 __all__ = ["DiscrepancyResult", "analyse", "run_discrepancy", "RESULT_EFFECTS"]
 
@@ -93,6 +93,25 @@ class DiscrepancyResult:
     @property
     def effect(self) -> str:
         return self.decision.effect
+
+    @property
+    def max_lower_speed(self) -> float:
+        """The largest |lower-disk speed| in the data [rad/s]: the encoder angle turned over
+        0.1 s windows, so that one count of quantisation moves it by little."""
+        top = 0.0
+        for run in self.dataset.runs:
+            dt = float(run.t[1] - run.t[0]) if run.t.size > 1 else 0.0
+            k = max(1, int(round(0.1 / dt))) if dt > 0 else 0
+            if k == 0 or run.theta_l.size <= k:
+                continue
+            top = max(top, float(np.max(np.abs(run.theta_l[k:] - run.theta_l[:-k]))) / (k * dt))
+        return top
+
+    @property
+    def validity_warnings(self) -> list[str]:
+        """Where the data leave the range the preset's model was identified on (the loader
+        already refuses voltages beyond the rig's +-5 V): one sentence each."""
+        return validity_warnings(self.dataset.preset, max_speed=self.max_lower_speed)
 
     def result_json(self) -> dict[str, Any]:
         d = self.decision
@@ -138,6 +157,8 @@ class DiscrepancyResult:
                 "where": self.where,
                 "preset": self.dataset.preset,
                 "encoder_counts_per_rev": self.dataset.encoder_counts_per_rev,
+                "max_lower_speed_rad_s": self.max_lower_speed,
+                "validity_warnings": self.validity_warnings,
                 "timings_s": self.timings,
             },
         }
