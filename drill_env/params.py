@@ -49,6 +49,25 @@ IDENTIFIED_SPEED_RAD_S: dict[str, float] = {"brake": 12.6}
 # The presets shipped with the package (``configs/rig/<name>.yaml``): the lower disk with the
 # brake, parameters (17), the configuration of the experiments in Sec. 4; and without it, (16).
 PRESETS: tuple[str, ...] = ("brake", "no_brake")
+# The parameters the paper identified from the rig (eq. 11, 13, 15 and 16/17), RigParams
+# field names: what a real rig may have a few percent off (synth's --param-error) and what the
+# discrepancy workflow recalibrates.
+IDENTIFIED_PARAMETERS: tuple[str, ...] = (
+    "motor_constant",
+    "upper_inertia",
+    "upper_static_pos",
+    "upper_static_neg",
+    "upper_viscous_pos",
+    "upper_viscous_neg",
+    "lower_inertia",
+    "string_stiffness",
+    "lower_static",
+    "lower_viscous",
+    "lower_hump_1",
+    "lower_hump_2",
+    "lower_hump_rate_1",
+    "lower_hump_rate_2",
+)
 
 
 def validity_warnings(

@@ -57,7 +57,7 @@ import numpy as np
 from scipy import stats
 
 from drill_env.discrepancy.equation_error import RunEquations
-from drill_env.params import RigParams
+from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
 
 __all__ = [
     "CALIBRATED",
@@ -72,22 +72,8 @@ __all__ = [
 ]
 
 # The identified parameters that are refitted (RigParams field names, in column order).
-CALIBRATED: tuple[str, ...] = (
-    "motor_constant",
-    "upper_inertia",
-    "upper_static_pos",
-    "upper_static_neg",
-    "upper_viscous_pos",
-    "upper_viscous_neg",
-    "lower_inertia",
-    "lower_static",
-    "lower_viscous",
-    "lower_hump_1",
-    "lower_hump_2",
-    "lower_hump_rate_1",
-    "lower_hump_rate_2",
-)
 FIXED_SCALE = "string_stiffness"  # fixes the one scale the data cannot
+CALIBRATED: tuple[str, ...] = tuple(p for p in IDENTIFIED_PARAMETERS if p != FIXED_SCALE)
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ import numpy as np
 
 from drill_env.discrepancy.dataset import MeasuredRun, write_dataset
 from drill_env.outputs import atomic_write_text
-from drill_env.params import ModelEffects, RigParams, load_params
+from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams, load_params
 
 __all__ = [
     "HiddenEffect",
@@ -206,22 +206,7 @@ class SynthResult:
 
 
 # The identified parameters of the paper (eq. 11, 13, 15, 17), RigParams field names.
-IDENTIFIED = (
-    "motor_constant",
-    "upper_inertia",
-    "upper_static_pos",
-    "upper_static_neg",
-    "upper_viscous_pos",
-    "upper_viscous_neg",
-    "lower_inertia",
-    "string_stiffness",
-    "lower_static",
-    "lower_viscous",
-    "lower_hump_1",
-    "lower_hump_2",
-    "lower_hump_rate_1",
-    "lower_hump_rate_2",
-)
+IDENTIFIED = IDENTIFIED_PARAMETERS
 _RATES = ("lower_hump_rate_1", "lower_hump_rate_2")  # not torques: unchanged by a common scale
 
 
