@@ -352,30 +352,14 @@ def _style_handles(eq: set[bool], cyc: set[bool], points: bool) -> list:
     from matplotlib.lines import Line2D
 
     h = []
-    for st in (True, False):
-        if st in eq:
-            h.append(
-                Line2D(
-                    [],
-                    [],
-                    color=_EQ_COLOR,
-                    ls=_style(st),
-                    lw=1.5,
-                    label=f"equilibrium, {'stable' if st else 'unstable'}",
-                )
-            )
-    for st in (True, False):
-        if st in cyc:
-            h.append(
-                Line2D(
-                    [],
-                    [],
-                    color=_CYCLE_COLOR,
-                    ls=_style(st),
-                    lw=1.5,
-                    label=f"periodic orbit (max and min of x3), {'stable' if st else 'unstable'}",
-                )
-            )
+    for present, colour, what in (
+        (eq, _EQ_COLOR, "equilibrium"),
+        (cyc, _CYCLE_COLOR, "periodic orbit (max and min of x3)"),
+    ):
+        for st in (True, False):
+            if st in present:
+                label = f"{what}, {'stable' if st else 'unstable'}"
+                h.append(Line2D([], [], color=colour, ls=_style(st), lw=1.5, label=label))
     if points:
         h.append(Line2D([], [], color=_POINT_COLOR, marker="o", ls="none", ms=4, label="the paper's points"))
     return h
