@@ -138,12 +138,18 @@ def discrepancy(
 
 def discrepancy_study(
     out: Path = typer.Option(Path("results/discrepancy"), help="Output folder of the study."),
-    seeds: int = typer.Option(5, help="Seeds per effect in the confusion matrix."),
-    sweep_seeds: int = typer.Option(3, help="Seeds per point of the magnitude and noise sweeps."),
+    seeds: int = typer.Option(3, help="Seeds per truth and condition (angle noise x parameter error)."),
+    sweep_seeds: int = typer.Option(2, help="Seeds per point of the magnitude sweep."),
+    workers: int = typer.Option(
+        0, help="Processes that share the datasets (0: one per CPU core); the result does not depend on it."
+    ),
     paper_case_only: bool = typer.Option(False, "--paper-case-only", help="Only the paper's case."),
     skip_paper_case: bool = typer.Option(False, "--skip-paper-case", help="Skip the paper's case."),
 ) -> None:
-    """Hidden-effect study (confusion matrix, detection vs magnitude and noise) and the paper's case."""
+    """Hidden-effect study under real-rig conditions (confusion matrix, false discoveries and
+    alarms, interval coverage, detection vs magnitude) and the paper's case."""
+    import os
+
     from drill_env.discrepancy.study import MAX_SEEDS, paper_case, run_study
     from drill_env.outputs import OutputFolderError, output_lock
 
@@ -151,6 +157,9 @@ def discrepancy_study(
     for name, value in (("--seeds", seeds), ("--sweep-seeds", sweep_seeds)):
         if not 1 <= value <= MAX_SEEDS:
             _fail(f"{name} must be an integer from 1 to {MAX_SEEDS}, got {value!r}")
+    if not 0 <= workers <= 256:
+        _fail(f"--workers must be an integer from 0 (one per CPU core) to 256, got {workers!r}")
+    workers = workers or (os.cpu_count() or 1)
     if paper_case_only and skip_paper_case:
         _fail("--paper-case-only and --skip-paper-case together leave nothing to do; give at most one")
     if out.exists() and not out.is_dir():
@@ -158,18 +167,34 @@ def discrepancy_study(
     try:
         with output_lock(out, "discrepancy-study"):  # for the whole command, both parts
             if not paper_case_only:
+                import time
+
+                typer.echo(f"hidden-effect study: {workers} worker process(es); results in {out}")
+                t0 = time.perf_counter()
                 with _progress() as prog:
-                    task = prog.add_task("hidden-effect study", total=None)
+                    task = prog.add_task("hidden-effect study (datasets)", total=None)
+
+                    def progress(i: int, n: int) -> None:
+                        prog.update(task, completed=i, total=n)
+                        if not prog.console.is_terminal and (i == n or i % max(1, n // 20) == 0):
+                            # no live bar in a log file: a line every 5 % of the datasets
+                            prog.console.print(
+                                f"{i}/{n} datasets, {time.perf_counter() - t0:.0f} s", highlight=False
+                            )
+
                     summary = run_study(
-                        out,
-                        seeds=seeds,
-                        sweep_seeds=sweep_seeds,
-                        progress=lambda i, n: prog.update(task, completed=i, total=n),
+                        out, seeds=seeds, sweep_seeds=sweep_seeds, workers=workers, progress=progress
                     )
                 typer.echo(
-                    f"confusion-matrix accuracy {summary['confusion_accuracy']:.1%}; see {out / 'confusion.md'}"
+                    f"accuracy {summary['accuracy']:.1%} over {summary['n_datasets']} datasets; "
+                    f"false discoveries {summary['false_discoveries']}; false alarms "
+                    f"{summary['false_alarms']} of {summary['datasets_without_effect']}; parameters inside "
+                    f"their 95 % intervals {summary['coverage_per_parameter']:.1%}; see {out / 'confusion.md'}"
                 )
             if not skip_paper_case:
+                typer.echo(
+                    "the paper's case: simulating the data, analysing, holding the models against the rig"
+                )
                 case = paper_case(out / "paper_case")
                 typer.echo(
                     f"paper's case: {case['verdict']} (confidence {case['confidence']:.2f}); see "

@@ -814,8 +814,16 @@ def final_parameters(
     *,
     identified: list[int] | None = None,
     moved_all: bool = False,
+    marginal: np.ndarray | None = None,
 ) -> list[ParameterFit]:
     """Every calibrated parameter of the model a fit stands for, judged against the nominal.
+
+    With ``marginal`` (standard deviations of every :data:`CALIBRATED` parameter from
+    :func:`marginal_sd`), each standard deviation of an interval is at least the marginal
+    one: a parameter held at nominal that is in truth off (it is known only to
+    within its prior) moves the fitted ones it is correlated with (the two hump terms and the
+    viscous friction of the lower disk nearly trade off over the measured speeds), and the
+    interval then says so instead of claiming a precision the data do not give.
 
     With ``refit`` (training runs -> JointFit) and the training runs, each standard deviation
     of an interval is at least the jackknife one over the training runs (leave one run out):
@@ -833,6 +841,10 @@ def final_parameters(
         loo = np.array([refit(train[:i] + train[i + 1 :]).theta[:nf] for i in range(r)])
         var_jk = (r - 1) / r * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
         sd_interval = np.sqrt(np.maximum(var_jk, np.diag(cov)))
+    if marginal is not None:
+        sd_m = np.asarray(marginal, dtype=float)[np.array(cal.free, dtype=int)]
+        base_sd = sd_interval if sd_interval is not None else np.sqrt(np.maximum(np.diag(cov), 0.0))
+        sd_interval = np.maximum(base_sd, sd_m)
     fits = parameter_fits(
         cal.nominal,
         cal.base,
@@ -896,9 +908,15 @@ def sensor_worse(before: dict[str, float], after: dict[str, float], floors: dict
 def _select_parameters(
     tr, ho, cal: CalibrationSetup, rule: DecisionRule, cand: Candidate | None
 ) -> list[int]:
-    """Forward selection of the parameters that moved: add, one at a time, the identified
+    """Forward selection of the parameters that moved: add, one at a time, the calibrated
     parameter whose refit lowers the training sum of squares most, while that drop passes
-    the candidates' test for one parameter, max(chi2_1(1 - alpha), ln n)."""
+    the candidates' test for one parameter, max(chi2_1(1 - alpha), ln n).
+
+    Every calibrated parameter is a candidate, the identified ones (:attr:`CalibrationSetup.free`)
+    and those the data fix only in combination with others (the second hump term, its rate
+    and the lower viscous friction trade off over the measured speeds): when such a
+    combination is off, one of them must move or the residual keeps a structure that
+    reads as a missing effect. Their intervals say that the data fix them only jointly."""
     n_tr = sum(s.n for s in tr)
     pen = max(float(stats.chi2.isf(rule.alpha, 1)), math.log(max(n_tr, 2)))
 
@@ -910,7 +928,7 @@ def _select_parameters(
     chosen: list[int] = []
     current = train_ss(chosen)
     while True:
-        trial = {j: train_ss(chosen + [j]) for j in cal.free if j not in chosen}
+        trial = {j: train_ss(chosen + [j]) for j in range(len(CALIBRATED)) if j not in chosen}
         if not trial:
             break
         j = min(trial, key=trial.get)
@@ -987,6 +1005,44 @@ def _gram_fit(group, cal: CalibrationSetup, free_keys, offset_keys, held, rule: 
     if with_cov:
         return theta, float(q_tr), float(q_h), cov
     return theta, float(q_tr), float(q_h)
+
+
+def _is_lag(candidates, name: str) -> bool:
+    return next(c for c in candidates if c.name == name).is_lag
+
+
+def marginal_sd(
+    cal: CalibrationSetup, tr, ho, rule: DecisionRule, effects: list[tuple[Candidate, float | None]]
+) -> np.ndarray:
+    """Posterior standard deviation of every :data:`CALIBRATED` parameter with all of them
+    free under their prior, jointly with the ``effects`` (candidate, fitted time constant
+    of a lag or None) [parameter units].
+
+    A lag effect is fitted on a grid of time constants; here the columns of the two
+    neighbouring grid points are free too, so that the time constant is free between them
+    and the parameters it trades off with (an inertia against a short lag) carry that
+    freedom in their intervals."""
+    every = list(range(len(CALIBRATED)))
+    cal_all = dataclasses.replace(cal, free=every)
+    if not cal.stats or any(s.gram is None for s in cal.stats.values()):
+        c = effects[0][0] if effects else None
+        fit = moved_fit(dataclasses.replace(cal, moved=every), tr, ho, rule, c)[0]
+        return np.sqrt(np.maximum(np.diag(fit.cov)[: len(every)] * fit.variance_scale, 0.0))
+    free_keys: list = []
+    off_keys: list = []
+    for c, tau in effects:
+        if not c.is_lag:
+            free_keys.append(c.name)
+            continue
+        if not tau:
+            continue  # a lag fitted at zero time constant is no column at all
+        i = int(np.argmin(np.abs(np.log(c.tau_grid / tau))))
+        off_keys.append((c.name, i))
+        free_keys += [(c.name, j) for j in (i - 1, i + 1) if 0 <= j < c.tau_grid.size]
+    _, q_tr, _, cov = _gram_fit(tr, cal_all, free_keys, off_keys, ho, rule, with_cov=True)
+    n_tr = sum(s.n for s in tr)
+    scale = max(1.0, q_tr / max(n_tr - len(cov), 1))
+    return np.sqrt(np.maximum(np.diag(cov)[: len(every)] * scale, 0.0))
 
 
 def second_effect(
@@ -1092,6 +1148,24 @@ def second_effect(
         n_tr = sum(s_.n for s_ in tr)
         scale = max(1.0, q_tr / max(n_tr - theta.size, 1))
         nf = len(cal_m.free)
+        # intervals at least as wide as with every calibrated parameter free under its prior
+        # (see final_parameters): those held at nominal are known only to within it
+        second_tau = best.parameters[next(iter(best.parameters))] if _is_lag(rest, best.name) else None
+        first_tau = decision.winner.fit.tau if first.is_lag else None
+        both = [(first, first_tau), (next(c for c in rest if c.name == best.name), second_tau)]
+        sd_all = marginal_sd(cal, tr, ho, rule, both)
+        sd_own = np.sqrt(np.maximum(np.diag(cov[:nf, :nf]) * scale, 0.0))
+        sd_interval = np.maximum(sd_own, sd_all[np.array(cal_m.free, dtype=int)])
+        if len(tr) >= 3:  # and at least the jackknife over the training runs, as for one effect
+            r = len(tr)
+            loo = np.array(
+                [
+                    _gram_fit(tr[:i] + tr[i + 1 :], cal_m, keys["free"], keys["off"], ho, rule)[0][:nf]
+                    for i in range(r)
+                ]
+            )
+            var_jk = (r - 1) / r * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
+            sd_interval = np.maximum(sd_interval, np.sqrt(var_jk))
         out["parameter_fits"] = parameter_fits(
             cal.nominal,
             cal.base,
@@ -1100,6 +1174,7 @@ def second_effect(
             cov[:nf, :nf] * scale,
             cal.rule,
             identified=cal.free,
+            sd_interval=sd_interval,
         )
     out["reason"] = (
         f"{best.name} removes {min(explained, 1.0):.0%} of the held-out excess left by {first.name} "
@@ -1177,12 +1252,14 @@ def decide(
     if calibration is not None and calibration.nominal is not None:
         kw = {"identified": calibration.free, "moved_all": True}
         fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, None)
-        ref_params = final_parameters(cal_m, fit_m, refit_m, tr, **kw)
+        marginal = marginal_sd(calibration, tr, ho, rule, [])
+        ref_params = final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
         params = ref_params
         if named:
             cand = next(c for c in candidates if c.name == winner.name)
             fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, cand)
-            params = final_parameters(cal_m, fit_m, refit_m, tr, **kw)
+            marginal = marginal_sd(calibration, tr, ho, rule, [(cand, fit_m.tau)])
+            params = final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
     if effect == "recalibrated" and not any(f.moved for f in params):
         effect, reason = (
             "none",

@@ -330,16 +330,38 @@ def make_dataset(
     magnitude: float | None = None,
     config: SynthConfig | None = None,
     truth_overrides: dict[str, float] | None = None,
+    second_effect: str | None = None,
+    second_magnitude: float | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> SynthResult:
     """Simulate a truth model with one hidden effect and record it like the rig.
 
-    ``truth_overrides`` sets identified parameters of the truth (RigParams field names)
-    on top of the drawn ``config.param_error``, or fields of a second effect
-    (:class:`~drill_env.params.ModelEffects` names); all go to the answer only."""
+    ``second_effect`` adds a second library effect (another one than ``effect``, which must
+    be a library effect too), of ``second_magnitude`` or drawn like the first from its own
+    random stream, so that the first effect, the runs and the noise are those of the
+    one-effect dataset of the same seed. ``truth_overrides`` sets identified parameters of
+    the truth (RigParams field names) on top of the drawn ``config.param_error``, or
+    :class:`~drill_env.params.ModelEffects` fields; all go to the answer only."""
     cfg = config or SynthConfig()
     rng = np.random.default_rng(seed)
     truth, spec, mag, fields_ = _truth_params(cfg.preset, effect, magnitude, rng)
+    second: dict[str, Any] = {}
+    if second_effect is not None:
+        library = sorted(e for e, h in HIDDEN_EFFECTS.items() if h.in_library and e != "none")
+        for name, value in (("effect", effect), ("second_effect", second_effect)):
+            if value not in library:
+                raise ValueError(f"{name}: {value!r} cannot be one of two effects; allowed: {library}")
+        if second_effect == effect:
+            raise ValueError(f"second_effect: must differ from effect, got {second_effect!r} twice")
+        rng2 = np.random.default_rng([seed, 2])
+        _, spec2, mag2, fields2 = _truth_params(cfg.preset, second_effect, second_magnitude, rng2)
+        truth = truth.replace(**fields2)
+        second = {
+            "effect": second_effect,
+            "magnitude": mag2,
+            "magnitude_meaning": spec2.magnitude_meaning,
+            "model_effects": fields2,
+        }
     changes = _parameter_errors(cfg.preset, cfg.param_error, truth_overrides, seed)
     if changes:
         truth = truth.replace(**changes)
@@ -361,6 +383,8 @@ def make_dataset(
         "magnitude_meaning": spec.magnitude_meaning,
         "detectable_range": [spec.low, spec.high],
         "model_effects": fields_,
+        "effects": [effect] + ([second_effect] if second_effect else []) if effect != "none" else [],
+        "second_effect": second or None,
         "extra_effects": extra,
         "parameter_errors": {
             n: v / float(getattr(load_params(cfg.preset), n)) - 1.0 for n, v in errors.items()

@@ -1,0 +1,205 @@
+"""The hidden-effect study under real-rig conditions, and the synthetic data it is made of."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from drill_env.discrepancy.dataset import MeasuredDataset
+from drill_env.discrepancy.decide import DecisionRule
+from drill_env.discrepancy.study import (
+    CONDITIONS,
+    PAIRS,
+    Truth,
+    _Job,
+    _run_jobs,
+    _summarise,
+    check_workers,
+    truths,
+)
+from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
+from drill_env.discrepancy.workflow import analyse
+
+# undithered encoder, short runs: enough for the decisions, quick to make
+SMALL = SynthConfig(
+    voltages=(0.2, 0.7, 2.0, 4.5),
+    random_runs=2,
+    duration_s=60.0,
+    pre_roll_s=40.0,
+    sample_rate_hz=250.0,
+    angle_noise_std=0.0,
+)
+
+
+def _analyse(syn, simulate=False):
+    ds = MeasuredDataset(preset="brake", encoder_counts_per_rev=2000, runs=tuple(syn.runs))
+    return analyse(ds, simulate_gaps=simulate, rule=DecisionRule(bootstrap=40))
+
+
+# -- the synthetic data: a second effect -----------------------------------------------------
+
+
+def test_second_effect_keeps_the_first_and_adds_its_own_fields():
+    one = make_dataset("position_friction_lower", seed=5, config=SMALL)
+    two = make_dataset("position_friction_lower", seed=5, config=SMALL, second_effect="friction_drift")
+    assert two.answer["model_effects"] == one.answer["model_effects"]  # same draw of the first
+    assert two.answer["effects"] == ["position_friction_lower", "friction_drift"]
+    second = two.answer["second_effect"]
+    assert second["effect"] == "friction_drift"
+    lo, hi = HIDDEN_EFFECTS["friction_drift"].low, HIDDEN_EFFECTS["friction_drift"].high
+    assert lo <= second["magnitude"] <= hi
+    assert two.truth.effects.friction_drift == second["model_effects"]["friction_drift"] != 0.0
+    assert two.truth.effects.lower_position_amp_1 == one.truth.effects.lower_position_amp_1
+    assert one.answer["second_effect"] is None and one.answer["effects"] == ["position_friction_lower"]
+    assert make_dataset("none", seed=5, config=SMALL).answer["effects"] == []
+
+
+@pytest.mark.parametrize(
+    ("effect", "second", "field"),
+    [
+        ("none", "friction_drift", "effect"),
+        ("external_torque", "friction_drift", "effect"),
+        ("position_friction_lower", "external_torque", "second_effect"),
+        ("position_friction_lower", "position_friction_lower", "second_effect"),
+        ("position_friction_lower", "wobble", "second_effect"),
+    ],
+)
+def test_second_effect_bad_input_names_the_field(effect, second, field):
+    with pytest.raises(ValueError, match=field):
+        make_dataset(effect, seed=1, config=SMALL, second_effect=second)
+
+
+# -- the grid --------------------------------------------------------------------------------
+
+
+def test_the_grid_covers_the_real_conditions():
+    assert set(CONDITIONS) == {(n, e) for n in (0.0, 1e-3) for e in (0.0, 0.02, 0.05)}
+    labels = [t.label for t in truths()]
+    library = [e for e, h in HIDDEN_EFFECTS.items() if h.in_library and e != "none"]
+    assert labels[0] == "none" and set(library) <= set(labels)
+    assert "external_torque" in labels and not Truth(("external_torque",)).in_library
+    assert all(" + ".join(p) in labels for p in PAIRS) and len(PAIRS) >= 2
+    # the right verdicts
+    assert Truth(()).expected(0.0) == "none" and Truth(()).expected(0.02) == "recalibrated"
+    assert Truth(("motor_inductance",)).expected(0.05) == "motor_inductance"
+    assert Truth(("external_torque",)).expected(0.0) == "unexplained"
+
+
+def test_workers_are_checked():
+    for bad in (0, -1, 2.0, True, 1000):
+        with pytest.raises(ValueError, match="workers"):
+            check_workers(bad)
+    check_workers(2)
+
+
+def _row(truth, verdict, effects, correct, params=(), pe=0.02, part="grid"):
+    return {
+        "part": part,
+        "truth": " + ".join(truth) if truth else "none",
+        "truth_effects": list(truth),
+        "in_library": all(HIDDEN_EFFECTS[e].in_library for e in truth),
+        "angle_noise": 0.0,
+        "param_error": pe,
+        "verdict": verdict,
+        "effects": list(effects),
+        "correct": correct,
+        "false_discovery": any(e not in truth for e in effects),
+        "false_alarm": not truth and (verdict == "unexplained" or bool(effects)),
+        "parameters": [{"name": n, "inside": ok, "z": 0.0} for n, ok in params],
+        "seconds": 1.0,
+    }
+
+
+def test_summary_rates_against_hand_counts():
+    rows = [
+        _row((), "recalibrated", [], True, [("motor_constant", True), ("lower_inertia", True)]),
+        _row((), "friction_drift", ["friction_drift"], False, [("lower_static", False)]),  # false alarm + FD
+        _row((), "unexplained", [], False),  # false alarm
+        _row(
+            ("motor_inductance",), "motor_inductance", ["motor_inductance"], True, [("upper_inertia", False)]
+        ),
+        _row(("external_torque",), "unexplained", [], True, [("lower_static", False)]),  # not judged: outside
+        _row(PAIRS[0], PAIRS[0][1], list(PAIRS[0]), True, [("motor_constant", True)]),
+        _row(("string_damping",), "string_damping", ["string_damping", "friction_memory"], False),  # FD
+        _row(("friction_memory",), "none", [], True, part="magnitude:0.1"),  # sweep: not in the grid
+    ]
+    s = _summarise(rows)
+    assert s["n_datasets"] == 7
+    assert s["accuracy"] == pytest.approx(4 / 7)
+    assert s["false_discoveries"] == 2
+    assert s["datasets_with_a_named_effect"] == 4
+    assert s["false_discovery_rate"] == pytest.approx(2 / 4)
+    assert s["false_alarms"] == 2 and s["datasets_without_effect"] == 3
+    # coverage on right verdicts inside the library: 2 + 1 + 1 parameters, 3 inside
+    assert s["recalibrated_parameters"] == 4
+    assert s["coverage_per_parameter"] == pytest.approx(3 / 4)
+    assert s["coverage_per_dataset"] == pytest.approx(2 / 3)
+    assert s["two_effects_both_named"] == 1.0
+    assert s["confusion"]["none"]["unexplained"] == 1
+    assert s["detection_vs_magnitude"] == {"friction_memory": {"0.1": 1.0}}
+
+
+def test_parallel_workers_give_the_same_rows():
+    base = SynthConfig(
+        voltages=(0.5, 2.0), random_runs=2, duration_s=30.0, pre_roll_s=20.0, sample_rate_hz=200.0
+    )
+    jobs = [
+        _Job("grid", (), 10_001, 0.0, 0.02),
+        _Job("grid", ("position_friction_lower",), 10_002, 1e-3, 0.0),
+    ]
+    serial = _run_jobs(jobs, base, 10, 1, None)
+    seen = []
+    parallel = _run_jobs(jobs, base, 10, 2, lambda i, n: seen.append((i, n)))
+    assert seen[-1] == (2, 2)
+    for a, b in zip(serial, parallel, strict=True):
+        a, b = dict(a), dict(b)
+        a.pop("seconds"), b.pop("seconds")
+        assert a == b
+
+
+# -- intervals under real conditions -----------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", [71, 72])
+def test_every_parameter_off_intervals_hold_the_truth(seed):
+    # every identified parameter up to 5 % off at once, undithered encoder: the parameters
+    # held at nominal (not excited) are off too, and the fitted ones that trade off with
+    # them (the hump terms and the lower viscous friction) must say so in their intervals
+    syn = make_dataset("none", seed=seed, config=SynthConfig(**{**SMALL.__dict__, "param_error": 0.05}))
+    res = _analyse(syn)
+    assert res.effect == "recalibrated", res.decision.reason
+    truth = syn.answer["parameters_at_nominal_string_stiffness"]
+    moved = res.decision.recalibrated
+    assert len(moved) >= 5
+    outside = [
+        (f.name, f.value, truth[f.name], f.ci95) for f in moved if not f.ci95[0] <= truth[f.name] <= f.ci95[1]
+    ]
+    assert not outside, outside
+    # and they are intervals, not the prior: well-excited parameters are pinned to < 1 %
+    km = next(f for f in moved if f.name == "motor_constant")
+    assert (km.ci95[1] - km.ci95[0]) / km.value < 0.02
+
+
+def test_two_effects_under_parameter_errors():
+    syn = make_dataset(
+        "position_friction_lower",
+        seed=73,
+        magnitude=0.1,
+        config=SynthConfig(**{**SMALL.__dict__, "param_error": 0.02}),
+        second_effect="friction_drift",
+        second_magnitude=1e-3,
+    )
+    res = _analyse(syn, simulate=True)
+    assert set(res.effects) == {"position_friction_lower", "friction_drift"}, (
+        res.decision.reason,
+        res.second,
+    )
+    assert res.effect in res.effects
+    truth = syn.answer["parameters_at_nominal_string_stiffness"]
+    inside = [f.ci95[0] <= truth[f.name] <= f.ci95[1] for f in res.decision.recalibrated]
+    assert inside and np.mean(inside) >= 0.8, [
+        (f.name, f.value, truth[f.name], f.ci95) for f in res.decision.recalibrated
+    ]
+    assert math.isclose(res.corrected.effects.friction_drift, res.second["parameters"]["friction_drift"])
