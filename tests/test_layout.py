@@ -158,6 +158,22 @@ def test_nothing_imports_a_top_level_agents():
     assert [hit for p in paths for hit in _top_level_agents_imports(p)] == []
 
 
+def test_the_controllers_compile_nothing():
+    # the numba cache is keyed on the core's sources only (drill_env/_cache.py)
+    graph = _graph()
+    found = {}
+    for module, path in _modules().items():
+        if _is_controllers(module):
+            tree = ast.parse(path.read_text())
+            names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+            names += [
+                n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level == 0
+            ]
+            if any(n.split(".")[0] == "numba" for n in names) or "drill_env._numba" in graph[module]:
+                found[module] = path
+    assert found == {}
+
+
 def test_controller_commands_come_from_the_agents_package():
     from drill_env.cli import COMMAND_PACKAGES, app
 

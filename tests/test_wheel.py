@@ -23,6 +23,7 @@ import pytest
 
 import drill_env
 import drill_env.agents.registry as registry
+from drill_env import _cache
 from drill_env.agents.commands.train import resolve_config
 from drill_env.agents.registry import (
     AGENTS_DIR_ENV,
@@ -163,8 +164,12 @@ def test_the_wheel_has_the_controllers_as_drill_env_agents_and_no_top_level_agen
         (top,) = {m.split("/")[0] for m in members}
         assert f"{top}/agents/rl.py" in members and f"{top}/drill_env/agents" not in members
         tf.extractall(tmp_path / "unpacked", filter="data")
-    from_sdist = _wheel_files(_build(tmp_path / "unpacked" / top, "wheel", tmp_path / "wheel2"))
-    assert sorted(from_sdist) == sorted(names)
+    wheel = _build(tmp_path / "unpacked" / top, "wheel", tmp_path / "wheel2")
+    assert sorted(_wheel_files(wheel)) == sorted(names)
+    # the installed package keys its compiled kernels as the checkout does
+    with zipfile.ZipFile(wheel) as zf:
+        zf.extractall(tmp_path / "installed")
+    assert _cache.source_hash(tmp_path / "installed" / "drill_env") == _cache.source_hash()
 
 
 @pytest.mark.slow
