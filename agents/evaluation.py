@@ -51,7 +51,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from agents.base import PolicyPredictor
+from drill_env.agents.base import PolicyPredictor
 from drill_env.envs import ENV_IDS, ENV_VERSIONS
 from drill_env.envs.task import VOLTAGE_LIMIT
 from drill_env.metrics import stick_slip_metrics
@@ -71,7 +71,7 @@ __all__ = [
 ]
 
 # The registered id of each preset and observation version (classical controllers run on
-# version 0; a learned policy on the version it was trained on, see agents.registry).
+# version 0; a learned policy on the version it was trained on, see drill_env.agents.registry).
 ENV_ID_OF = {(preset, ENV_VERSIONS[env_id]): env_id for env_id, preset in ENV_IDS.items()}
 PRESET_ENV_IDS = {preset: env_id for (preset, version), env_id in ENV_ID_OF.items() if version == 0}
 LIMIT_TOL = 1e-6  # [V] a voltage within this of +-5 V counts as at the limit

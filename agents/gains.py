@@ -1,8 +1,8 @@
 """The classical controllers with the gains ``drill-env tune`` wrote for a preset
 (``configs/agents/controllers.yaml``); ``lqi_angle_ff`` uses the LQI's. The list of
-controllers is :data:`agents.registry.CLASSICAL`; this module builds them, apart from
-:mod:`agents.registry` so that training (:mod:`agents.rl`) can build its reference
-controllers without the registry, which loads trained policies through :mod:`agents.rl`."""
+controllers is :data:`drill_env.agents.registry.CLASSICAL`; this module builds them, apart from
+:mod:`drill_env.agents.registry` so that training (:mod:`drill_env.agents.rl`) can build its reference
+controllers without the registry, which loads trained policies through :mod:`drill_env.agents.rl`."""
 
 from __future__ import annotations
 
@@ -10,26 +10,25 @@ import functools
 from pathlib import Path
 from typing import Any
 
-from agents.base import Controller, ControllerSpec
+from drill_env.agents._locations import PACKAGE_DIR, ROOT
+from drill_env.agents.base import Controller, ControllerSpec
 from drill_env.params import load_yaml
 
 __all__ = ["BUILT_ON", "classical_controller", "gains_path", "load_gains"]
 
 # Controllers built on another's tuned gains: the LQI with angle-locked adaptive feedforward
 # is the tuned LQI plus an adaptation designed per operating point on the nominal model
-# (agents.angle_feedforward), with nothing tuned of its own.
+# (drill_env.agents.angle_feedforward), with nothing tuned of its own.
 BUILT_ON = {"lqi_angle_ff": "lqi"}
-
-_ROOT = Path(__file__).resolve().parent.parent
 
 
 def gains_path() -> Path:
     """``configs/agents/controllers.yaml`` (in the source tree or the installed package)."""
-    for d in (_ROOT / "drill_env" / "_configs" / "agents", _ROOT / "configs" / "agents"):
+    for d in (PACKAGE_DIR / "_configs" / "agents", ROOT / "configs" / "agents"):
         p = d / "controllers.yaml"
         if p.is_file():
             return p
-    return _ROOT / "configs" / "agents" / "controllers.yaml"
+    return ROOT / "configs" / "agents" / "controllers.yaml"
 
 
 @functools.lru_cache(maxsize=8)
@@ -44,7 +43,7 @@ def _load_gains_cached(path: str) -> dict[str, Any]:
 
 
 def load_gains(path: str | Path | None = None) -> dict[str, Any]:
-    """The tuned gains file (see :func:`agents.tuning.tune_all`)."""
+    """The tuned gains file (see :func:`drill_env.agents.tuning.tune_all`)."""
     return _load_gains_cached(str(Path(path) if path is not None else gains_path()))
 
 
@@ -52,8 +51,8 @@ def classical_controller(
     kind: str, spec: ControllerSpec, preset: str, gains_file: str | Path | None = None
 ) -> Controller:
     """A classical controller with the tuned gains of ``preset``."""
-    from agents.open_loop import OpenLoop
-    from agents.tuning import TUNED_GAINS, make_controller
+    from drill_env.agents.open_loop import OpenLoop
+    from drill_env.agents.tuning import TUNED_GAINS, make_controller
 
     if kind == "open_loop":
         return OpenLoop(spec)
@@ -70,7 +69,7 @@ def classical_controller(
         )
     gains = dict(presets[preset][tuned]["gains"])
     if kind == "lqi_angle_ff":
-        from agents.angle_feedforward import LQIAngleFeedforward
+        from drill_env.agents.angle_feedforward import LQIAngleFeedforward
 
         return LQIAngleFeedforward(spec, **gains)
     return make_controller(kind, spec, gains)

@@ -2,10 +2,10 @@
 from their committed policies.
 
 * ``open_loop``, ``pi_upper``, ``pi_lower``, ``torque_feedback``, ``lqi``: built on an
-  environment's :class:`~agents.base.ControllerSpec` with the gains that
+  environment's :class:`~drill_env.agents.base.ControllerSpec` with the gains that
   ``drill-env tune`` wrote to ``configs/agents/controllers.yaml`` for the preset;
 * ``lqi_angle_ff``: that LQI plus adaptive feedforward on harmonics of the lower disk's
-  measured angle (:mod:`agents.angle_feedforward`), for friction locked to the bit's angle;
+  measured angle (:mod:`drill_env.agents.angle_feedforward`), for friction locked to the bit's angle;
 * ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
   ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v1``, the braked rig)
   and ``results/agents/<algo>_no_brake/policy.zip`` (on ``DrillStringNoBrake-v1``); a
@@ -16,7 +16,7 @@ from their committed policies.
 * ``ppo_robust``: PPO trained with domain randomisation over the standard plant family, kept
   beside the nominal ones as ``results/agents/ppo_robust[_<preset>]/policy.zip``; the
   committed ones are residual policies on ``lqi_angle_ff`` (``configs/agents/ppo_residual*.yaml``,
-  :mod:`agents.residual`; a policy's ``config.yaml`` says which it is).
+  :mod:`drill_env.agents.residual`; a policy's ``config.yaml`` says which it is).
 """
 
 from __future__ import annotations
@@ -25,8 +25,9 @@ import os
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from agents.base import ControllerSpec
-from agents.gains import classical_controller, gains_path, load_gains
+from drill_env.agents._locations import PACKAGE_DIR, ROOT
+from drill_env.agents.base import ControllerSpec
+from drill_env.agents.gains import classical_controller, gains_path, load_gains
 
 __all__ = [
     "CLASSICAL",
@@ -94,11 +95,11 @@ def controller_style(name: str) -> ControllerStyle:
     return ControllerStyle(_SPARE_COLOURS[i % len(_SPARE_COLOURS)], _SPARE_MARKERS[i % len(_SPARE_MARKERS)])
 
 
-_ROOT = Path(__file__).resolve().parent.parent
+_ROOT = ROOT
 # the variable naming the folder of trained policies when --agents-dir is not given
 AGENTS_DIR_ENV = "DRILL_ENV_AGENTS_DIR"
 # the committed policies as the wheel installs them (pyproject.toml, force-include)
-PACKAGED_AGENTS_DIR = _ROOT / "drill_env" / "_results" / "agents"
+PACKAGED_AGENTS_DIR = PACKAGE_DIR / "_results" / "agents"
 
 
 def _checkout_agents_dir() -> Path | None:
@@ -175,7 +176,7 @@ def build_controller(
     if name in CLASSICAL:
         return classical_controller(name, ControllerSpec.from_env(env), preset, gains_file)
     if name in LEARNED:
-        from agents.rl import load_policy
+        from drill_env.agents.rl import load_policy
 
         policy = load_policy(policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name)
         policy.check_env(env)
@@ -194,6 +195,6 @@ def observation_version(name: str, preset: str, agents_dir: str | Path | None = 
         return max(OBSERVATION_VERSIONS)
     if name not in LEARNED:
         raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")
-    from agents.rl import policy_observation_version
+    from drill_env.agents.rl import policy_observation_version
 
     return policy_observation_version(policy_path(name, preset, agents_dir))

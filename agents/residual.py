@@ -70,8 +70,8 @@ def base_controller(cfg: ResidualConfig, env_id: str, env_kwargs: Mapping[str, A
     environment (``env_kwargs`` without its domain randomisation)."""
     import gymnasium as gym
 
-    from agents.base import ControllerSpec
-    from agents.gains import classical_controller
+    from drill_env.agents.base import ControllerSpec
+    from drill_env.agents.gains import classical_controller
     from drill_env.envs import ENV_IDS
 
     kwargs = {k: v for k, v in env_kwargs.items() if k != "domain_randomization"}

@@ -17,7 +17,7 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
-                                        # (agents.residual); absent or null: the policy is the controller
+                                        # (drill_env.agents.residual); absent or null: the policy is the controller
 
 Domain randomisation is the environment's ``domain_randomization`` argument in
 ``env_kwargs`` (:class:`drill_env.envs.config.DomainRandomization`: relative ranges of the
@@ -26,7 +26,7 @@ of any effect of :class:`drill_env.params.ModelEffects`); it is validated when t
 read, each bad entry named with its field (``env_kwargs.domain_randomization.effects.<name>``).
 
 Learning curve: every ``every_steps`` environment steps the deterministic policy is run
-by :func:`agents.evaluation.run_episode` (the one evaluation path) on a fixed set of
+by :func:`drill_env.agents.evaluation.run_episode` (the one evaluation path) on a fixed set of
 episodes of the training environment: ``episodes_per_regime`` operating points drawn in
 each regime (equilibrium, limit cycle, stick-slip) from seeds ``seed, seed + 1, ...``.
 Their mean return is the learning curve (``eval.csv``, TensorBoard ``eval/mean_return``);
@@ -49,12 +49,17 @@ nothing.
 
 from __future__ import annotations
 
+import base64
 import copy
+import io
 import json
 import math
+import pickle
+import pickletools
 import platform
 import time
 import warnings
+import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,6 +68,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.envs import ENV_IDS
 from drill_env.envs.task import REGIMES
 from drill_env.params import load_yaml
@@ -73,6 +79,7 @@ __all__ = [
     "SB3Policy",
     "load_config",
     "load_policy",
+    "renamed_objects",
     "COMMITTED_POLICY_DIR",
     "PACKAGED_POLICY_DIR",
     "UntrustedPolicyWarning",
@@ -87,9 +94,9 @@ __all__ = [
 ALGOS = ("ppo", "sac")
 VEC_ENVS = ("native", "dummy")
 # The policies of the repository (reviewed with it); any other policy file is untrusted.
-COMMITTED_POLICY_DIR = Path(__file__).resolve().parent.parent / "results" / "agents"
+COMMITTED_POLICY_DIR = ROOT / "results" / "agents"
 # The same files as the wheel installs them (pyproject.toml, force-include).
-PACKAGED_POLICY_DIR = Path(__file__).resolve().parent.parent / "drill_env" / "_results" / "agents"
+PACKAGED_POLICY_DIR = PACKAGE_DIR / "_results" / "agents"
 
 
 def _algo_class(algo: str):
@@ -130,7 +137,7 @@ class TrainConfig:
     hyperparameters: Mapping[str, Any] = field(default_factory=dict)
     evaluation: EvalConfig = field(default_factory=EvalConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
-    residual: Any = None  # agents.residual.ResidualConfig, or None
+    residual: Any = None  # drill_env.agents.residual.ResidualConfig, or None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -179,7 +186,7 @@ class TrainConfig:
             raise ValueError(
                 f"convergence.min_evaluations: expected an integer >= 2, got {c.min_evaluations!r}"
             )
-        from agents.residual import ResidualConfig
+        from drill_env.agents.residual import ResidualConfig
 
         object.__setattr__(self, "residual", ResidualConfig.from_any(self.residual))
         dr = self.env_kwargs.get("domain_randomization")
@@ -370,6 +377,45 @@ def untrusted_policy_note(path: str | Path) -> str | None:
     )
 
 
+# The import name of this package before it became ``drill_env.agents``; a model saved then
+# names the objects of this package it pickled (a learning rate or clip range ``lin_<value>``,
+# a LinearSchedule) by it, a name other distributions also install.
+FORMER_PACKAGE = "agents"
+
+
+class _FormerNameUnpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str) -> Any:
+        if module == FORMER_PACKAGE or module.startswith(FORMER_PACKAGE + "."):
+            module = __package__ + module[len(FORMER_PACKAGE) :]
+        return super().find_class(module, name)
+
+
+def _names_former_package(pickled: bytes) -> bool:
+    return any(
+        isinstance(arg, str) and (arg == FORMER_PACKAGE or arg.startswith(FORMER_PACKAGE + "."))
+        for _, arg, _ in pickletools.genops(pickled)
+    )
+
+
+def renamed_objects(path: str | Path) -> dict[str, Any]:
+    """The objects of the model saved in ``path`` that name this package by its former import
+    name ``agents``, unpickled under its present one: stable-baselines3's ``custom_objects``
+    for loading a model saved before the rename without importing whatever top-level
+    ``agents`` is installed. Empty for a model saved since, or a file that is no model."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            data = json.loads(zf.read("data"))
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError):
+        return {}  # stable-baselines3 reports what is wrong with the file
+    out = {}
+    for key, value in data.items() if isinstance(data, dict) else ():
+        if isinstance(value, dict) and isinstance(value.get(":serialized:"), str):
+            pickled = base64.b64decode(value[":serialized:"])
+            if _names_former_package(pickled):
+                out[key] = _FormerNameUnpickler(io.BytesIO(pickled)).load()
+    return out
+
+
 def load_policy(
     path: str | Path, algo: str | None = None, name: str | None = None, *, trusted: bool = False
 ) -> SB3Policy:
@@ -393,13 +439,13 @@ def load_policy(
     import torch
 
     torch.set_num_threads(1)
-    model = _algo_class(algo).load(str(path), device="cpu")
+    model = _algo_class(algo).load(str(path), device="cpu", custom_objects=renamed_objects(path))
     policy = SB3Policy(model, name or algo, str(path))
     config = path.parent / "config.yaml"
     residual = yaml.safe_load(config.read_text()).get("residual") if config.is_file() else None
     if residual is None:
         return policy
-    from agents.residual import ResidualPolicy, base_controller
+    from drill_env.agents.residual import ResidualPolicy, base_controller
 
     cfg = load_config(config)
     return ResidualPolicy(
@@ -411,8 +457,6 @@ def policy_observation_version(path: str | Path) -> int:
     """The observation version (see ``drill_env.envs.config.OBSERVATION_VERSIONS``) a saved
     policy was trained on, read from the observation space stored in its zip (the policy
     itself is not loaded)."""
-    import zipfile
-
     from drill_env.envs import _core as C
     from drill_env.envs.config import OBSERVATION_VERSIONS
 
@@ -440,8 +484,6 @@ def policy_observation_version(path: str | Path) -> int:
 def strip_machine_info(path: str | Path) -> None:
     """Keep only the package versions in the ``system_info.txt`` SB3 writes into a saved model
     (its OS line names the build machine's kernel); the model itself is untouched."""
-    import zipfile
-
     path = Path(path)
     with zipfile.ZipFile(path) as zf:
         items = [(info, zf.read(info.filename)) for info in zf.infolist()]
@@ -466,7 +508,7 @@ def evaluation_episodes(cfg: EvalConfig) -> list[tuple[int, dict[str, Any]]]:
 
 def evaluate_on_episodes(env: Any, controller: Any, episodes: list[tuple[int, dict[str, Any]]]) -> np.ndarray:
     """Returns of ``controller`` on each fixed evaluation episode (the env's own length)."""
-    from agents.evaluation import run_episode
+    from drill_env.agents.evaluation import run_episode
 
     n_steps = env.spec.max_episode_steps if env.spec is not None and env.spec.max_episode_steps else 400
     out = []
@@ -524,9 +566,9 @@ def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
     """Open-loop and LQI returns on the evaluation episodes (context for the curve)."""
     import gymnasium as gym
 
-    from agents.base import ControllerSpec
-    from agents.gains import classical_controller
-    from agents.open_loop import OpenLoop
+    from drill_env.agents.base import ControllerSpec
+    from drill_env.agents.gains import classical_controller
+    from drill_env.agents.open_loop import OpenLoop
 
     env = gym.make(cfg.env_id, **cfg.env_kwargs)
     spec = ControllerSpec.from_env(env)
@@ -597,7 +639,7 @@ def make_train_vec_env(cfg: TrainConfig, seed: int):
         venv = make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs))
     if cfg.residual is None:
         return venv
-    from agents.residual import ResidualVecEnv, base_controller
+    from drill_env.agents.residual import ResidualVecEnv, base_controller
 
     return ResidualVecEnv(venv, base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs), cfg.residual.scale)
 
@@ -639,7 +681,7 @@ def train(
     episodes = evaluation_episodes(cfg.evaluation)
     base = None
     if cfg.residual is not None:
-        from agents.residual import ResidualPolicy, base_controller
+        from drill_env.agents.residual import ResidualPolicy, base_controller
 
         base = base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs)
 

@@ -17,8 +17,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from agents.plants import NOMINAL
-from agents.registry import CONTROLLERS, controller_style
+from drill_env.agents.plants import NOMINAL
+from drill_env.agents.registry import CONTROLLERS, controller_style
 
 __all__ = [
     "COLORS",
@@ -147,7 +147,7 @@ def robustness_lines(df, preset: str, plants: Mapping[str, Mapping[str, Any]] | 
     return lines
 
 
-# Each controller's colour in every figure, from the registry (agents.registry.STYLES).
+# Each controller's colour in every figure, from the registry (drill_env.agents.registry.STYLES).
 COLORS = {c: controller_style(c).colour for c in CONTROLLERS}
 SUPPRESSION_FLOOR = -1.0  # [-] values below are drawn at the floor
 RMS_FLOOR = 1e-4  # [rad/s] log axis floor

@@ -5,7 +5,7 @@ and on a plant it was not designed for.
 one run (voltage, seed, the benchmark's episode settings) on each plant side by side, the
 lower- and upper-disk speeds with the lower disk's stuck phases shaded, the open-loop run on
 the same plant and seed in grey, and the applied voltage below. Runs go through
-:func:`agents.evaluation.run_episode`, the path every benchmark run takes.
+:func:`drill_env.agents.evaluation.run_episode`, the path every benchmark run takes.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation import EpisodeSettings, make_env, run_episode
-from agents.plants import Plant
-from agents.registry import controller_style
+from drill_env.agents.evaluation import EpisodeSettings, make_env, run_episode
+from drill_env.agents.plants import Plant
+from drill_env.agents.registry import controller_style
 
 __all__ = ["run_trace", "timeseries_figures"]
 
@@ -37,7 +37,7 @@ def run_trace(
 ):
     """One closed-loop episode of ``controller`` (designed on the nominal model) on ``plant``,
     with the 1 kHz true lower-disk samples of the whole episode (a ``Trajectory``)."""
-    from agents.registry import build_controller, observation_version
+    from drill_env.agents.registry import build_controller, observation_version
 
     version = observation_version(controller, preset, agents_dir)
     design = make_env(preset, episode, version)

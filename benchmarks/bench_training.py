@@ -41,7 +41,7 @@ def _model(cfg, seed: int = 0):
     import torch
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from agents.rl import _algo_class, algo_kwargs, make_train_vec_env
+    from drill_env.agents.rl import _algo_class, algo_kwargs, make_train_vec_env
 
     torch.set_num_threads(cfg.torch_threads)
     venv = make_train_vec_env(cfg, seed)
@@ -57,7 +57,7 @@ def _model(cfg, seed: int = 0):
 def throughput(config: Path, steps: int, **overrides) -> float:
     """Env-steps per second of ``learn`` over ``steps`` steps (after a short warm-up that
     compiles the env and fills SAC's ``learning_starts``)."""
-    from agents.rl import load_config
+    from drill_env.agents.rl import load_config
 
     cfg = load_config(config, **overrides)
     model = _model(cfg)
@@ -74,7 +74,7 @@ def quick_suppression(model, algo: str, preset: str, folder: Path) -> tuple[dict
     """Mean suppression and RMS speed error per regime of ``model`` in the quick benchmark."""
     import pandas as pd
 
-    from agents.benchmark import BenchmarkConfig, run_benchmark
+    from drill_env.agents.benchmark import BenchmarkConfig, run_benchmark
 
     agents = folder / "agents"
     (agents / f"{algo}_{preset}").mkdir(parents=True, exist_ok=True)
@@ -94,7 +94,7 @@ def time_to_policy(config: Path, preset: str, folder: Path, check_every: int, bu
     and run the quick benchmark every ``check_every`` env-steps; the training wall time
     (benchmark time excluded) at which the mean suppression first reaches 0.99 in every
     regime with a cycle."""
-    from agents.rl import load_config
+    from drill_env.agents.rl import load_config
 
     cfg = load_config(config)
     model = _model(cfg)

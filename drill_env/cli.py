@@ -159,11 +159,12 @@ def simulate(
 
 
 # Packages whose every module defines ``register(app)`` adding its command(s): the core's
-# own commands, then those of the controller package built on it (``agents``, shipped in the
-# same distribution, absent from a core-only install). Named here, never imported by the
-# core: the dependency runs from ``agents.commands`` to this app. Other packages add
-# commands through the ``drill_env.commands`` entry-point group (each a ``register``).
-COMMAND_PACKAGES = ("drill_env.commands", "agents.commands")
+# own commands, then those of the controller package built on it (``drill_env.agents``, the
+# project's ``agents/`` folder, shipped in the same distribution; skipped when absent). Named
+# here, never imported by the core: the dependency runs from ``drill_env.agents.commands`` to
+# this app. Other packages add commands through the ``drill_env.commands`` entry-point group
+# (each a ``register``).
+COMMAND_PACKAGES = ("drill_env.commands", "drill_env.agents.commands")
 ENTRY_POINT_GROUP = "drill_env.commands"
 
 

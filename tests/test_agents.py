@@ -11,13 +11,20 @@ import numpy as np
 import pytest
 
 import drill_env  # noqa: F401  (registers the environments)
-from agents.base import Controller, ControllerSpec
-from agents.evaluation import EpisodeSettings, env_id_of, evaluate, make_env, run_episode, suppression
-from agents.linear_model import design_point, equilibrium_observation, linearise, sampled_rig
-from agents.lqi import LQI
-from agents.open_loop import OpenLoop
-from agents.pi import LowerSpeedPI, UpperSpeedPI
-from agents.registry import (
+from drill_env.agents.base import Controller, ControllerSpec
+from drill_env.agents.evaluation import (
+    EpisodeSettings,
+    env_id_of,
+    evaluate,
+    make_env,
+    run_episode,
+    suppression,
+)
+from drill_env.agents.linear_model import design_point, equilibrium_observation, linearise, sampled_rig
+from drill_env.agents.lqi import LQI
+from drill_env.agents.open_loop import OpenLoop
+from drill_env.agents.pi import LowerSpeedPI, UpperSpeedPI
+from drill_env.agents.registry import (
     CLASSICAL,
     CONTROLLERS,
     build_controller,
@@ -25,8 +32,8 @@ from agents.registry import (
     load_gains,
     observation_version,
 )
-from agents.torque_feedback import TorqueFeedback
-from agents.tuning import (
+from drill_env.agents.torque_feedback import TorqueFeedback
+from drill_env.agents.tuning import (
     TUNED_GAINS,
     closed_loop,
     controller_matrices,
@@ -278,7 +285,7 @@ def test_committed_gains_are_reproduced_by_the_procedure(spec_brake):
 
 @pytest.mark.slow
 def test_all_committed_gains_are_reproduced():
-    from agents.tuning import tune_all
+    from drill_env.agents.tuning import tune_all
 
     fresh = tune_all()
     committed = load_gains()
@@ -360,7 +367,7 @@ def test_episode_settings_validate():
 def test_a_missing_no_brake_policy_is_an_error_not_the_braked_rigs(tmp_path):
     import shutil
 
-    from agents.registry import default_agents_dir, policy_path
+    from drill_env.agents.registry import default_agents_dir, policy_path
 
     (tmp_path / "ppo").mkdir()
     shutil.copy(default_agents_dir() / "ppo" / "policy.zip", tmp_path / "ppo" / "policy.zip")
@@ -371,7 +378,7 @@ def test_a_missing_no_brake_policy_is_an_error_not_the_braked_rigs(tmp_path):
 
 @pytest.mark.parametrize("name", ["ppo", "sac", "ppo_no_brake", "sac_no_brake", "v0/ppo", "v0/sac"])
 def test_the_numpy_forward_pass_is_sb3s_deterministic_predict(name):
-    from agents.rl import load_policy
+    from drill_env.agents.rl import load_policy
 
     policy = load_policy(Path(__file__).resolve().parents[1] / "results" / "agents" / name / "policy.zip")
     assert policy._actor is not None  # the committed policies take the fast path
@@ -388,12 +395,72 @@ def test_the_numpy_forward_pass_is_sb3s_deterministic_predict(name):
     np.testing.assert_allclose(batch, policy.model.predict(obs, deterministic=True)[0], rtol=0, atol=1e-4)
 
 
+class _NoTopLevelAgents:
+    """An import hook refusing a top-level ``agents`` (another distribution's, say)."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "agents" or name.startswith("agents."):
+            raise ImportError(f"{name}: a top-level agents must not be imported")
+        return None
+
+
+@pytest.mark.parametrize("name", ["ppo", "ppo_robust"])
+def test_a_policy_saved_under_the_former_package_name_loads_under_the_present_one(name, monkeypatch):
+    import sys
+
+    from drill_env.agents.rl import LinearSchedule, load_config, load_policy, renamed_objects
+
+    folder = Path(__file__).resolve().parents[1] / "results" / "agents" / name
+    # these committed policies pickled their learning-rate schedule as agents.rl.LinearSchedule
+    assert set(renamed_objects(folder / "policy.zip")) == {"learning_rate", "lr_schedule"}
+    monkeypatch.setattr(sys, "meta_path", [_NoTopLevelAgents(), *sys.meta_path])
+    modules = {m for m in sys.modules if m == "agents" or m.startswith("agents.")}
+    policy = load_policy(folder / "policy.zip")
+    model = getattr(policy, "policy", policy).model  # a residual policy's learned part
+    assert {m for m in sys.modules if m == "agents" or m.startswith("agents.")} == modules
+    # the schedules are those of the training config, under drill_env.agents.rl
+    hp = load_config(folder / "config.yaml").hyperparameters
+    assert hp["learning_rate"] == "lin_3.0e-4"
+    assert isinstance(model.learning_rate, LinearSchedule) and model.learning_rate.value == 3.0e-4
+    for progress in (1.0, 0.25):
+        assert model.lr_schedule(progress) == pytest.approx(3.0e-4 * progress, rel=1e-12)
+        assert model.clip_range(progress) == hp["clip_range"]
+
+
+def test_renamed_objects_maps_the_former_package_name_only(tmp_path):
+    import base64
+    import json
+    import pickle
+    import zipfile
+
+    from drill_env.agents.rl import LinearSchedule, renamed_objects
+
+    # protocol 0 names a class as text ("c<module>\n<name>\n"): the old name written in
+    current = pickle.dumps(LinearSchedule(0.5), protocol=0)
+    assert b"drill_env.agents.rl\nLinearSchedule" in current
+    former = current.replace(b"drill_env.agents.rl\n", b"agents.rl\n")
+    data = {
+        "clip_range": {":type:": "<class 'x'>", ":serialized:": base64.b64encode(former).decode()},
+        "learning_rate": {":serialized:": base64.b64encode(current).decode()},
+        "gamma": 0.99,
+    }
+    path = tmp_path / "policy.zip"
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("data", json.dumps(data))
+    objects = renamed_objects(path)
+    assert list(objects) == ["clip_range"]
+    assert isinstance(objects["clip_range"], LinearSchedule) and objects["clip_range"](0.5) == 0.25
+    # not a model: nothing to rename, stable-baselines3 names what is wrong
+    (tmp_path / "bad.zip").write_bytes(b"not a zip")
+    assert renamed_objects(tmp_path / "bad.zip") == {}
+
+
 def test_a_policy_the_numpy_pass_does_not_cover_runs_through_sb3():
     import gymnasium as gym
     import torch
     from stable_baselines3 import PPO
 
-    from agents.rl import SB3Policy
+    from drill_env.agents.rl import SB3Policy
 
     env = gym.make("DrillString-v1")
     model = PPO("MlpPolicy", env, policy_kwargs={"activation_fn": torch.nn.ELU}, n_steps=64, device="cpu")

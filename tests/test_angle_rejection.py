@@ -1,4 +1,4 @@
-"""Rejection of friction locked to the lower disk's angle (agents.angle_feedforward), and
+"""Rejection of friction locked to the lower disk's angle (drill_env.agents.angle_feedforward), and
 designing on a given rig model (``drill-env tune/train --params``)."""
 
 from __future__ import annotations
@@ -11,22 +11,22 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from agents.angle_feedforward import (
+from drill_env.agents.angle_feedforward import (
     LQIAngleFeedforward,
     design,
     feedforward_closed_loop,
     phase_error,
     voltage_to_lower_speed,
 )
-from agents.base import ControllerSpec
-from agents.commands.tune import tune_on_model
-from agents.evaluation import EpisodeSettings, evaluate, make_env
-from agents.gains import load_gains
-from agents.linear_model import design_point, equilibrium_observation, sampled_rig
-from agents.lqi import LQI
-from agents.open_loop import OpenLoop
-from agents.registry import CLASSICAL, build_controller
-from agents.tuning import design_points
+from drill_env.agents.base import ControllerSpec
+from drill_env.agents.commands.tune import tune_on_model
+from drill_env.agents.evaluation import EpisodeSettings, evaluate, make_env
+from drill_env.agents.gains import load_gains
+from drill_env.agents.linear_model import design_point, equilibrium_observation, sampled_rig
+from drill_env.agents.lqi import LQI
+from drill_env.agents.open_loop import OpenLoop
+from drill_env.agents.registry import CLASSICAL, build_controller
+from drill_env.agents.tuning import design_points
 from drill_env.cli import app
 from drill_env.envs.task import nominal_params
 from drill_env.params import load_params
@@ -282,7 +282,7 @@ def test_cli_tune_params_writes_gains_designed_on_the_model(tmp_path):
 
 @pytest.mark.slow
 def test_cli_train_params_trains_on_the_model(tmp_path, monkeypatch):
-    from agents.rl import load_config
+    from drill_env.agents.rl import load_config
 
     cfg = load_config(ROOT / "configs" / "agents" / "ppo.yaml").to_dict()
     cfg.update(total_timesteps=128, n_envs=2)

@@ -1,26 +1,34 @@
-"""Package layout: the core (drill_env) never imports the controllers (agents), no module
-imports another that imports it back (lazy and type-only imports count), and the registry
-is the one list of controllers the figures and the command line draw on."""
+"""Package layout: the core (drill_env) never imports the controllers (drill_env.agents, the
+project's agents/ folder), nothing imports the controllers by a top-level name ``agents``
+(which other distributions install), no module imports another that imports it back (lazy
+and type-only imports count), and the registry is the one list of controllers the figures
+and the command line draw on."""
 
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("drill_env", "agents")
+# each package's folder and its import name: the controllers live in agents/, imported as
+# drill_env.agents (drill_env/agents links there in a checkout; the wheel puts them there)
+PACKAGES = {"drill_env": "drill_env", "agents": "drill_env.agents"}
+CONTROLLERS = PACKAGES["agents"]
 
 
 def _modules() -> dict[str, Path]:
     out = {}
-    for pkg in PACKAGES:
-        for path in sorted((ROOT / pkg).rglob("*.py")):
-            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    for folder, name in PACKAGES.items():
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            parts = list(path.relative_to(ROOT / folder).with_suffix("").parts)
+            if folder == "drill_env" and parts[0] == "agents":
+                continue  # the controllers, by their own folder
             if parts[-1] == "__init__":
                 parts = parts[:-1]
-            out[".".join(parts)] = path
+            out[".".join([name, *parts])] = path
     return out
 
 
@@ -90,30 +98,100 @@ def test_no_import_cycles():
     assert _cycle(_graph()) is None
 
 
+def _is_controllers(module: str) -> bool:
+    return module == CONTROLLERS or module.startswith(CONTROLLERS + ".")
+
+
+def test_the_module_list_has_both_packages_once():
+    mods = _modules()
+    assert {
+        "drill_env.cli",
+        "drill_env.agents",
+        "drill_env.agents.rl",
+        "drill_env.agents.commands.train",
+    } <= set(mods)
+    assert not any(m == "agents" or m.startswith("agents.") for m in mods)
+    assert len(set(mods.values())) == len(mods)
+
+
 def test_the_core_does_not_import_the_controllers():
     graph = _graph()
-    offenders = {m: sorted(d for d in deps if d.split(".")[0] == "agents") for m, deps in graph.items()}
-    assert {m: d for m, d in offenders.items() if m.startswith("drill_env") and d} == {}
+    # the controllers' imports of each other and of the core are edges under their import names
+    assert {"drill_env.agents.base", "drill_env.params"} <= graph["drill_env.agents.gains"]
+    offenders = {m: sorted(d for d in deps if _is_controllers(d)) for m, deps in graph.items()}
+    assert {m: d for m, d in offenders.items() if not _is_controllers(m) and d} == {}
+
+
+def _top_level_agents_imports(path: Path) -> list[str]:
+    """Where ``path`` imports a top-level ``agents`` (absolute imports; lazy ones included)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            names = [node.module or ""]
+        else:
+            continue
+        found += [f"{path.relative_to(ROOT)}:{node.lineno} {n}" for n in names if n.split(".")[0] == "agents"]
+    return found
+
+
+def test_the_top_level_scan_finds_an_import_of_agents(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    path = tmp_path / "m.py"
+    path.write_text(
+        "import agents.rl\nfrom drill_env.agents import rl\nfrom . import agents\n"
+        "def f():\n    from agents import registry\n"
+    )
+    assert _top_level_agents_imports(path) == ["m.py:1 agents.rl", "m.py:5 agents"]
+
+
+def test_nothing_imports_a_top_level_agents():
+    # the controllers are drill_env.agents: a top-level agents is another distribution's
+    # package, or this one's folder imported a second time under another name
+    paths = [
+        p
+        for folder in ("drill_env", "agents", "tests", "benchmarks")
+        for p in sorted((ROOT / folder).rglob("*.py"))
+    ]
+    assert len(paths) > 100
+    assert [hit for p in paths for hit in _top_level_agents_imports(p)] == []
+
+
+def test_the_controllers_compile_nothing():
+    # the numba cache is keyed on the core's sources only (drill_env/_cache.py)
+    graph = _graph()
+    found = {}
+    for module, path in _modules().items():
+        if _is_controllers(module):
+            tree = ast.parse(path.read_text())
+            names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+            names += [
+                n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level == 0
+            ]
+            if any(n.split(".")[0] == "numba" for n in names) or "drill_env._numba" in graph[module]:
+                found[module] = path
+    assert found == {}
 
 
 def test_controller_commands_come_from_the_agents_package():
     from drill_env.cli import COMMAND_PACKAGES, app
 
-    assert COMMAND_PACKAGES.index("drill_env.commands") < COMMAND_PACKAGES.index("agents.commands")
+    assert COMMAND_PACKAGES.index("drill_env.commands") < COMMAND_PACKAGES.index("drill_env.agents.commands")
     names = {c.name or c.callback.__name__ for c in app.registered_commands}
     assert {"simulate", "bifurcation", "benchmark", "tune", "train"} <= names
     modules = {c.name: c.callback.__module__ for c in app.registered_commands if c.name}
     assert {modules[n] for n in ("benchmark", "tune", "train")} == {
-        "agents.commands.benchmark",
-        "agents.commands.tune",
-        "agents.commands.train",
+        "drill_env.agents.commands.benchmark",
+        "drill_env.agents.commands.tune",
+        "drill_env.agents.commands.train",
     }
 
 
 def test_every_controller_has_its_own_style():
-    from agents.benchmark import _MARKERS
-    from agents.registry import CONTROLLERS, controller_style
-    from agents.robustness import COLORS
+    from drill_env.agents.benchmark import _MARKERS
+    from drill_env.agents.registry import CONTROLLERS, controller_style
+    from drill_env.agents.robustness import COLORS
 
     assert set(COLORS) == set(_MARKERS) == set(CONTROLLERS)
     styles = [controller_style(c) for c in CONTROLLERS]
@@ -123,7 +201,7 @@ def test_every_controller_has_its_own_style():
 
 @pytest.mark.parametrize("added", [("sac_robust",), ("sac_robust", "td3", "ddpg")])
 def test_a_controller_added_to_the_list_gets_a_style_of_its_own(monkeypatch, added):
-    from agents import registry
+    from drill_env.agents import registry
 
     monkeypatch.setattr(registry, "CONTROLLERS", registry.CONTROLLERS + added)
     styles = [registry.controller_style(c) for c in registry.CONTROLLERS]

@@ -17,9 +17,9 @@ import pytest
 from typer.testing import CliRunner
 
 import drill_env
-from agents.benchmark import BenchmarkConfig, load_results, run_benchmark
-from agents.evaluation import EpisodeSettings
 from drill_env import _cache
+from drill_env.agents.benchmark import BenchmarkConfig, load_results, run_benchmark
+from drill_env.agents.evaluation import EpisodeSettings
 from drill_env.cli import app
 from drill_env.outputs import (
     LOCK_NAME,

@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from agents.benchmark import BenchmarkConfig, load_results, run_benchmark
-from agents.evaluation import EpisodeSettings, make_env
-from agents.plants import NOMINAL, Plant, standard_family
-from agents.robustness import robustness_lines, robustness_rows
+from drill_env.agents.benchmark import BenchmarkConfig, load_results, run_benchmark
+from drill_env.agents.evaluation import EpisodeSettings, make_env
+from drill_env.agents.plants import NOMINAL, Plant, standard_family
+from drill_env.agents.robustness import robustness_lines, robustness_rows
 from drill_env.analysis import limit_cycle
 from drill_env.cli import app
 from drill_env.params import RigParams, load_params
@@ -51,7 +51,7 @@ def test_the_family_is_what_its_documentation_lists():
     }
     assert FAMILY["delay_10ms"].sensors == {"delay_samples": 10}
     assert FAMILY["angle_noise_3mrad"].sensors == {"angle_noise_std": 3e-3}
-    import agents.plants as doc
+    import drill_env.agents.plants as doc
 
     for name in names[1:]:  # every plant is described in the module docstring
         stem = name.rsplit("_x", 1)[0]
@@ -212,7 +212,7 @@ def test_a_plant_name_must_be_usable_as_a_file_name():
 
 
 def test_time_series_show_each_controller_on_the_nominal_and_the_paper_friction_plant(tmp_path):
-    from agents.timeseries import run_trace, timeseries_figures
+    from drill_env.agents.timeseries import run_trace, timeseries_figures
 
     paper = FAMILY["position_friction_lower"]
     episode = EpisodeSettings(duration=20.0, window=5.0, warmup_time=20.0, warmup_jitter=1.0)

@@ -13,12 +13,12 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from agents.base import ControllerSpec
-from agents.evaluation import EpisodeSettings, evaluate, make_env
-from agents.gains import classical_controller
-from agents.registry import build_controller, observation_version
-from agents.residual import ResidualConfig, ResidualPolicy, base_controller
-from agents.rl import TrainConfig, UntrustedPolicyWarning, load_config, make_train_vec_env, train
+from drill_env.agents.base import ControllerSpec
+from drill_env.agents.evaluation import EpisodeSettings, evaluate, make_env
+from drill_env.agents.gains import classical_controller
+from drill_env.agents.registry import build_controller, observation_version
+from drill_env.agents.residual import ResidualConfig, ResidualPolicy, base_controller
+from drill_env.agents.rl import TrainConfig, UntrustedPolicyWarning, load_config, make_train_vec_env, train
 from drill_env.cli import app
 from drill_env.envs.config import DomainRandomization
 

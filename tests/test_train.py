@@ -11,9 +11,9 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from agents.evaluation import EpisodeSettings, evaluate, make_env
-from agents.registry import default_agents_dir, policy_path
-from agents.rl import (
+from drill_env.agents.evaluation import EpisodeSettings, evaluate, make_env
+from drill_env.agents.registry import default_agents_dir, policy_path
+from drill_env.agents.rl import (
     SB3Policy,
     TrainConfig,
     algo_kwargs,
@@ -208,7 +208,7 @@ def test_cli_train_and_tune_default_to_fresh_run_folders(tmp_path, monkeypatch):
         assert f"--agents-dir {run.relative_to(tmp_path)}" in first.output + second.output
     assert not (tmp_path / "results").exists()
     # the run folder is laid out like results/agents: the benchmark finds the policy there
-    from agents.registry import policy_path
+    from drill_env.agents.registry import policy_path
 
     assert policy_path("ppo", "brake", runs[0]) == runs[0] / "ppo" / "policy.zip"
 

@@ -1,6 +1,8 @@
 """The installed package works from any folder: the wheel carries the committed policies and
 configs, and the trained policies are found through one lookup (``--agents-dir``,
-``DRILL_ENV_AGENTS_DIR``, the source tree's ``results/agents/``, the installed copy)."""
+``DRILL_ENV_AGENTS_DIR``, the source tree's ``results/agents/``, the installed copy). The
+controllers of ``agents/`` install as ``drill_env.agents``, never as a top-level ``agents``
+(a name other distributions install)."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import re
 import shutil
 import subprocess
 import sys
+import tarfile
 import tomllib
 import venv
 import zipfile
@@ -18,9 +21,17 @@ from pathlib import Path
 
 import pytest
 
-import agents.registry as registry
-from agents.commands.train import resolve_config
-from agents.registry import AGENTS_DIR_ENV, LEARNED, agents_dir_source, default_agents_dir, policy_path
+import drill_env
+import drill_env.agents.registry as registry
+from drill_env import _cache
+from drill_env.agents.commands.train import resolve_config
+from drill_env.agents.registry import (
+    AGENTS_DIR_ENV,
+    LEARNED,
+    agents_dir_source,
+    default_agents_dir,
+    policy_path,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 PRESETS = ("brake", "no_brake")
@@ -110,10 +121,60 @@ def test_the_wheel_lists_every_policy_the_benchmark_runs_by_default():
         assert (ROOT / source).exists(), source
 
 
+needs_hatchling = pytest.mark.skipif(
+    importlib.util.find_spec("hatchling") is None,
+    reason="the build backend hatchling is not installed (pip install hatchling)",
+)
+
+
+def _build(source: Path, target: str, out: Path) -> Path:
+    """Build ``target`` (``wheel`` or ``sdist``) of the project in ``source`` with hatchling,
+    offline (about a second)."""
+    subprocess.run(
+        [sys.executable, "-m", "hatchling", "build", "--target", target, "--directory", str(out)],
+        cwd=source, check=True, capture_output=True,
+    )  # fmt: skip
+    (path,) = out.glob("drill_env-*.whl" if target == "wheel" else "drill_env-*.tar.gz")
+    return path
+
+
+def _wheel_files(wheel: Path) -> list[str]:
+    with zipfile.ZipFile(wheel) as zf:
+        return zf.namelist()
+
+
+def _check_controllers_inside_the_package(names: list[str]) -> None:
+    assert len(names) == len(set(names))
+    top_level = {n.split("/")[0] for n in names}
+    assert top_level - {"drill_env"} == {f"drill_env-{drill_env.__version__}.dist-info"}, top_level
+    installed = {n.removeprefix("drill_env/agents/") for n in names if n.startswith("drill_env/agents/")}
+    sources = {p.relative_to(ROOT / "agents").as_posix() for p in (ROOT / "agents").rglob("*.py")}
+    assert installed == sources
+    assert {"__init__.py", "rl.py", "commands/train.py", "benchmark/__init__.py"} <= installed
+
+
+@needs_hatchling
+def test_the_wheel_has_the_controllers_as_drill_env_agents_and_no_top_level_agents(tmp_path):
+    names = _wheel_files(_build(ROOT, "wheel", tmp_path / "wheel"))
+    _check_controllers_inside_the_package(names)
+    # the same wheel from the source distribution, which has no drill_env/agents link
+    sdist = _build(ROOT, "sdist", tmp_path / "sdist")
+    with tarfile.open(sdist) as tf:
+        members = tf.getnames()
+        (top,) = {m.split("/")[0] for m in members}
+        assert f"{top}/agents/rl.py" in members and f"{top}/drill_env/agents" not in members
+        tf.extractall(tmp_path / "unpacked", filter="data")
+    wheel = _build(tmp_path / "unpacked" / top, "wheel", tmp_path / "wheel2")
+    assert sorted(_wheel_files(wheel)) == sorted(names)
+    # the installed package keys its compiled kernels as the checkout does
+    with zipfile.ZipFile(wheel) as zf:
+        zf.extractall(tmp_path / "installed")
+    assert _cache.source_hash(tmp_path / "installed" / "drill_env") == _cache.source_hash()
+
+
 @pytest.mark.slow
+@needs_hatchling
 def test_the_installed_wheel_runs_the_benchmark_from_any_folder(tmp_path):
-    if importlib.util.find_spec("hatchling") is None:
-        pytest.skip("the build backend hatchling is not installed (pip install hatchling)")
     wheels = tmp_path / "wheels"
     subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation",
@@ -124,6 +185,7 @@ def test_the_installed_wheel_runs_the_benchmark_from_any_folder(tmp_path):
     with zipfile.ZipFile(wheel) as zf:
         names = set(zf.namelist())
     assert "drill_env/_results/agents/ppo_no_brake/policy.zip" in names
+    _check_controllers_inside_the_package(sorted(names))
     assert not any(n.startswith("drill_env/_results/agents/v0/") for n in names)
 
     # A fresh environment with this project from the wheel only; the dependencies come from
@@ -144,15 +206,22 @@ def test_the_installed_wheel_runs_the_benchmark_from_any_folder(tmp_path):
         check=True,
     )  # fmt: skip
 
+    # another distribution's top-level agents beside it (as openai-agents installs one):
+    # nothing of drill-env may import it, the committed policies that pickled their schedules
+    # under the former name agents.rl included
+    (site / "agents").mkdir()
+    (site / "agents" / "__init__.py").write_text('raise ImportError("another distribution\'s agents")\n')
+
     work = tmp_path / "elsewhere"
     work.mkdir()
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", AGENTS_DIR_ENV)}
     env["PYTHONWARNINGS"] = "always::UserWarning"  # every UntrustedPolicyWarning reaches stderr
     where = subprocess.run(
-        [str(python), "-c", "import agents, drill_env; print(drill_env.__file__); print(agents.__file__)"],
+        [str(python), "-c", "from pathlib import Path; import drill_env.agents.gains as g, drill_env.agents.commands.train as t; "
+         "print(g.__file__, g.gains_path(), t.resolve_config(Path('ppo')))"],
         cwd=work, env=env, check=True, capture_output=True, text=True,
     ).stdout.split()  # fmt: skip
-    assert all(Path(p).resolve().is_relative_to(site.resolve()) for p in where), where
+    assert len(where) == 3 and all(Path(p).resolve().is_relative_to(site.resolve()) for p in where), where
 
     # the learned policies on both rigs, a tuned classical controller, the open-loop reference
     out = work / "bench"

@@ -9,10 +9,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from agents.benchmark.grid import BenchmarkConfig, Job
-from agents.benchmark.report import REPORT_FIGURES, write_report
-from agents.benchmark.runs import _run_chunk, _worker_init, run_job
-from agents.benchmark.store import _done_keys, _drop_partial_row, _rewrite_sorted, _Writer, check_resumable
+from drill_env.agents.benchmark.grid import BenchmarkConfig, Job
+from drill_env.agents.benchmark.report import REPORT_FIGURES, write_report
+from drill_env.agents.benchmark.runs import _run_chunk, _worker_init, run_job
+from drill_env.agents.benchmark.store import (
+    _done_keys,
+    _drop_partial_row,
+    _rewrite_sorted,
+    _Writer,
+    check_resumable,
+)
 from drill_env.outputs import atomic_write_text, output_lock
 
 BACKENDS = ("process", "sequential", "ray")
@@ -144,7 +150,7 @@ def _run_benchmark(
 
 def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
     """Which trained policy each learned controller runs per preset (for the report)."""
-    from agents.registry import LEARNED, default_agents_dir, policy_path
+    from drill_env.agents.registry import LEARNED, default_agents_dir, policy_path
 
     root = Path(cfg.agents_dir) if cfg.agents_dir is not None else default_agents_dir()
     out = {}
@@ -160,8 +166,8 @@ def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
                     else str(path)
                 )
                 try:
-                    from agents.evaluation import env_id_of
-                    from agents.rl import policy_observation_version
+                    from drill_env.agents.evaluation import env_id_of
+                    from drill_env.agents.rl import policy_observation_version
 
                     shown += f" on {env_id_of(p, policy_observation_version(path))}"
                 except ValueError:

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.evaluation import EpisodeSettings
-from agents.plants import NOMINAL
-from agents.registry import CONTROLLERS, controller_style
-from agents.robustness import REGIMES, ordered_controllers
+from drill_env.agents.evaluation import EpisodeSettings
+from drill_env.agents.plants import NOMINAL
+from drill_env.agents.registry import CONTROLLERS, controller_style
+from drill_env.agents.robustness import REGIMES, ordered_controllers
 
 Y_FLOOR = -2.0  # suppression below this is drawn at the floor with its value written
-# Each controller's marker in every figure, from the registry (agents.registry.STYLES).
+# Each controller's marker in every figure, from the registry (drill_env.agents.registry.STYLES).
 _MARKERS = {c: controller_style(c).marker for c in CONTROLLERS}
 
 

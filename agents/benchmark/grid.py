@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation import EpisodeSettings
-from agents.plants import NOMINAL, Plant
-from agents.registry import CONTROLLERS
+from drill_env.agents.evaluation import EpisodeSettings
+from drill_env.agents.plants import NOMINAL, Plant
+from drill_env.agents.registry import CONTROLLERS
 from drill_env.params import PRESETS
 
 # Voltages [V] of the grid per preset. Brake: 0.2-5 V across the three regimes (A = 0.116,

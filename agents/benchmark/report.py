@@ -8,12 +8,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from agents.benchmark.figures import _figures, _plants_figure
-from agents.benchmark.runs import OPEN_LOOP_FLOOR
-from agents.benchmark.store import load_results
-from agents.evaluation import IDENTIFIED_SPEED
-from agents.plants import NOMINAL
-from agents.robustness import REGIMES, ordered_controllers, robustness_figure, robustness_lines
+from drill_env.agents.benchmark.figures import _figures, _plants_figure
+from drill_env.agents.benchmark.runs import OPEN_LOOP_FLOOR
+from drill_env.agents.benchmark.store import load_results
+from drill_env.agents.evaluation import IDENTIFIED_SPEED
+from drill_env.agents.plants import NOMINAL
+from drill_env.agents.robustness import REGIMES, ordered_controllers, robustness_figure, robustness_lines
 from drill_env.outputs import atomic_write_text
 from drill_env.params import PRESETS
 

@@ -31,7 +31,7 @@ def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
 
 
 def register(app: typer.Typer) -> None:
-    from agents.registry import CONTROLLERS as KNOWN_CONTROLLERS
+    from drill_env.agents.registry import CONTROLLERS as KNOWN_CONTROLLERS
 
     @app.command("benchmark")
     def benchmark(
@@ -117,9 +117,15 @@ def register(app: typer.Typer) -> None:
             TimeRemainingColumn,
         )
 
-        from agents.benchmark import BACKENDS, FULL_SEEDS, QUICK_SEEDS, BenchmarkConfig, run_benchmark
-        from agents.evaluation import EpisodeSettings
-        from agents.registry import CONTROLLERS
+        from drill_env.agents.benchmark import (
+            BACKENDS,
+            FULL_SEEDS,
+            QUICK_SEEDS,
+            BenchmarkConfig,
+            run_benchmark,
+        )
+        from drill_env.agents.evaluation import EpisodeSettings
+        from drill_env.agents.registry import CONTROLLERS
 
         if backend not in BACKENDS:
             _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
@@ -131,7 +137,7 @@ def register(app: typer.Typer) -> None:
             _fail(f"--seeds must be >= 1, got {seeds!r}")
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
-        from agents.plants import FAMILY, NOMINAL, Plant, standard_family
+        from drill_env.agents.plants import FAMILY, NOMINAL, Plant, standard_family
         from drill_env.params import ParameterError
 
         if plants is not None and plants.strip() != FAMILY:
@@ -189,7 +195,7 @@ def register(app: typer.Typer) -> None:
         except ValueError as exc:
             _fail(str(exc))
         # every file the runs will need, before the first run
-        from agents.registry import LEARNED, load_gains, policy_path
+        from drill_env.agents.registry import LEARNED, load_gains, policy_path
 
         try:
             if any(c not in LEARNED for c in cfg.controllers):
@@ -206,7 +212,7 @@ def register(app: typer.Typer) -> None:
 
         check_output_folder(out, "--out")
         if not fresh:
-            from agents.benchmark import check_resumable
+            from drill_env.agents.benchmark import check_resumable
 
             try:
                 check_resumable(cfg, out)  # a damaged folder is named before anything runs
@@ -280,8 +286,8 @@ def register(app: typer.Typer) -> None:
         typer.echo(summary)
         typer.echo(f"wrote {csv_path}, {out / 'summary.md'} and the figures in {out}")
         if timeseries if timeseries is not None else quick:
-            from agents.plants import standard_family
-            from agents.timeseries import timeseries_figures
+            from drill_env.agents.plants import standard_family
+            from drill_env.agents.timeseries import timeseries_figures
 
             paper = next(q for q in standard_family() if q.name == "position_friction_lower")
             for p in cfg.presets:

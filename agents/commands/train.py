@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.outputs import fresh_run_folder
 
 
@@ -18,8 +19,7 @@ def _fail(message: str) -> None:
 def _config_dirs() -> list[Path]:
     """The training configs: the source tree's configs/agents/ in a checkout, the copy
     installed with the package otherwise."""
-    here = Path(__file__).resolve().parent.parent
-    return [here.parent / "configs" / "agents", here / "_configs" / "agents"]
+    return [ROOT / "configs" / "agents", PACKAGE_DIR / "_configs" / "agents"]
 
 
 def config_names() -> list[str]:
@@ -87,7 +87,7 @@ def register(app: typer.Typer) -> None:
         converged by the plateau criterion), OUT/eval.csv, OUT/progress.csv and
         OUT/learning_curve.png; the run's progress.csv and TensorBoard events go to RUN_DIR.
         """
-        from agents.rl import ALGOS
+        from drill_env.agents.rl import ALGOS
 
         if algo not in ALGOS:
             _fail(f"--algo must be one of {list(ALGOS)}, got {algo!r}")
@@ -95,8 +95,8 @@ def register(app: typer.Typer) -> None:
             _fail(f"--seed must be >= 0, got {seed!r}")
         if total_timesteps is not None and total_timesteps < 1:
             _fail(f"--total-timesteps must be >= 1, got {total_timesteps!r}")
-        from agents.rl import load_config
-        from agents.rl import train as run_training
+        from drill_env.agents.rl import load_config
+        from drill_env.agents.rl import train as run_training
 
         try:
             config = resolve_config(config)
