@@ -171,16 +171,20 @@ def discrepancy_study(
 
                 typer.echo(f"hidden-effect study: {workers} worker process(es); results in {out}")
                 t0 = time.perf_counter()
-                with _progress() as prog:
-                    task = prog.add_task("hidden-effect study (datasets)", total=None)
+                import contextlib
+                import sys
+
+                # a live bar on a terminal; in a log file a plain line every 5 % of the datasets
+                # (a live display holds back everything printed while it runs)
+                live = sys.stdout.isatty()
+                with _progress() if live else contextlib.nullcontext() as prog:
+                    task = prog.add_task("hidden-effect study (datasets)", total=None) if live else None
 
                     def progress(i: int, n: int) -> None:
-                        prog.update(task, completed=i, total=n)
-                        if not prog.console.is_terminal and (i == n or i % max(1, n // 20) == 0):
-                            # no live bar in a log file: a line every 5 % of the datasets
-                            prog.console.print(
-                                f"{i}/{n} datasets, {time.perf_counter() - t0:.0f} s", highlight=False
-                            )
+                        if live:
+                            prog.update(task, completed=i, total=n)
+                        elif i == n or i % max(1, n // 20) == 0:
+                            typer.echo(f"{i}/{n} datasets, {time.perf_counter() - t0:.0f} s")
 
                     summary = run_study(
                         out, seeds=seeds, sweep_seeds=sweep_seeds, workers=workers, progress=progress

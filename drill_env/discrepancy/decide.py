@@ -62,12 +62,13 @@ from drill_env.discrepancy.calibrate import (
     CalibrationRule,
     CalibrationStatistics,
     ParameterFit,
+    calibrated_params,
     parameter_fits,
     solve_joint,
 )
 from drill_env.discrepancy.effects import CANDIDATES, Candidate
 from drill_env.discrepancy.equation_error import RunEquations
-from drill_env.params import RigParams
+from drill_env.params import ParameterError, RigParams
 
 NOT_AN_EFFECT = ("none", "recalibrated", "unexplained")  # verdicts that name no effect
 
@@ -905,6 +906,25 @@ def sensor_worse(before: dict[str, float], after: dict[str, float], floors: dict
     return worse
 
 
+def admissible_fits(nominal: RigParams, fits: list[ParameterFit]) -> list[ParameterFit]:
+    """``fits`` with every moved parameter whose value would leave the rig's valid range (e.g.
+    a negative viscous friction, which a weakly fixed parameter can reach) kept at nominal:
+    the corrected model is always a rig the simulator accepts."""
+    fits = list(fits)
+    for _ in range(len(fits)):
+        try:
+            calibrated_params(nominal, fits)
+            return fits
+        except ParameterError as exc:
+            name = str(exc).split(":", 1)[0].strip()
+            hit = [i for i, f in enumerate(fits) if f.moved and f.name == name]
+            if not hit:
+                raise
+            i = hit[0]
+            fits[i] = dataclasses.replace(fits[i], moved=False, value=fits[i].nominal)
+    return fits
+
+
 def _select_parameters(
     tr, ho, cal: CalibrationSetup, rule: DecisionRule, cand: Candidate | None
 ) -> list[int]:
@@ -920,15 +940,28 @@ def _select_parameters(
     n_tr = sum(s.n for s in tr)
     pen = max(float(stats.chi2.isf(rule.alpha, 1)), math.log(max(n_tr, 2)))
 
-    def train_ss(free):
+    def train_ss(free) -> float:
+        """The training sum of squares with ``free`` refitted (inf if that leaves the rig's
+        valid range, e.g. a negative viscous friction: no such model is admissible)."""
         c = dataclasses.replace(cal, free=sorted(free))
         ref = _fit_linear_joint(tr, ho, c, None, rule)
-        return _score(cand, tr, ho, rule, c, ref).fit.train_ss if cand is not None else ref.train_ss
+        fit = _score(cand, tr, ho, rule, c, ref).fit if cand is not None else ref
+        if cal.base is not None and c.free:
+            changes = {
+                CALIBRATED[j]: float(getattr(cal.base, CALIBRATED[j])) + float(fit.theta[i])
+                for i, j in enumerate(c.free)
+            }
+            try:
+                cal.base.replace(**changes)
+            except ParameterError:
+                return math.inf
+        return fit.train_ss
 
     chosen: list[int] = []
     current = train_ss(chosen)
     while True:
         trial = {j: train_ss(chosen + [j]) for j in range(len(CALIBRATED)) if j not in chosen}
+        trial = {j: v for j, v in trial.items() if math.isfinite(v)}
         if not trial:
             break
         j = min(trial, key=trial.get)
@@ -1166,15 +1199,18 @@ def second_effect(
             )
             var_jk = (r - 1) / r * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
             sd_interval = np.maximum(sd_interval, np.sqrt(var_jk))
-        out["parameter_fits"] = parameter_fits(
+        out["parameter_fits"] = admissible_fits(
             cal.nominal,
-            cal.base,
-            cal_m.free,
-            theta[:nf],
-            cov[:nf, :nf] * scale,
-            cal.rule,
-            identified=cal.free,
-            sd_interval=sd_interval,
+            parameter_fits(
+                cal.nominal,
+                cal.base,
+                cal_m.free,
+                theta[:nf],
+                cov[:nf, :nf] * scale,
+                cal.rule,
+                identified=cal.free,
+                sd_interval=sd_interval,
+            ),
         )
     out["reason"] = (
         f"{best.name} removes {min(explained, 1.0):.0%} of the held-out excess left by {first.name} "
@@ -1253,13 +1289,17 @@ def decide(
         kw = {"identified": calibration.free, "moved_all": True}
         fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, None)
         marginal = marginal_sd(calibration, tr, ho, rule, [])
-        ref_params = final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
+        ref_params = admissible_fits(
+            calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
+        )
         params = ref_params
         if named:
             cand = next(c for c in candidates if c.name == winner.name)
             fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, cand)
             marginal = marginal_sd(calibration, tr, ho, rule, [(cand, fit_m.tau)])
-            params = final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
+            params = admissible_fits(
+                calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
+            )
     if effect == "recalibrated" and not any(f.moved for f in params):
         effect, reason = (
             "none",

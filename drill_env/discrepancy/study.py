@@ -238,8 +238,33 @@ def _jobs(seeds: int, sweep_seeds: int) -> list[_Job]:
 
 
 def _run_job(args) -> tuple[int, dict]:
+    """One dataset's row; a dataset the workflow fails on is a row too (verdict ``error``, with
+    the error), counted as a wrong verdict, so that one failure neither hides nor stops the rest."""
     i, job, base, bootstrap = args
-    return i, _one(job, base, bootstrap)
+    try:
+        return i, _one(job, base, bootstrap)
+    except Exception as exc:  # noqa: BLE001 - recorded, counted wrong, listed in confusion.md
+        truth = Truth(job.effects)
+        return i, {
+            "part": job.part,
+            "truth": truth.label,
+            "truth_effects": list(job.effects),
+            "in_library": truth.in_library,
+            "seed": job.seed,
+            "angle_noise": job.angle_noise,
+            "param_error": job.param_error,
+            "magnitudes": [],
+            "expected": truth.expected(job.param_error),
+            "verdict": "error",
+            "effects": [],
+            "confidence": 0.0,
+            "correct": False,
+            "false_discovery": False,
+            "false_alarm": False,
+            "parameters": [],
+            "reason": f"the workflow failed: {type(exc).__name__}: {exc}",
+            "seconds": 0.0,
+        }
 
 
 def run_study(
@@ -298,6 +323,7 @@ def _run_study(out: Path, seeds, sweep_seeds, base: SynthConfig, bootstrap, work
     t0 = time.perf_counter()
     done = _run_jobs(_jobs(seeds, sweep_seeds), base, bootstrap, workers, progress)
     summary = _summarise(done)
+    summary["errors"] = sum(r["verdict"] == "error" for r in done)
     summary["wall_seconds"] = time.perf_counter() - t0
     summary["workers"] = workers
     design = {
@@ -328,7 +354,7 @@ def _rate(flags) -> float:
 def _summarise(rows: list[dict]) -> dict:
     grid = [r for r in rows if r["part"] == "grid"]
     labels = [t.label for t in truths()]
-    verdicts = list(RESULT_EFFECTS)
+    verdicts = list(RESULT_EFFECTS) + ["error"]
     conf = {lab: {v: 0 for v in verdicts} for lab in labels}
     for r in grid:
         conf[r["truth"]][r["verdict"]] += 1
@@ -376,7 +402,7 @@ def _summarise(rows: list[dict]) -> dict:
         "datasets_with_recalibrated_parameters": len(with_params),
         "recalibrated_parameters": len(fits),
         "detection_vs_magnitude": {e: {f: _rate(v) for f, v in d.items()} for e, d in mag.items()},
-        "mean_seconds_per_dataset": _rate(r["seconds"] for r in rows),
+        "mean_seconds_per_dataset": _rate(r["seconds"] for r in rows if r["verdict"] != "error"),
     }
 
 
@@ -385,7 +411,8 @@ def _md_cell(text: str) -> str:
 
 
 def _write_markdown(out: Path, rows, summary, base: SynthConfig, seeds, sweep_seeds) -> None:
-    verdicts = list(RESULT_EFFECTS)
+    errors = any(r["verdict"] == "error" for r in rows)
+    verdicts = list(RESULT_EFFECTS) + (["error"] if errors else [])
     short = {v: v.replace("position_friction_", "pos_").replace("friction_", "fr_") for v in verdicts}
     pct = lambda x: "-" if not math.isfinite(x) else f"{x:.1%}"  # noqa: E731
     s = summary
@@ -415,6 +442,8 @@ def _write_markdown(out: Path, rows, summary, base: SynthConfig, seeds, sweep_se
         f"{s['recalibrated_parameters']} | >= 90 % |",
         f"| datasets with every recalibrated parameter inside its interval | {pct(s['coverage_per_dataset'])} "
         f"of {s['datasets_with_recalibrated_parameters']} | - |",
+        f"| datasets the workflow failed on (verdict `error`) | "
+        f"{sum(r['verdict'] == 'error' for r in rows if r['part'] == 'grid')} | 0 |",
         "",
         "Right verdicts: `none` for no effect and exact parameters, `recalibrated` for no effect and "
         "parameter errors, the effect's name (and no second one) for one library effect, both names "
