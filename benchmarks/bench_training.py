@@ -85,12 +85,18 @@ def quick_suppression(model, algo: str, preset: str, folder: Path) -> tuple[dict
 
     from agents.benchmark import BenchmarkConfig, run_benchmark
 
-    agents = folder / "agents"
-    (agents / f"{algo}_{preset}").mkdir(parents=True, exist_ok=True)
-    model.save(str(agents / f"{algo}_{preset}" / "policy.zip"))
+    # a folder per check: the benchmark caches controllers per process by their folder
+    agents = folder / f"agents_{model.num_timesteps}"
+    # where the benchmark looks for it (agents.registry.policy_path: <algo>/ for the braked rig)
+    policy = agents / (algo if preset == "brake" else f"{algo}_{preset}") / "policy.zip"
+    policy.parent.mkdir(parents=True, exist_ok=True)
+    model.save(str(policy))
     bench = BenchmarkConfig.preset_grid((preset,), quick=True, controllers=(algo,), agents_dir=str(agents))
     csv = run_benchmark(bench, folder / f"bench_{preset}", backend="sequential", fresh=True, report=False)
     rows = pd.read_csv(csv)
+    failed = rows["error"].dropna() if "error" in rows else []
+    if len(failed):
+        raise RuntimeError(f"quick benchmark of {policy}: {failed.iloc[0]}")
     supp = {
         r: float(g["suppression"].mean()) for r, g in rows.groupby("regime") if g["suppression"].notna().any()
     }
@@ -99,33 +105,51 @@ def quick_suppression(model, algo: str, preset: str, folder: Path) -> tuple[dict
 
 
 def time_to_policy(config: Path, preset: str, folder: Path, check_every: int, budget_s: float) -> dict:
-    """Train with ``config`` (as ``drill-env train``, without its learning-curve evaluations)
-    and run the quick benchmark every ``check_every`` env-steps; the training wall time
-    (benchmark time excluded) at which the mean suppression first reaches 0.99 in every
-    regime with a cycle."""
+    """Train with ``config`` (as ``drill-env train``: one ``learn`` over the config's
+    ``total_timesteps``, so the learning-rate schedule is the run's, without its
+    learning-curve evaluations) and run the quick benchmark every ``check_every`` env-steps;
+    the training wall time (benchmark time excluded) at which the mean suppression first
+    reaches 0.99 in every regime with a cycle."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
     from agents.rl import load_config
 
     cfg = load_config(config)
     model = _model(cfg)
-    train_s = 0.0
-    while True:
-        t0 = time.perf_counter()
-        model.learn(check_every, reset_num_timesteps=False)
-        train_s += time.perf_counter() - t0
+    state: dict = {"train_s": 0.0, "t0": 0.0, "next": check_every, "result": None}
+
+    def check() -> bool:
+        state["train_s"] += time.perf_counter() - state["t0"]
         supp, rms = quick_suppression(model, cfg.algo, preset, folder)
         met = bool(supp) and min(supp.values()) >= SUPPRESSION_TARGET
-        row = f"{model.num_timesteps:>10d} steps {train_s:6.0f} s: suppression " + ", ".join(
+        row = f"{model.num_timesteps:>10d} steps {state['train_s']:6.0f} s: suppression " + ", ".join(
             f"{k} {v:.3f}" for k, v in sorted(supp.items())
         )
         print("    " + row + ("  <- reached" if met else ""), flush=True)
-        if met or train_s > budget_s or model.num_timesteps >= cfg.total_timesteps:
-            return {
-                "wall_s": train_s,
-                "steps": model.num_timesteps,
-                "met": met,
-                "suppression": supp,
-                "rms_error": rms,
-            }
+        state["result"] = {
+            "wall_s": state["train_s"],
+            "steps": model.num_timesteps,
+            "met": met,
+            "suppression": supp,
+            "rms_error": rms,
+        }
+        state["t0"] = time.perf_counter()
+        return met or state["train_s"] > budget_s
+
+    class _Check(BaseCallback):
+        def _on_training_start(self) -> None:
+            state["t0"] = time.perf_counter()
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps < state["next"]:
+                return True
+            state["next"] += check_every
+            return not check()  # False stops the training
+
+    model.learn(cfg.total_timesteps, callback=_Check())
+    if state["result"] is None or state["result"]["steps"] != model.num_timesteps:
+        check()
+    return state["result"]
 
 
 def main(argv: list[str] | None = None) -> int:
