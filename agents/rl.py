@@ -13,7 +13,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     normalize_reward: true          # VecNormalize on the reward only (nothing needed at inference)
     torch_threads: 1
     hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...), incl. policy_kwargs;
-                                    # learning_rate / clip_range may be lin_<value> (linear decay)
+                                    # learning_rate / clip_range may be lin_<value> (linear decay),
+                                    # policy_kwargs.activation_fn Tanh or ReLU
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
@@ -584,6 +585,8 @@ def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
 
 
 SCHEDULED = ("learning_rate", "clip_range")
+# policy_kwargs.activation_fn by name (the activations the numpy forward pass of SB3Policy knows)
+ACTIVATIONS = ("Tanh", "ReLU")
 
 
 class LinearSchedule:
@@ -603,7 +606,8 @@ class LinearSchedule:
 def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
     """The algorithm's keyword arguments from a config's ``hyperparameters``:
     ``learning_rate`` and ``clip_range`` may be ``lin_<value>`` (linear decay to 0, as in
-    rl-zoo3's files)."""
+    rl-zoo3's files); ``policy_kwargs.activation_fn`` may name a ``torch.nn`` activation
+    (``Tanh``, SB3's default, or ``ReLU``)."""
     hp = copy.deepcopy(dict(hyperparameters))
     for key in SCHEDULED:
         v = hp.get(key)
@@ -619,6 +623,16 @@ def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"hyperparameters.{key}: {v!r} must decay from a finite value > 0")
             hp[key] = LinearSchedule(value)
+    pk = hp.get("policy_kwargs")
+    if isinstance(pk, Mapping) and isinstance(pk.get("activation_fn"), str):
+        name = pk["activation_fn"]
+        if name not in ACTIVATIONS:
+            raise ValueError(
+                f"hyperparameters.policy_kwargs.activation_fn: expected one of {list(ACTIVATIONS)}, got {name!r}"
+            )
+        import torch
+
+        hp["policy_kwargs"] = {**pk, "activation_fn": getattr(torch.nn, name)}
     return hp
 
 

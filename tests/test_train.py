@@ -221,3 +221,27 @@ def test_a_run_shorter_than_one_logging_interval_writes_everything(tmp_path):
     assert summary["total_timesteps"] >= 60 and summary["n_evaluations"] >= 1
     for name in ("policy.zip", "config.yaml", "training_summary.json", "eval.csv", "learning_curve.png"):
         assert (tmp_path / "out" / name).is_file(), name
+
+
+def test_activation_by_name_builds_that_network_and_the_numpy_actor_runs_it():
+    import gymnasium as gym
+    import torch
+    from stable_baselines3 import PPO
+
+    from drill_env.agents.rl import SB3Policy
+
+    hp = algo_kwargs({"policy_kwargs": {"net_arch": [16, 16], "activation_fn": "ReLU"}})
+    assert hp["policy_kwargs"]["activation_fn"] is torch.nn.ReLU
+    env = gym.make("DrillString-v1")
+    model = PPO("MlpPolicy", env, seed=3, device="cpu", **hp)
+    assert sum(isinstance(m, torch.nn.ReLU) for m in model.policy.mlp_extractor.policy_net) == 2
+    with torch.no_grad():  # an action head large enough that tanh in place of ReLU would show
+        model.policy.action_net.weight.mul_(30.0)
+    obs = np.stack([env.observation_space.sample() for _ in range(64)]) * 0.2
+    sb3, _ = model.predict(obs, deterministic=True)
+    fast, _ = SB3Policy(model, "ppo").predict(obs, deterministic=True)
+    assert np.abs(sb3).max() > 0.05
+    np.testing.assert_allclose(fast, sb3, atol=1e-5)
+    env.close()
+    with pytest.raises(ValueError, match="hyperparameters.policy_kwargs.activation_fn"):
+        TrainConfig(algo="ppo", hyperparameters={"policy_kwargs": {"activation_fn": "GELU"}})
