@@ -200,8 +200,10 @@ def test_committed_robust_policies_were_trained_over_the_family(folder):
     """The committed ppo_robust policies were trained with the shipped randomisation (the
     same ranges in every robust config) and load as what their config says."""
     shipped = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())["env_kwargs"]["domain_randomization"]
-    for name in ("ppo_residual.yaml", "ppo_residual_no_brake.yaml"):
-        assert yaml.safe_load((CONFIGS / name).read_text())["env_kwargs"]["domain_randomization"] == shipped
+    for name in ("ppo_residual", "ppo_residual_no_brake", "sac_residual", "sac_residual_no_brake"):
+        assert yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())["env_kwargs"]["domain_randomization"] == shipped
+        cfg = load_config(CONFIGS / f"{name}.yaml")
+        assert (cfg.algo, cfg.residual.base) == (name.split("_")[0], "lqi_angle_ff")
     dr = DomainRandomization.from_any(shipped)
     assert dr.effects["lower_position_amp_1"] == (0.0, 0.15)
     path = ROOT / "results" / "agents" / folder
