@@ -268,10 +268,12 @@ def test_concurrent_benchmarks_the_second_fails_and_the_first_is_complete(tmp_pa
 @pytest.mark.parametrize(
     ("args", "mentions"),
     [
-        (["--seeds", "0"], "--seeds must be an integer from 1 to 1000"),
-        (["--seeds", "-1"], "--seeds must be an integer from 1 to 1000"),
-        (["--seeds", "1001"], "--seeds must be an integer from 1 to 1000"),
-        (["--sweep-seeds", "0"], "--sweep-seeds must be an integer from 1 to 1000"),
+        (["--seeds", "0"], "--seeds must be an integer from 1 to 100"),
+        (["--seeds", "-1"], "--seeds must be an integer from 1 to 100"),
+        (["--seeds", "101"], "--seeds must be an integer from 1 to 100,"),
+        (["--sweep-seeds", "0"], "--sweep-seeds must be an integer from 1 to 100"),
+        (["--workers", "-1"], "--workers must be an integer from 0 (one per CPU core) to 256"),
+        (["--workers", "257"], "--workers must be an integer from 0 (one per CPU core) to 256"),
         (["--paper-case-only", "--skip-paper-case"], "nothing to do"),
     ],
 )
