@@ -146,6 +146,21 @@ class _Job:
     magnitude: float | None = None  # one effect: given (sweep) or drawn
 
 
+def _job_fields(job: _Job) -> dict:
+    """The fields of a row that describe its dataset (not the workflow's answer)."""
+    truth = Truth(job.effects)
+    return {
+        "part": job.part,
+        "truth": truth.label,
+        "truth_effects": list(job.effects),
+        "in_library": truth.in_library,
+        "seed": job.seed,
+        "angle_noise": job.angle_noise,
+        "param_error": job.param_error,
+        "expected": truth.expected(job.param_error),
+    }
+
+
 def _one(job: _Job, base: SynthConfig, bootstrap: int) -> dict:
     from drill_env.discrepancy.decide import DecisionRule
 
@@ -200,15 +215,8 @@ def _one(job: _Job, base: SynthConfig, bootstrap: int) -> dict:
             }
         )
     return {
-        "part": job.part,
-        "truth": truth.label,
-        "truth_effects": list(job.effects),
-        "in_library": truth.in_library,
-        "seed": job.seed,
-        "angle_noise": job.angle_noise,
-        "param_error": job.param_error,
+        **_job_fields(job),
         "magnitudes": magnitudes,
-        "expected": expected,
         "verdict": res.effect,
         "effects": named,
         "confidence": res.decision.confidence,
@@ -244,17 +252,9 @@ def _run_job(args) -> tuple[int, dict]:
     try:
         return i, _one(job, base, bootstrap)
     except Exception as exc:  # noqa: BLE001 - recorded, counted wrong, listed in confusion.md
-        truth = Truth(job.effects)
         return i, {
-            "part": job.part,
-            "truth": truth.label,
-            "truth_effects": list(job.effects),
-            "in_library": truth.in_library,
-            "seed": job.seed,
-            "angle_noise": job.angle_noise,
-            "param_error": job.param_error,
+            **_job_fields(job),
             "magnitudes": [],
-            "expected": truth.expected(job.param_error),
             "verdict": "error",
             "effects": [],
             "confidence": 0.0,
