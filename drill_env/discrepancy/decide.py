@@ -807,6 +807,13 @@ def _fallback(structure) -> str:
     return "recalibrated" if structure["recalibration_confirmed"] else "none"
 
 
+def jackknife_var(theta_of, runs: list) -> np.ndarray:
+    """Leave-one-run-out jackknife variance of the estimates ``theta_of(runs)`` over ``runs``."""
+    r = len(runs)
+    loo = np.array([theta_of(runs[:i] + runs[i + 1 :]) for i in range(r)])
+    return (r - 1) / r * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
+
+
 def final_parameters(
     cal: CalibrationSetup | None,
     fit: JointFit | None,
@@ -838,9 +845,7 @@ def final_parameters(
     cov = fit.cov[:nf, :nf] * fit.variance_scale
     sd_interval = None
     if refit is not None and train is not None and len(train) >= 3:
-        r = len(train)
-        loo = np.array([refit(train[:i] + train[i + 1 :]).theta[:nf] for i in range(r)])
-        var_jk = (r - 1) / r * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
+        var_jk = jackknife_var(lambda runs: refit(runs).theta[:nf], train)
         sd_interval = np.sqrt(np.maximum(var_jk, np.diag(cov)))
     if marginal is not None:
         sd_m = np.asarray(marginal, dtype=float)[np.array(cal.free, dtype=int)]
@@ -1190,14 +1195,9 @@ def second_effect(
         sd_own = np.sqrt(np.maximum(np.diag(cov[:nf, :nf]) * scale, 0.0))
         sd_interval = np.maximum(sd_own, sd_all[np.array(cal_m.free, dtype=int)])
         if len(tr) >= 3:  # and at least the jackknife over the training runs, as for one effect
-            r = len(tr)
-            loo = np.array(
-                [
-                    _gram_fit(tr[:i] + tr[i + 1 :], cal_m, keys["free"], keys["off"], ho, rule)[0][:nf]
-                    for i in range(r)
-                ]
+            var_jk = jackknife_var(
+                lambda runs: _gram_fit(runs, cal_m, keys["free"], keys["off"], ho, rule)[0][:nf], tr
             )
-            var_jk = (r - 1) / r * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
             sd_interval = np.maximum(sd_interval, np.sqrt(var_jk))
         out["parameter_fits"] = admissible_fits(
             cal.nominal,

@@ -784,7 +784,7 @@ def _rig_table(rig: list[dict]) -> list[str]:
             txt += f" ({err:+.0%})"
         elif d["agrees"] is not None:
             txt += " (agrees)" if d["agrees"] else " (disagrees)"
-        return txt.replace("|", "\\|")
+        return _md_cell(txt)
 
     lines = [
         "",
