@@ -25,7 +25,14 @@ import numpy as np
 
 from drill_env.discrepancy.equation_error import RunEquations, stribeck
 
-__all__ = ["Candidate", "CANDIDATES", "candidate_names", "thermal_state", "THERMAL_TIMES_S"]
+__all__ = [
+    "Candidate",
+    "CANDIDATES",
+    "candidate_names",
+    "thermal_state",
+    "thermal_trajectory",
+    "THERMAL_TIMES_S",
+]
 
 
 @dataclass(frozen=True)
@@ -171,6 +178,27 @@ def thermal_state(eq: RunEquations, tau: float) -> np.ndarray:
     th[0] = 0.0
     th[1:] = th_next[:-1]
     return th
+
+
+def thermal_trajectory(eq: RunEquations, params) -> np.ndarray:
+    """The thermal state [W] per sample of a run under ``params`` (a rig with friction
+    heating), for simulations started from the measured state: the lag of the dissipated
+    power from the start of the recording plus the heat already there, ``Th0 exp(-t/tau)``,
+    with ``Th0 >= 0`` fitted to the run's lower-disk equation error (least squares; the
+    recording does not say how warm the contact was when it began)."""
+    e = params.effects
+    tau = e.thermal_time
+    cold = params.replace(friction_heating=0.0, thermal_time=0.0)
+    ref = RunEquations(eq.run, cold, eq.noise, eq.config)
+    rise = thermal_state(ref, tau)
+    decay = np.exp(-ref.t_rel / tau)
+    level = _lower_level(ref)
+    sigma = ref.lower.sigma
+    x_rise = e.friction_heating * ref.kernel(level * rise, "lower") / sigma
+    x_decay = e.friction_heating * ref.kernel(level * decay, "lower") / sigma
+    den = float(x_decay @ x_decay)
+    th0 = max(0.0, float(x_decay @ (ref.lower.z - x_rise)) / den) if den > 0.0 else 0.0
+    return th0 * decay + rise
 
 
 def _cols_temperature(eq: RunEquations):
