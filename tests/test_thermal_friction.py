@@ -160,3 +160,20 @@ def test_the_bifurcation_analysis_refuses_friction_heating():
 
     with pytest.raises(ValueError, match="friction_heating"):
         nominal_vector(_heated())
+
+
+def test_batch_runs_heated_rigs_like_single_runs():
+    rigs = [_heated(0.05, 20.0), _heated(-0.1, 50.0)]
+    batch = drill_env.simulate_batch(rigs, [2.0, 3.5], 20.0, dt=0.05)
+    for i, (q, u) in enumerate(zip(rigs, (2.0, 3.5), strict=True)):
+        one = drill_env.simulate(q, u, 20.0, dt=0.05)
+        np.testing.assert_array_equal(batch.rig(i).thermal_state, one.thermal_state)
+        np.testing.assert_array_equal(batch.rig(i).x3, one.x3)
+    assert batch.rig(0).thermal_state[-1] > 0.1
+
+
+def test_random_heating_fields_need_both():
+    from drill_env.envs.config import DomainRandomization
+
+    with pytest.raises(ValueError, match="friction_heating/thermal_time"):
+        DomainRandomization(effects={"friction_heating": (0.0, 0.2)})
