@@ -15,6 +15,11 @@ Model (eq. 10 with the optional effects of :class:`drill_env.params.ModelEffects
     theta_l' = x3
     tau_m Tm' = km u - Tm        (Tm = km u when tau_m = 0)
     tau_f w' = |x3| - w          (w = |x3| when tau_f = 0: no friction memory)
+    tau_th Th' = P - Th          P = T_fl x3 while the lower disk slips, 0 while it sticks
+
+The thermal state Th [W] (friction heating, kappa != 0) is the power the lower friction
+dissipates, lagged by the contact's thermal time constant; it scales the lower static +
+Stribeck friction by 1 + kappa Th, in slip and in the static band alike.
 
 Each slip branch is written as an analytic function (|x3| as mode*x3) so that it
 extends smoothly past its own zero crossing; see :func:`hump`.
@@ -38,9 +43,12 @@ _INLINE = INLINE
 
 @nb.njit(**_INLINE)
 def n_active(p):
-    """Number of leading state components that evolve: 4, or 6 with motor lag/friction memory."""
-    if p[L.TAU_M] > 0.0 or p[L.TAU_F] > 0.0:
+    """Number of leading state components that evolve: 4, 6 with motor lag/friction memory,
+    7 with friction heating (the thermal state)."""
+    if p[L.HEAT] != 0.0:
         return L.NY
+    if p[L.TAU_M] > 0.0 or p[L.TAU_F] > 0.0:
+        return L.NY_LAG
     return 4
 
 
@@ -69,6 +77,14 @@ def lower_scale(p, t, theta_l):
     if p[L.DRIFT] != 0.0:
         s *= 1.0 + p[L.DRIFT] * t
     return s
+
+
+@nb.njit(**_INLINE)
+def thermal_scale(p, y):
+    """Temperature modulation of the lower static + Stribeck friction, 1 + kappa Th."""
+    if p[L.HEAT] == 0.0:
+        return 1.0
+    return 1.0 + p[L.HEAT] * y[L.TH]
 
 
 @nb.njit(**_INLINE)
@@ -129,7 +145,7 @@ def upper_friction(p, y, mode):
 @nb.njit(**_INLINE)
 def lower_friction(p, t, y, mode):
     """Lower slip friction, eq. (14), on the branch ``mode`` (+1/-1)."""
-    sl = lower_scale(p, t, y[L.THL])
+    sl = lower_scale(p, t, y[L.THL]) * thermal_scale(p, y)
     return mode * sl * (p[L.TSL] + hump(p, memory_speed(p, y, mode))) + p[L.BL] * y[L.X3]
 
 
@@ -145,10 +161,13 @@ def rhs(t, y, u, p, mode_u, mode_l, dy):
         dy[L.X2] = 0.0
     else:
         dy[L.X2] = (motor_torque(p, y, u) - ts - upper_friction(p, y, mode_u)) / p[L.JU]
+    power = 0.0  # dissipated by the lower friction: T_fl x3 = |T_fl x3| on the slip branch
     if mode_l == 0:
         dy[L.X3] = 0.0
     else:
-        dy[L.X3] = (ts + disturbance(p, t) - lower_friction(p, t, y, mode_l)) / p[L.JL]
+        tfl = lower_friction(p, t, y, mode_l)
+        dy[L.X3] = (ts + disturbance(p, t) - tfl) / p[L.JL]
+        power = tfl * y[L.X3]
     dy[L.THL] = y[L.X3]
     if p[L.TAU_M] > 0.0:
         dy[L.TM] = (p[L.KM] * u - y[L.TM]) / p[L.TAU_M]
@@ -158,6 +177,10 @@ def rhs(t, y, u, p, mode_u, mode_l, dy):
         dy[L.WL] = (mode_l * y[L.X3] - y[L.WL]) / p[L.TAU_F]  # mode_l * x3 = |x3| on the branch
     else:
         dy[L.WL] = 0.0
+    if p[L.HEAT] != 0.0:
+        dy[L.TH] = (power - y[L.TH]) / p[L.TAU_TH]
+    else:
+        dy[L.TH] = 0.0
 
 
 @nb.njit(**_INLINE)
@@ -179,6 +202,7 @@ def _rhs_paper(y, u, p, mode_u, mode_l, dy):
     dy[L.THL] = y[L.X3]
     dy[L.TM] = 0.0
     dy[L.WL] = 0.0
+    dy[L.TH] = 0.0
 
 
 # -- switching: required torques and static bands ------------------------------------------
@@ -206,7 +230,7 @@ def upper_band(p, y):
 @nb.njit(**_JIT)
 def lower_band_half(p, t, y):
     """Half-width of the lower static band, T_sl (scaled; widened by friction memory)."""
-    sl = lower_scale(p, t, y[L.THL])
+    sl = lower_scale(p, t, y[L.THL]) * thermal_scale(p, y)
     if p[L.TAU_F] > 0.0:
         # With memory the slip friction at zero speed is T_sl + S(w); the disk can only
         # break away once the load exceeds it, so the band covers it when S(w) > 0.
@@ -285,7 +309,7 @@ def lower_edge_rate(p, t, y, dy):
     need_rate = p[L.KTH] * dy[L.X1] + p[L.BTH] * dy[L.X2]
     if p[L.DIST_A] != 0.0:
         need_rate += p[L.DIST_A] * p[L.DIST_W] * math.cos(p[L.DIST_W] * t + p[L.DIST_P])
-    # half = s(theta_l) (1 + drift t) (T_sl + max(S(w), 0)): product rule
+    # half = s(theta_l) (1 + drift t) (1 + kappa Th) (T_sl + max(S(w), 0)): product rule
     pos = 1.0
     if p[L.POSL_A1] != 0.0 or p[L.POSL_A2] != 0.0:
         pos = (
@@ -301,6 +325,9 @@ def lower_edge_rate(p, t, y, dy):
         level += hump(p, y[L.WL])
         level_rate = _hump_rate(p, y[L.WL]) * dy[L.WL]
     half_rate = (pos_rate * drift + pos * p[L.DRIFT]) * level + pos * drift * level_rate
+    if p[L.HEAT] != 0.0:
+        heat = 1.0 + p[L.HEAT] * y[L.TH]
+        half_rate = half_rate * heat + pos * drift * level * p[L.HEAT] * dy[L.TH]
     if need >= 0.0:
         return need_rate - half_rate
     return -half_rate - need_rate

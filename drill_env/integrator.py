@@ -55,11 +55,11 @@ INTERP = _dop.INTERPOLATOR_POWER  # 7
 assert INTERP == 7, "dense_component is unrolled for SciPy's 7-coefficient DOP853 interpolant"
 ORDER_EXP = 1.0 / 8.0
 
-# Components of the state under error control: the twist, both speeds and the two
-# internal states of the optional effects. The lower angle is the integral of the
-# lower speed and follows its accuracy; it is excluded so that its growing size does
-# not loosen the relative tolerance of the others.
-ERR_MASK = np.array([1.0, 1.0, 1.0, 0.0, 1.0, 1.0])
+# Components of the state under error control: the twist, both speeds, the two lag
+# states of the optional effects and the thermal state. The lower angle is the integral
+# of the lower speed and follows its accuracy; it is excluded so that its growing size
+# does not loosen the relative tolerance of the others.
+ERR_MASK = np.array([1.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0])
 
 # Event location. The bracket of an event is closed to this width in time: the state at
 # the located instant is then off by at most |f| * EVENT_TIME_TOL, below 4e-11 for the

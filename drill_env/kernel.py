@@ -299,11 +299,15 @@ def _locate(disk, p, t, h, y, F, mu, ml, u_seg, u_func, use_func, u_limit, ytmp,
 
 @nb.njit(**_JIT)
 def _initial_step(t, y, f0, us, u_func, use_func, u_limit, p, mu, ml, rtol, atol, h_max, ytmp, f1):
-    """Starting step after a restart, from the sizes of y, f and f' (Hairer's rule)."""
+    """Starting step after a restart, from the sizes of y, f and f' (Hairer's rule).
+
+    The norms run over the error-controlled components of the rig's state, the thermal
+    state only where the rig has it (without it a run is what it was before that state)."""
+    n_norm = L.NY if p[L.HEAT] != 0.0 else L.NY_LAG
     d0 = 0.0
     d1 = 0.0
     m = 0.0
-    for j in range(L.NY):
+    for j in range(n_norm):
         if ERR_MASK[j] == 0.0:
             continue
         sc = atol + rtol * abs(y[j])
@@ -319,7 +323,7 @@ def _initial_step(t, y, f0, us, u_func, use_func, u_limit, p, mu, ml, rtol, atol
     t1 = t + h0
     rhs(t1, ytmp, input_at(t1, us, u_func, use_func, u_limit), p, mu, ml, f1)
     d2 = 0.0
-    for j in range(L.NY):
+    for j in range(n_norm):
         if ERR_MASK[j] == 0.0:
             continue
         sc = atol + rtol * abs(y[j])

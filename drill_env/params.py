@@ -110,7 +110,11 @@ class ModelEffects:
     Every field is in SI units. Position-dependent friction multiplies the
     static + Stribeck part of a disk's friction (its band at zero speed too) by
     ``1 + a1 cos(theta + phi1) + a2 cos(2 theta + phi2)``; drift multiplies the
-    same part of the lower-disk friction by ``1 + friction_drift * t``.
+    same part of the lower-disk friction by ``1 + friction_drift * t``; friction heating
+    multiplies it by ``1 + friction_heating * Th``, where the thermal state Th [W] is the
+    power the lower friction dissipates, lagged by ``thermal_time``:
+    ``thermal_time * Th' = |T_fl x3| - Th`` (zero power while the disk sticks), with
+    ``Th = 0`` at the start of every simulation (the contact starts at its ambient level).
     """
 
     string_damping: float = 0.0  # b_theta [N m s / rad], torsional damping of the string
@@ -125,6 +129,8 @@ class ModelEffects:
     upper_position_phase_2: float = 0.0  # [rad]
     friction_lag: float = 0.0  # tau_f [s], memory of the Stribeck part (frictional lag)
     friction_drift: float = 0.0  # [1/s], relative change of the lower friction level per second
+    friction_heating: float = 0.0  # kappa [1/W], relative change of the lower friction level per W
+    thermal_time: float = 0.0  # tau_th [s], thermal time constant of the lower friction contact
     disturbance_amp: float = 0.0  # [N m], external torque on the lower disk A sin(w t + phi)
     disturbance_freq: float = 0.0  # w [rad/s]
     disturbance_phase: float = 0.0  # phi [rad]
@@ -134,10 +140,16 @@ class ModelEffects:
             "string_damping": _NONNEGATIVE,
             "motor_lag": _NONNEGATIVE,
             "friction_lag": _NONNEGATIVE,
+            "thermal_time": _NONNEGATIVE,
             "disturbance_freq": _NONNEGATIVE,
         }
         for f in fields(self):
             _check_value(f"effects.{f.name}", getattr(self, f.name), ranges.get(f.name, _ANY))
+        if (self.friction_heating != 0.0) != (self.thermal_time > 0.0):
+            raise ParameterError(
+                "effects.friction_heating/thermal_time: friction heating needs both kappa != 0 "
+                f"[1/W] and a thermal time > 0 s, got {self.friction_heating!r} and {self.thermal_time!r}"
+            )
         for disk in ("lower", "upper"):
             total = abs(getattr(self, f"{disk}_position_amp_1")) + abs(
                 getattr(self, f"{disk}_position_amp_2")
@@ -301,6 +313,8 @@ class RigParams:
         p[L.DIST_A] = e.disturbance_amp
         p[L.DIST_W] = e.disturbance_freq
         p[L.DIST_P] = e.disturbance_phase
+        p[L.HEAT] = e.friction_heating
+        p[L.TAU_TH] = e.thermal_time
         p[L.ANY_EFFECT] = 1.0 if e.active else 0.0
         p[L.INV_JU] = 1.0 / self.upper_inertia
         p[L.INV_JL] = 1.0 / self.lower_inertia

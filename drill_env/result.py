@@ -70,7 +70,8 @@ class SimulationResult:
     Arrays have shape (n,) for one rig, or (n_rigs, n) from :func:`simulate_batch`.
     ``x1 = theta_u - theta_l`` (string twist) [rad], ``x2``/``x3`` upper/lower disk
     speeds [rad/s], angles [rad], ``u`` the applied voltage [V], ``stick_*`` True
-    while a disk is stuck (its speed is then exactly 0).
+    while a disk is stuck (its speed is then exactly 0). ``thermal_state`` [W] is the
+    lagged power of the lower friction (effect ``friction_heating``; zero without it).
     """
 
     t: np.ndarray
@@ -92,6 +93,7 @@ class SimulationResult:
     final_state: np.ndarray = field(repr=False)
     final_modes: np.ndarray = field(repr=False)
     u_requested: np.ndarray | None = field(default=None, repr=False)
+    thermal_state: np.ndarray | None = field(default=None, repr=False)
 
     @classmethod
     def from_kernel(
@@ -129,6 +131,7 @@ class SimulationResult:
             final_state=final_state,
             final_modes=final_modes,
             u_requested=u_requested,
+            thermal_state=col(Y[..., L.TH]),
         )
 
     # -- names from the rig -------------------------------------------------------------
@@ -191,6 +194,7 @@ class SimulationResult:
             stats={k: np.atleast_1d(v)[i] for k, v in self.stats.items()},
             final_state=self.final_state[i],
             final_modes=self.final_modes[i],
+            thermal_state=None if self.thermal_state is None else sl(self.thermal_state),
         )
 
     def window(self, last: float) -> SimulationResult:
@@ -238,5 +242,6 @@ def _slice(res: SimulationResult, keep: np.ndarray) -> SimulationResult:
         final_state=res.final_state,
         final_modes=res.final_modes,
         u_requested=None if res.u_requested is None else res.u_requested[keep],
+        thermal_state=None if res.thermal_state is None else res.thermal_state[..., keep],
         **kw,
     )

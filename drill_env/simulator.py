@@ -56,19 +56,32 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
 
     ``x0`` may be None (rig at rest, no twist), a sequence ``(x1, x2, x3)`` (the paper's
     state; angles start at theta_l = 0), a sequence ``(theta_u, theta_l, x2, x3)``, the
-    whole kernel state ``(x1, x2, x3, theta_l, motor_torque, memory_speed)``, or a
+    kernel state ``(x1, x2, x3, theta_l, motor_torque, memory_speed)`` or the whole
+    kernel state with ``thermal_state`` appended (a result's ``final_state``), or a
     mapping with keys among ``theta_u, theta_l, x1, x2, x3, motor_torque,
-    memory_speed``. Unless given, the motor torque starts at its steady value km*u0 and
-    the friction memory at |x3|. A given motor torque or memory speed is used as given
-    where the rig has that state (effects ``motor_lag`` / ``friction_lag``); without the
-    effect, the state does not exist and a value other than its steady one is rejected.
-    Every value must be finite; the memory speed (a lagged |x3|) must be >= 0.
+    memory_speed, thermal_state``. Unless given, the motor torque starts at its steady
+    value km*u0, the friction memory at |x3| and the thermal state at 0 (the contact at
+    its ambient level: every run starts cold unless a thermal state is passed on). A
+    given motor torque, memory speed or thermal state is used as given where the rig has
+    that state (effects ``motor_lag`` / ``friction_lag`` / ``friction_heating``);
+    without the effect, the state does not exist and a value other than its steady one
+    is rejected. Every value must be finite; the memory speed (a lagged |x3|) and the
+    thermal state (a lagged power) must be >= 0.
     """
     y = np.zeros(L.NY)
     extra: dict[str, float] = {}
     if x0 is not None:
         if isinstance(x0, Mapping):
-            allowed = {"theta_u", "theta_l", "x1", "x2", "x3", "motor_torque", "memory_speed"}
+            allowed = {
+                "theta_u",
+                "theta_l",
+                "x1",
+                "x2",
+                "x3",
+                "motor_torque",
+                "memory_speed",
+                "thermal_state",
+            }
             unknown = sorted(set(x0) - allowed)
             if unknown:
                 raise ValueError(f"x0: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -79,7 +92,7 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
             thl = float(x0.get("theta_l", 0.0))
             x1 = float(x0["x1"]) if "x1" in x0 else float(x0.get("theta_u", 0.0)) - thl
             vals = [x1, float(x0.get("x2", 0.0)), float(x0.get("x3", 0.0)), thl]
-            extra = {k: float(x0[k]) for k in ("motor_torque", "memory_speed") if k in x0}
+            extra = {k: float(x0[k]) for k in ("motor_torque", "memory_speed", "thermal_state") if k in x0}
         else:
             try:
                 arr = np.asarray(x0, dtype=float).ravel()
@@ -89,13 +102,15 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
                 vals = [arr[0], arr[1], arr[2], 0.0]
             elif arr.size == 4:
                 vals = [arr[0] - arr[1], arr[2], arr[3], arr[1]]
-            elif arr.size == L.NY:
+            elif arr.size in (L.NY_LAG, L.NY):
                 vals = [float(v) for v in arr[:4]]
                 extra = {"motor_torque": float(arr[L.TM]), "memory_speed": float(arr[L.WL])}
+                if arr.size == L.NY:
+                    extra["thermal_state"] = float(arr[L.TH])
             else:
                 raise ValueError(
-                    f"x0: expected 3 values (x1, x2, x3), 4 (theta_u, theta_l, x2, x3) or 6 (x1, x2, "
-                    f"x3, theta_l, motor_torque, memory_speed), got {arr.size}"
+                    f"x0: expected 3 values (x1, x2, x3), 4 (theta_u, theta_l, x2, x3), 6 (x1, x2, "
+                    f"x3, theta_l, motor_torque, memory_speed) or 7 (the same and thermal_state), got {arr.size}"
                 )
         for name, v in zip(("x1", "x2", "x3", "theta_l"), vals, strict=True):
             if not math.isfinite(v):
@@ -107,6 +122,7 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
     for key, slot, has_state, effect in (
         ("motor_torque", L.TM, eff.motor_lag > 0.0, "motor_lag"),
         ("memory_speed", L.WL, eff.friction_lag > 0.0, "friction_lag"),
+        ("thermal_state", L.TH, eff.friction_heating != 0.0, "friction_heating"),
     ):
         if key not in extra:
             continue
@@ -115,6 +131,8 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
             raise ValueError(f"x0.{key}: must be finite, got {v!r}")
         if key == "memory_speed" and v < 0.0:
             raise ValueError(f"x0.memory_speed: a lagged |x3| must be >= 0 rad/s, got {v!r}")
+        if key == "thermal_state" and v < 0.0:
+            raise ValueError(f"x0.thermal_state: a lagged friction power must be >= 0 W, got {v!r}")
         if has_state:
             y[slot] = v
         elif abs(v - y[slot]) > 1e-12 * max(1.0, abs(y[slot])):
@@ -123,6 +141,20 @@ def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndar
                 f"{y[slot]:.12g}; got {v!r} (turn the effect on, or leave {key} out)"
             )
     return y
+
+
+def _check_heating(params: RigParams, t: np.ndarray, thermal: np.ndarray) -> None:
+    """Friction heating of negative kappa must not take the friction level below zero."""
+    kappa = params.effects.friction_heating
+    if kappa >= 0.0 or thermal.size == 0:
+        return
+    i = int(np.argmax(thermal))
+    if 1.0 + kappa * thermal[i] <= 0.0:
+        raise ValueError(
+            f"effects.friction_heating: {kappa:g} 1/W makes the lower friction level negative: the "
+            f"thermal state reaches {float(thermal[i]):.4g} W at t = {float(t[i]):g} s; allowed: "
+            f"friction_heating > {-1.0 / float(thermal[i]):.4g} 1/W for this run"
+        )
 
 
 def _finite(name: str, value: Any) -> float:
@@ -437,6 +469,7 @@ def simulate(
     n_ev = int(stats[ST_LOGGED])
     if status == 4:
         raise _input_failure(fn, float(stats[ST_BAD_T]))
+    _check_heating(params, t_out, Y[:, L.TH])
     if status != 0:
         warnings.warn(f"simulate: {STATUS_MESSAGES[int(status)]}", RuntimeWarning, stacklevel=2)
     events = EventLog(
@@ -598,6 +631,8 @@ def simulate_batch(
     ev_count = np.zeros(n_rigs)
     max_steps = max(100_000, int(t_final * 2000))
     _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
+    for i in range(n_rigs):
+        _check_heating(plist[i] if plist is not None else base, t_out, Yo[i, :, L.TH])
     bad = np.flatnonzero(stats[:, ST_STATUS] != 0)
     if bad.size:
         warnings.warn(

@@ -38,7 +38,8 @@ def test_importing_the_package_does_not_load_scipy_integrate():
 def test_one_step_equals_scipys_rk_step_to_round_off(modes, h):
     p = drill_env.load_params("brake").as_array()
     u = 2.0
-    y0 = np.array([0.9, 3.1, 0.7, 0.4, 0.0, 0.0])
+    y0 = np.zeros(L.NY)
+    y0[:4] = [0.9, 3.1, 0.7, 0.4]
     mu, ml = modes
     if ml == -1:
         y0[L.X3] = -0.7

@@ -173,7 +173,7 @@ def test_extended_state_is_used_as_given_where_the_rig_has_it():
     y = drill_env.simulator.initial_state(params, {"memory_speed": 3.0}, 2.0)
     assert y[5] == 3.0 and y[4] == pytest.approx(params.motor_constant * 2.0)
     y = drill_env.simulator.initial_state(params, [0.1, 0.2, 0.3, 0.4, 5.0, 6.0], 2.0)
-    assert list(y) == [0.1, 0.2, 0.3, 0.4, 5.0, 6.0]
+    assert list(y) == [0.1, 0.2, 0.3, 0.4, 5.0, 6.0, 0.0]  # no friction heating: cold
 
 
 @pytest.mark.parametrize(("key", "effect"), [("motor_torque", "motor_lag"), ("memory_speed", "friction_lag")])

@@ -137,6 +137,16 @@ def _state(eq: RunEquations, k: int) -> dict[str, float]:
     }
 
 
+def _thermal(params: RigParams, eq: RunEquations) -> np.ndarray:
+    """The thermal state of a heated rig along the run, estimated from the data once per run."""
+    from drill_env.discrepancy.effects import thermal_trajectory
+
+    cache = eq.__dict__.setdefault("_thermal_cache", {})
+    if params not in cache:
+        cache[params] = thermal_trajectory(eq, params)
+    return cache[params]
+
+
 def _simulate(params: RigParams, eq: RunEquations, k0: int, k1: int):
     """Simulate samples k0..k1-1 from the measured state at k0; (theta_u, theta_l, x2, x3, stopped)."""
     import warnings
@@ -146,9 +156,12 @@ def _simulate(params: RigParams, eq: RunEquations, k0: int, k1: int):
     dt = eq.dt
     t0 = float(eq.t_rel[k0])
     n = k1 - k0
+    x0 = _state(eq, k0)
+    if params.effects.friction_heating != 0.0:
+        x0["thermal_state"] = float(_thermal(params, eq)[k0])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = simulate(params, eq.u[k0:k1], t0 + (n - 1) * dt, x0=_state(eq, k0), dt=dt, control_dt=dt, t0=t0)
+        res = simulate(params, eq.u[k0:k1], t0 + (n - 1) * dt, x0=x0, dt=dt, control_dt=dt, t0=t0)
     stopped = res.status != 0 or any(issubclass(w.category, RuntimeWarning) for w in caught)
     thu, thl = res.theta_u[:n], res.theta_l[:n]
     if stopped:

@@ -911,6 +911,16 @@ def sensor_worse(before: dict[str, float], after: dict[str, float], floors: dict
     return worse
 
 
+_LOWER_CURVE = (
+    "lower_static",
+    "lower_viscous",
+    "lower_hump_1",
+    "lower_hump_2",
+    "lower_hump_rate_1",
+    "lower_hump_rate_2",
+)
+
+
 def admissible_fits(nominal: RigParams, fits: list[ParameterFit]) -> list[ParameterFit]:
     """``fits`` with every moved parameter whose value would leave the rig's valid range (e.g.
     a negative viscous friction, which a weakly fixed parameter can reach) kept at nominal:
@@ -921,8 +931,12 @@ def admissible_fits(nominal: RigParams, fits: list[ParameterFit]) -> list[Parame
             calibrated_params(nominal, fits)
             return fits
         except ParameterError as exc:
-            name = str(exc).split(":", 1)[0].strip()
-            hit = [i for i, f in enumerate(fits) if f.moved and f.name == name]
+            names = str(exc).split(":", 1)[0].strip().split("/")  # e.g. lower_hump_1/lower_hump_2
+            hit = [i for i, f in enumerate(fits) if f.moved and f.name in names]
+            if not hit and "lower_hump_1" in names:
+                # the lower friction curve as a whole is not dissipative: free its moved terms
+                # from the last one listed back
+                hit = [i for i, f in enumerate(fits) if f.moved and f.name in _LOWER_CURVE][::-1]
             if not hit:
                 raise
             i = hit[0]

@@ -7,7 +7,8 @@ which measured signal it follows) and a map from its fitted parameters to the
 columns ``K[basis]/h^2`` at the windows of :class:`~drill_env.discrepancy.equation_error.RunEquations`,
 added to the nominal torques with coefficients to fit; the two lag effects are
 nonlinear in one time constant, which is found on a grid with the coefficient fixed
-by physics (1).
+by physics (1). Friction heating has a free coefficient (kappa) as well as a time
+constant: it is fitted linearly as a mix of two fixed lags, see ``THERMAL_TIMES_S``.
 
 Notation: ``sgn`` the direction of slip, ``S(w)`` the Stribeck part of the lower
 friction, ``T_sl`` its static level, ``T_su`` the static level of the upper friction
@@ -24,7 +25,14 @@ import numpy as np
 
 from drill_env.discrepancy.equation_error import RunEquations, stribeck
 
-__all__ = ["Candidate", "CANDIDATES", "candidate_names"]
+__all__ = [
+    "Candidate",
+    "CANDIDATES",
+    "candidate_names",
+    "thermal_state",
+    "thermal_trajectory",
+    "THERMAL_TIMES_S",
+]
 
 
 @dataclass(frozen=True)
@@ -142,6 +150,106 @@ def _cols_friction_memory(eq: RunEquations, tau: float):
     return _zeros(len(eq.upper), 1), eq.kernel(basis, "lower")[:, None]
 
 
+# Thermal time constants of the friction-heating candidate [s]: the rise of its thermal
+# state is fitted as a mix of these two lags of the dissipated power (linear; see
+# _cols_temperature).
+THERMAL_TIMES_S: tuple[float, float] = (40.0, 200.0)
+# |kappa| [1/W] beyond which the heated friction would change sign at the rig's largest
+# dissipated power (about 0.8 W at 5 V, braked rig): no such fit is physical.
+MAX_FRICTION_HEATING = 1.0
+
+
+def dissipated_power(eq: RunEquations) -> np.ndarray:
+    """P = T_l(|x3|) |x3| [W] per sample: the nominal lower friction at the measured lower speed."""
+    p = eq.params
+    speed = np.abs(eq.speed_l)
+    return (p.lower_static + stribeck(p, speed) + p.lower_viscous * speed) * speed
+
+
+def thermal_state(eq: RunEquations, tau: float) -> np.ndarray:
+    """Thermal state [W] per sample: :func:`dissipated_power` through tau Th' = P - Th from
+    Th = 0 at the first sample (exact for P held over each sample interval)."""
+    from scipy.signal import lfilter
+
+    power = dissipated_power(eq)
+    e = math.exp(-eq.dt / tau)
+    th_next = lfilter([1.0 - e], [1.0, -e], power)
+    th = np.empty_like(power)
+    th[0] = 0.0
+    th[1:] = th_next[:-1]
+    return th
+
+
+def thermal_trajectory(eq: RunEquations, params) -> np.ndarray:
+    """The thermal state [W] per sample of a run under ``params`` (a rig with friction
+    heating), for simulations started from the measured state: the lag of the dissipated
+    power from the start of the recording plus the heat already there, ``Th0 exp(-t/tau)``,
+    with ``Th0 >= 0`` fitted to the run's lower-disk equation error (least squares; the
+    recording does not say how warm the contact was when it began)."""
+    e = params.effects
+    tau = e.thermal_time
+    cold = params.replace(friction_heating=0.0, thermal_time=0.0)
+    ref = RunEquations(eq.run, cold, eq.noise, eq.config)
+    rise = thermal_state(ref, tau)
+    decay = np.exp(-ref.t_rel / tau)
+    level = _lower_level(ref)
+    sigma = ref.lower.sigma
+    x_rise = e.friction_heating * ref.kernel(level * rise, "lower") / sigma
+    x_decay = e.friction_heating * ref.kernel(level * decay, "lower") / sigma
+    den = float(x_decay @ x_decay)
+    th0 = max(0.0, float(x_decay @ (ref.lower.z - x_rise)) / den) if den > 0.0 else 0.0
+    return th0 * decay + rise
+
+
+def _cols_temperature(eq: RunEquations):
+    # A recording rarely starts with the contact cold: the rig turned before, and its state
+    # at the first sample is unknown. Th(t) = Th0 exp(-t/tau) + (the lag of P from zero);
+    # with Th0 a share of the run's mean power, that is the run's mean power (the part
+    # heated before the recording) plus the rise from zero minus its decay. The columns:
+    # level x mean power, and level x the rise through each of two lags.
+    level = _lower_level(eq)
+    mean_power = float(np.mean(dissipated_power(eq)))
+    cols = [eq.kernel(level * mean_power, "lower")]
+    cols += [eq.kernel(level * thermal_state(eq, tau), "lower") for tau in THERMAL_TIMES_S]
+    return _zeros(len(eq.upper), 1 + len(THERMAL_TIMES_S)), np.column_stack(cols)
+
+
+def _temperature_parameters(coef, tau=None) -> dict[str, float]:
+    """kappa: the sum of the coefficients (the steady change per W); tau_th: the
+    coefficient-weighted mean time constant of the rise (one lag of the same area and
+    first moment); ``preheated``: the share of the steady change already there at the
+    start of a recording."""
+    coef = np.asarray(coef, dtype=float)
+    kappa = float(np.sum(coef))
+    rise = float(np.sum(coef[1:]))
+    tau_th = float(np.dot(coef[1:], THERMAL_TIMES_S)) / rise if rise != 0.0 else 0.0
+    return {
+        "friction_heating": kappa,
+        "thermal_time": tau_th,
+        "preheated": float(coef[0]) / kappa if kappa != 0.0 else 0.0,
+    }
+
+
+def _temperature_admissible(par: dict[str, float]) -> str | None:
+    kappa, tau = par["friction_heating"], par["thermal_time"]
+    if kappa == 0.0 or tau == 0.0:
+        return "no heating fitted"
+    lo, hi = 0.5 * THERMAL_TIMES_S[0], 2.0 * THERMAL_TIMES_S[-1]
+    if not lo <= tau <= hi:
+        return (
+            f"thermal_time = {tau:.3g} s is outside [{lo:g}, {hi:g}] s: the two lags pull in opposite "
+            "directions, not one rise"
+        )
+    if not -0.25 <= par["preheated"] <= 1.25:
+        return (
+            f"the rise during the recording and the steady change have opposite signs "
+            f"(preheated share {par['preheated']:.3g}, expected in [0, 1])"
+        )
+    if abs(kappa) >= MAX_FRICTION_HEATING:
+        return f"|friction_heating| = {abs(kappa):.3g} 1/W would make the heated friction change sign"
+    return None
+
+
 def _nonneg(key: str):
     def check(par):
         return None if par[key] >= 0.0 else f"{key} = {par[key]:.3g} < 0 is not physical"
@@ -218,6 +326,22 @@ CANDIDATES: tuple[Candidate, ...] = (
         to_parameters=lambda coef, tau=None: {"friction_drift": float(coef[0])},
         to_model_effects=lambda par: {"friction_drift": par["friction_drift"]},
         admissible=lambda par: None,
+    ),
+    Candidate(
+        name="friction_temperature",
+        title="temperature-dependent lower friction (heating by the dissipated power)",
+        form="T_fl = sgn (T_sl + S(|x3|)) (1 + kappa Th) + b_l x3, tau_th Th' = |T_fl x3| - Th",
+        signature="lower-disk residual following the friction level times the lagged power the lower "
+        "friction dissipates: slow (tens to hundreds of seconds), larger in the faster runs, "
+        "absent where the disk barely turns",
+        n_params=1 + len(THERMAL_TIMES_S),
+        columns=_cols_temperature,
+        to_parameters=_temperature_parameters,
+        to_model_effects=lambda par: {
+            "friction_heating": par["friction_heating"],
+            "thermal_time": par["thermal_time"],
+        },
+        admissible=_temperature_admissible,
     ),
 )
 

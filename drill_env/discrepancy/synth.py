@@ -84,6 +84,13 @@ def _drift(rate: float, rng: np.random.Generator) -> dict[str, float]:
     return {"friction_drift": float(rate * rng.choice([-1.0, 1.0]))}
 
 
+def _heating(kappa: float, rng: np.random.Generator) -> dict[str, float]:
+    return {
+        "friction_heating": float(kappa * rng.choice([-1.0, 1.0])),
+        "thermal_time": float(math.exp(rng.uniform(math.log(40.0), math.log(200.0)))),
+    }
+
+
 def _external(amp: float, rng: np.random.Generator) -> dict[str, float]:
     return {
         "disturbance_amp": amp,
@@ -142,6 +149,17 @@ HIDDEN_EFFECTS: dict[str, HiddenEffect] = {
             2e-3,
             _drift,
             max_magnitude=0.005,
+        ),
+        HiddenEffect(
+            "friction_temperature",
+            "|kappa| [1/W]: relative change of the lower friction level per watt of the lagged power "
+            "it dissipates (sign random), thermal time log-uniform in [40, 200] s; at 2-4 V (0.5-0.75 W) "
+            "the level rises about 5-37 % at thermal equilibrium, 1-16 % during a 150 s recording after "
+            "the pre-roll",
+            0.1,
+            0.5,
+            _heating,
+            max_magnitude=1.0,
         ),
         HiddenEffect(
             "external_torque",
