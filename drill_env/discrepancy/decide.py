@@ -1269,19 +1269,22 @@ def second_effect(
                 lambda runs: _gram_fit(runs, cal_m, keys["free"], keys["off"], ho, rule)[0][:nf], tr
             )
             sd_interval = np.maximum(sd_interval, np.sqrt(var_jk))
-        out["parameter_fits"] = admissible_fits(
+        fits = parameter_fits(
             cal.nominal,
-            parameter_fits(
-                cal.nominal,
-                cal.base,
-                cal_m.free,
-                theta[:nf],
-                cov[:nf, :nf] * scale,
-                cal.rule,
-                identified=cal.free,
-                sd_interval=sd_interval,
-            ),
+            cal.base,
+            cal_m.free,
+            theta[:nf],
+            cov[:nf, :nf] * scale,
+            cal.rule,
+            identified=cal.free,
+            sd_interval=sd_interval,
         )
+        # every moved parameter keeps its joint value, as with one effect (final_parameters,
+        # moved_all): the effects' coefficients were fitted with these values, and one set back
+        # to nominal because its change is within the test's threshold no longer matches them
+        free_names = {CALIBRATED[j] for j in cal_m.free}
+        fits = [dataclasses.replace(f, moved=True) if f.name in free_names else f for f in fits]
+        out["parameter_fits"] = admissible_fits(cal.nominal, fits)
     out["reason"] = (
         f"{best.name} removes {min(explained, 1.0):.0%} of the held-out excess left by {first.name} "
         f"(gain {best.gain:.1f} > threshold {best.threshold:.1f})"
