@@ -822,7 +822,7 @@ def final_parameters(
     *,
     identified: list[int] | None = None,
     moved_all: bool = False,
-    marginal: np.ndarray | None = None,
+    marginal: np.ndarray | tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[ParameterFit]:
     """Every calibrated parameter of the model a fit stands for, judged against the nominal.
 
@@ -831,7 +831,10 @@ def final_parameters(
     one: a parameter held at nominal that is in truth off (it is known only to
     within its prior) moves the fitted ones it is correlated with (the two hump terms and the
     viscous friction of the lower disk nearly trade off over the measured speeds), and the
-    interval then says so instead of claiming a precision the data do not give.
+    interval then says so instead of claiming a precision the data do not give. With
+    ``marginal`` a pair ``(sd, delta)`` (``marginal_sd(..., with_estimate=True)``), the
+    marginal standard deviation also holds the selection's own uncertainty
+    (:func:`selection_sd`).
 
     With ``refit`` (training runs -> JointFit) and the training runs, each standard deviation
     of an interval is at least the jackknife one over the training runs (leave one run out):
@@ -848,7 +851,10 @@ def final_parameters(
         var_jk = jackknife_var(lambda runs: refit(runs).theta[:nf], train)
         sd_interval = np.sqrt(np.maximum(var_jk, np.diag(cov)))
     if marginal is not None:
-        sd_m = np.asarray(marginal, dtype=float)[np.array(cal.free, dtype=int)]
+        if isinstance(marginal, tuple):
+            sd_m = selection_sd(fit.theta[:nf], cal.free, marginal)
+        else:
+            sd_m = np.asarray(marginal, dtype=float)[np.array(cal.free, dtype=int)]
         base_sd = sd_interval if sd_interval is not None else np.sqrt(np.maximum(np.diag(cov), 0.0))
         sd_interval = np.maximum(base_sd, sd_m)
     fits = parameter_fits(
@@ -1100,11 +1106,18 @@ def _is_lag(candidates, name: str) -> bool:
 
 
 def marginal_sd(
-    cal: CalibrationSetup, tr, ho, rule: DecisionRule, effects: list[tuple[Candidate, float | None]]
-) -> np.ndarray:
+    cal: CalibrationSetup,
+    tr,
+    ho,
+    rule: DecisionRule,
+    effects: list[tuple[Candidate, float | None]],
+    *,
+    with_estimate: bool = False,
+):
     """Posterior standard deviation of every :data:`CALIBRATED` parameter with all of them
     free under their prior, jointly with the ``effects`` (candidate, fitted time constant
-    of a lag or None) [parameter units].
+    of a lag or None) [parameter units]. With ``with_estimate``, also the changes of every
+    parameter from ``cal.base`` in that fit: ``(sd, delta)``.
 
     A lag effect is fitted on a grid of time constants; here the columns of the two
     neighbouring grid points are free too, so that the time constant is free between them
@@ -1115,7 +1128,8 @@ def marginal_sd(
     if not cal.stats or any(s.gram is None for s in cal.stats.values()):
         c = effects[0][0] if effects else None
         fit = moved_fit(dataclasses.replace(cal, moved=every), tr, ho, rule, c)[0]
-        return np.sqrt(np.maximum(np.diag(fit.cov)[: len(every)] * fit.variance_scale, 0.0))
+        sd = np.sqrt(np.maximum(np.diag(fit.cov)[: len(every)] * fit.variance_scale, 0.0))
+        return (sd, fit.theta[: len(every)]) if with_estimate else sd
     free_keys: list = []
     off_keys: list = []
     for c, tau in effects:
@@ -1127,10 +1141,27 @@ def marginal_sd(
         i = int(np.argmin(np.abs(np.log(c.tau_grid / tau))))
         off_keys.append((c.name, i))
         free_keys += [(c.name, j) for j in (i - 1, i + 1) if 0 <= j < c.tau_grid.size]
-    _, q_tr, _, cov = _gram_fit(tr, cal_all, free_keys, off_keys, ho, rule, with_cov=True)
+    theta, q_tr, _, cov = _gram_fit(tr, cal_all, free_keys, off_keys, ho, rule, with_cov=True)
     n_tr = sum(s.n for s in tr)
     scale = max(1.0, q_tr / max(n_tr - len(cov), 1))
-    return np.sqrt(np.maximum(np.diag(cov)[: len(every)] * scale, 0.0))
+    sd = np.sqrt(np.maximum(np.diag(cov)[: len(every)] * scale, 0.0))
+    return (sd, theta[: len(every)]) if with_estimate else sd
+
+
+def selection_sd(delta: np.ndarray, free: list[int], marginal: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Standard deviations of the ``free`` parameters' changes ``delta`` (fitted with only the
+    moved parameters free) that hold the uncertainty of the selection too.
+
+    The parameters that the forward selection left at nominal are off by up to what the
+    selection could not detect, and the moved ones that trade off with them take up that
+    error: with every parameter a few percent off, the lower static friction ends up four of
+    its own standard deviations off when the first hump term is held at nominal. So the
+    variance is the unconditional one over the two fits (Buckland, Burnham & Augustin,
+    Biometrics 1997): the variance with every parameter free plus the squared difference of
+    the two estimates, ``sd_all^2 + (delta - delta_all)^2``."""
+    sd_all, delta_all = marginal
+    j = np.asarray(free, dtype=int)
+    return np.sqrt(sd_all[j] ** 2 + (np.asarray(delta, dtype=float) - delta_all[j]) ** 2)
 
 
 def second_effect(
@@ -1261,9 +1292,9 @@ def second_effect(
         second_tau = best.parameters[next(iter(best.parameters))] if _is_lag(rest, best.name) else None
         first_tau = decision.winner.fit.tau if first.is_lag else None
         both = [(first, first_tau), (second_c, second_tau)]
-        sd_all = marginal_sd(cal, tr, ho, rule, both)
+        marginal = marginal_sd(cal, tr, ho, rule, both, with_estimate=True)
         sd_own = np.sqrt(np.maximum(np.diag(cov[:nf, :nf]) * scale, 0.0))
-        sd_interval = np.maximum(sd_own, sd_all[np.array(cal_m.free, dtype=int)])
+        sd_interval = np.maximum(sd_own, selection_sd(theta[:nf], cal_m.free, marginal))
         if len(tr) >= 3:  # and at least the jackknife over the training runs, as for one effect
             var_jk = jackknife_var(
                 lambda runs: _gram_fit(runs, cal_m, keys["free"], keys["off"], ho, rule)[0][:nf], tr
@@ -1361,7 +1392,7 @@ def decide(
     if calibration is not None and calibration.nominal is not None:
         kw = {"identified": calibration.free, "moved_all": True}
         fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, None)
-        marginal = marginal_sd(calibration, tr, ho, rule, [])
+        marginal = marginal_sd(calibration, tr, ho, rule, [], with_estimate=True)
         ref_params = admissible_fits(
             calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
         )
@@ -1374,7 +1405,7 @@ def decide(
                 winner = dataclasses.replace(
                     winner, parameters=cand.to_parameters(np.array([1.0]), fit_m.tau)
                 )
-            marginal = marginal_sd(calibration, tr, ho, rule, [(cand, fit_m.tau)])
+            marginal = marginal_sd(calibration, tr, ho, rule, [(cand, fit_m.tau)], with_estimate=True)
             params = admissible_fits(
                 calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
             )
