@@ -162,11 +162,13 @@ def test_parallel_workers_give_the_same_rows():
 # -- intervals under real conditions -----------------------------------------------------------
 
 
-@pytest.mark.parametrize("seed", [71, 72])
+@pytest.mark.parametrize("seed", [71, 72, 101])
 def test_every_parameter_off_intervals_hold_the_truth(seed):
     # every identified parameter up to 5 % off at once, undithered encoder: the parameters
     # held at nominal (not excited) are off too, and the fitted ones that trade off with
     # them (the hump terms and the lower viscous friction) must say so in their intervals
+    # (seed 101: with only the moved parameters' own and marginal spread, the lower static
+    # friction and first hump term were 3.2 and 3.3 of their standard deviations off)
     syn = make_dataset("none", seed=seed, config=SynthConfig(**{**SMALL.__dict__, "param_error": 0.05}))
     res = _analyse(syn)
     assert res.effect == "recalibrated", res.decision.reason
