@@ -102,7 +102,10 @@ def test_two_effects_at_once():
     assert res.effect == "position_friction_lower", res.decision.reason
     assert out["effects"] == ["position_friction_lower", "friction_drift"], res.second
     assert res.second["parameters"]["friction_drift"] == pytest.approx(1e-3, rel=0.15)
-    assert "lower_static" not in out["recalibrated"]
+    # the drift's mean is not a static-friction error: refitted with both effects, the lower
+    # static friction stays at nominal within its interval
+    ls = out["recalibrated"].get("lower_static")
+    assert ls is None or ls["ci95"][0] <= ls["nominal"] <= ls["ci95"][1], ls
     assert res.corrected.effects.friction_drift == pytest.approx(res.second["parameters"]["friction_drift"])
     assert res.corrected.effects.lower_position_amp_1 == pytest.approx(0.1, rel=0.1)
     assert out["gap_after"]["equation_error_ss_per_window"] < 1.5

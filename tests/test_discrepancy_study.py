@@ -162,11 +162,13 @@ def test_parallel_workers_give_the_same_rows():
 # -- intervals under real conditions -----------------------------------------------------------
 
 
-@pytest.mark.parametrize("seed", [71, 72])
+@pytest.mark.parametrize("seed", [71, 72, 101])
 def test_every_parameter_off_intervals_hold_the_truth(seed):
     # every identified parameter up to 5 % off at once, undithered encoder: the parameters
     # held at nominal (not excited) are off too, and the fitted ones that trade off with
     # them (the hump terms and the lower viscous friction) must say so in their intervals
+    # (seed 101: with only the moved parameters' own and marginal spread, the lower static
+    # friction and first hump term were 3.2 and 3.3 of their standard deviations off)
     syn = make_dataset("none", seed=seed, config=SynthConfig(**{**SMALL.__dict__, "param_error": 0.05}))
     res = _analyse(syn)
     assert res.effect == "recalibrated", res.decision.reason
@@ -203,3 +205,52 @@ def test_two_effects_under_parameter_errors():
         (f.name, f.value, truth[f.name], f.ci95) for f in res.decision.recalibrated
     ]
     assert math.isclose(res.corrected.effects.friction_drift, res.second["parameters"]["friction_drift"])
+
+
+def test_two_effects_one_model_holds_both_under_parameter_errors():
+    # string damping and the upper disk's position friction, every parameter up to 5 % off:
+    # the second effect is named only if the model with both simulates no worse than with the
+    # first, so the two effects and the parameters must come from one joint fit (the first
+    # effect's coefficient from its fit alone, or a parameter set back to nominal, made the
+    # held-out short-horizon trajectories worse and the upper position friction went unnamed)
+    syn = make_dataset(
+        "position_friction_upper",
+        seed=82,
+        magnitude=0.15,
+        config=SynthConfig(**{**SMALL.__dict__, "param_error": 0.05}),
+        second_effect="string_damping",
+        second_magnitude=4e-3,
+    )
+    res = _analyse(syn, simulate=True)
+    assert set(res.effects) == {"position_friction_upper", "string_damping"}, (
+        res.decision.reason,
+        res.second,
+    )
+    assert not res.second["sensor_worse"]
+    assert res.corrected.effects.upper_position_amp_1 == pytest.approx(0.15, rel=0.1)
+    assert res.corrected.effects.string_damping == pytest.approx(4e-3, rel=0.1)
+    # the model holds the coefficients of the joint fit, not those of one effect alone
+    first = res.second["first_parameters"] if res.effect == "string_damping" else res.second["parameters"]
+    assert res.corrected.effects.string_damping == pytest.approx(first["string_damping"])
+
+
+@pytest.mark.parametrize(
+    ("effect", "seed", "magnitude", "key"),
+    [("friction_memory", 91, 0.1, "friction_lag"), ("motor_inductance", 93, 0.02, "motor_lag")],
+)
+def test_a_named_lag_leaves_the_inertia_inside_its_interval(effect, seed, magnitude, key):
+    # a lag trades off with an inertia (for a short lag the lagged torque is tau times the
+    # derivative of the unlagged one); with the time constant held at the nearest grid point
+    # (27 % apart) the inertia took up the rest and left its interval (lower inertia 3 of its
+    # standard deviations off with the frictional lag of seed 91)
+    syn = make_dataset(effect, seed=seed, magnitude=magnitude, config=SMALL)
+    res = _analyse(syn)
+    assert res.effect == effect, res.decision.reason
+    assert res.decision.winner.parameters[key] == pytest.approx(magnitude, rel=0.05)
+    truth = syn.answer["parameters_at_nominal_string_stiffness"]
+    moved = res.decision.recalibrated
+    assert any(f.name.endswith("inertia") for f in moved)
+    outside = [
+        (f.name, f.value, truth[f.name], f.ci95) for f in moved if not f.ci95[0] <= truth[f.name] <= f.ci95[1]
+    ]
+    assert not outside, outside

@@ -822,7 +822,7 @@ def final_parameters(
     *,
     identified: list[int] | None = None,
     moved_all: bool = False,
-    marginal: np.ndarray | None = None,
+    marginal: np.ndarray | tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[ParameterFit]:
     """Every calibrated parameter of the model a fit stands for, judged against the nominal.
 
@@ -831,7 +831,10 @@ def final_parameters(
     one: a parameter held at nominal that is in truth off (it is known only to
     within its prior) moves the fitted ones it is correlated with (the two hump terms and the
     viscous friction of the lower disk nearly trade off over the measured speeds), and the
-    interval then says so instead of claiming a precision the data do not give.
+    interval then says so instead of claiming a precision the data do not give. With
+    ``marginal`` a pair ``(sd, delta)`` (``marginal_sd(..., with_estimate=True)``), the
+    marginal standard deviation also holds the selection's own uncertainty
+    (:func:`selection_sd`).
 
     With ``refit`` (training runs -> JointFit) and the training runs, each standard deviation
     of an interval is at least the jackknife one over the training runs (leave one run out):
@@ -848,7 +851,10 @@ def final_parameters(
         var_jk = jackknife_var(lambda runs: refit(runs).theta[:nf], train)
         sd_interval = np.sqrt(np.maximum(var_jk, np.diag(cov)))
     if marginal is not None:
-        sd_m = np.asarray(marginal, dtype=float)[np.array(cal.free, dtype=int)]
+        if isinstance(marginal, tuple):
+            sd_m = selection_sd(fit.theta[:nf], cal.free, marginal)
+        else:
+            sd_m = np.asarray(marginal, dtype=float)[np.array(cal.free, dtype=int)]
         base_sd = sd_interval if sd_interval is not None else np.sqrt(np.maximum(np.diag(cov), 0.0))
         sd_interval = np.maximum(base_sd, sd_m)
     fits = parameter_fits(
@@ -1027,22 +1033,72 @@ def moved_fit(
     if cand is None:
         return ref, (lambda t: _fit_linear_joint(t, ho, c, None, rule)), c
     sc = _score(cand, tr, ho, rule, c, ref)
+    if cand.is_lag and sc.fit.tau and all(st.gram is not None for st in c.stats.values()):
+        return _lag_fit_between(tr, ho, c, cand, rule, sc.fit.tau)
     return sc.fit, _refit_of(c, ho, rule, sc, (cand,)), c
 
 
-def _gram_fit(group, cal: CalibrationSetup, free_keys, offset_keys, held, rule: DecisionRule, with_cov=False):
+def _lag_fit_between(
+    tr, ho, cal: CalibrationSetup, cand: Candidate, rule: DecisionRule, tau_grid_best: float
+):
+    """The parameters refitted with a lag candidate at its time constant, free between the grid
+    points either side of the best one.
+
+    For a short lag the lagged term is tau times the derivative of the unlagged one, which an
+    inertia change mimics: a time constant held at the nearest grid point (27 % apart) moves
+    that inertia by the rest, many times its interval. So the candidate's column is
+    interpolated in tau (quadratic over the three nearest grid points; exact where the lag
+    is short and the column is linear in tau), and tau is the one that minimises the training sum of
+    squares with the parameters refitted."""
+    grid = cand.tau_grid
+    i = int(np.argmin(np.abs(np.log(grid / tau_grid_best))))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+
+    def keys(tau):
+        # quadratic (Lagrange) interpolation in tau over the three grid points nearest tau
+        j = int(np.clip(np.argmin(np.abs(np.log(grid / tau))), 1, grid.size - 2))
+        nodes = grid[j - 1 : j + 2]
+        w = [
+            float(np.prod([(tau - nodes[m]) / (nodes[k] - nodes[m]) for m in range(3) if m != k]))
+            for k in range(3)
+        ]
+        return [(cand.name, j - 1 + k) for k in range(3)], w
+
+    def fit_at(runs, tau) -> JointFit:
+        off, w = keys(tau)
+        theta, q_tr, q_h, cov = _gram_fit(runs, cal, [], off, ho, rule, with_cov=True, offset_weights=w)
+        return JointFit(theta, cov, q_tr, sum(s.n for s in runs), q_h, tau=float(tau))
+
+    taus = np.geomspace(lo, hi, 41) if hi > lo else np.array([lo])
+    fits = [fit_at(tr, t) for t in taus]
+    best = min(fits, key=lambda f: f.train_ss)
+    return best, (lambda runs: fit_at(runs, best.tau)), cal
+
+
+def _gram_fit(
+    group,
+    cal: CalibrationSetup,
+    free_keys,
+    offset_keys,
+    held,
+    rule: DecisionRule,
+    with_cov=False,
+    offset_weights=None,
+):
     """Joint fit from the per-run Gram matrices: the identified parameters and the columns of
     ``free_keys`` fitted, the columns of ``offset_keys`` added with coefficient 1 (a lag effect
-    at its time constant). Returns the coefficients, the training and the held-out sum of squares."""
+    at its time constant), or with ``offset_weights`` (a lag between two grid points).
+    Returns the coefficients, the training and the held-out sum of squares."""
     idx = cal.stats[group[0].name].index
     free = np.concatenate([idx["A"][np.array(cal.free, dtype=int)]] + [idx[k] for k in free_keys])
     off = np.concatenate([np.zeros(0, dtype=int)] + [idx[k] for k in offset_keys])
+    w = np.ones(off.size) if offset_weights is None else np.asarray(offset_weights, dtype=float)
     z = int(idx["z"][0])
 
     def parts(runs):
         g = sum(cal.stats[s.name].gram for s in runs)
-        yy = g[z, z] - 2.0 * g[z, off].sum() + g[np.ix_(off, off)].sum()
-        dy = g[free, z] - g[np.ix_(free, off)].sum(axis=1)
+        yy = g[z, z] - 2.0 * g[z, off] @ w + w @ g[np.ix_(off, off)] @ w
+        dy = g[free, z] - g[np.ix_(free, off)] @ w
         return g[np.ix_(free, free)], dy, float(yy)
 
     m, dy, yy = parts(group)
@@ -1064,11 +1120,18 @@ def _is_lag(candidates, name: str) -> bool:
 
 
 def marginal_sd(
-    cal: CalibrationSetup, tr, ho, rule: DecisionRule, effects: list[tuple[Candidate, float | None]]
-) -> np.ndarray:
+    cal: CalibrationSetup,
+    tr,
+    ho,
+    rule: DecisionRule,
+    effects: list[tuple[Candidate, float | None]],
+    *,
+    with_estimate: bool = False,
+):
     """Posterior standard deviation of every :data:`CALIBRATED` parameter with all of them
     free under their prior, jointly with the ``effects`` (candidate, fitted time constant
-    of a lag or None) [parameter units].
+    of a lag or None) [parameter units]. With ``with_estimate``, also the changes of every
+    parameter from ``cal.base`` in that fit: ``(sd, delta)``.
 
     A lag effect is fitted on a grid of time constants; here the columns of the two
     neighbouring grid points are free too, so that the time constant is free between them
@@ -1079,7 +1142,8 @@ def marginal_sd(
     if not cal.stats or any(s.gram is None for s in cal.stats.values()):
         c = effects[0][0] if effects else None
         fit = moved_fit(dataclasses.replace(cal, moved=every), tr, ho, rule, c)[0]
-        return np.sqrt(np.maximum(np.diag(fit.cov)[: len(every)] * fit.variance_scale, 0.0))
+        sd = np.sqrt(np.maximum(np.diag(fit.cov)[: len(every)] * fit.variance_scale, 0.0))
+        return (sd, fit.theta[: len(every)]) if with_estimate else sd
     free_keys: list = []
     off_keys: list = []
     for c, tau in effects:
@@ -1091,10 +1155,27 @@ def marginal_sd(
         i = int(np.argmin(np.abs(np.log(c.tau_grid / tau))))
         off_keys.append((c.name, i))
         free_keys += [(c.name, j) for j in (i - 1, i + 1) if 0 <= j < c.tau_grid.size]
-    _, q_tr, _, cov = _gram_fit(tr, cal_all, free_keys, off_keys, ho, rule, with_cov=True)
+    theta, q_tr, _, cov = _gram_fit(tr, cal_all, free_keys, off_keys, ho, rule, with_cov=True)
     n_tr = sum(s.n for s in tr)
     scale = max(1.0, q_tr / max(n_tr - len(cov), 1))
-    return np.sqrt(np.maximum(np.diag(cov)[: len(every)] * scale, 0.0))
+    sd = np.sqrt(np.maximum(np.diag(cov)[: len(every)] * scale, 0.0))
+    return (sd, theta[: len(every)]) if with_estimate else sd
+
+
+def selection_sd(delta: np.ndarray, free: list[int], marginal: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Standard deviations of the ``free`` parameters' changes ``delta`` (fitted with only the
+    moved parameters free) that hold the uncertainty of the selection too.
+
+    The parameters that the forward selection left at nominal are off by up to what the
+    selection could not detect, and the moved ones that trade off with them take up that
+    error: with every parameter a few percent off, the lower static friction ends up four of
+    its own standard deviations off when the first hump term is held at nominal. So the
+    variance is the unconditional one over the two fits (Buckland, Burnham & Augustin,
+    Biometrics 1997): the variance with every parameter free plus the squared difference of
+    the two estimates, ``sd_all^2 + (delta - delta_all)^2``."""
+    sd_all, delta_all = marginal
+    j = np.asarray(free, dtype=int)
+    return np.sqrt(sd_all[j] ** 2 + (np.asarray(delta, dtype=float) - delta_all[j]) ** 2)
 
 
 def second_effect(
@@ -1190,42 +1271,65 @@ def second_effect(
     if explained < rule.min_explained:
         out["reason"] = f"{best.name} removes only {explained:.0%} of the excess left by {first.name}"
         return out
+    # One model holds both effects: the moved parameters and the coefficients of both effects
+    # fitted together. The first effect's coefficients from its fit alone carry the second
+    # effect's share (string damping against the position friction of the upper disk, a drift
+    # against the lower friction level), and a model that mixes them with the second effect's
+    # fitted on top simulates worse than either.
+    second_c = next(c for c in rest if c.name == best.name)
+    cal_m = dataclasses.replace(cal, free=list(cal.moved))
+    theta, q_tr, _, cov = _gram_fit(tr, cal_m, keys["free"], keys["off"], ho, rule, with_cov=True)
+    nf = len(cal_m.free)
+    coef = theta[nf:]
+    if first.is_lag:
+        first_params = dict(decision.winner.parameters)
+    else:
+        first_params = first.to_parameters(coef[: first.n_params])
+        coef = coef[first.n_params :]
+    second_params = best.parameters if second_c.is_lag else second_c.to_parameters(coef[: second_c.n_params])
+    why = first.admissible(first_params) or second_c.admissible(second_params)
+    if why is not None:
+        out["reason"] = (
+            f"{best.name} is significant but the joint fit with {first.name} is not physical ({why})"
+        )
+        return out
     out["named"] = best.name
-    out["parameters"] = best.parameters
+    out["parameters"] = {k: float(v) for k, v in second_params.items()}
+    out["first_parameters"] = {k: float(v) for k, v in first_params.items()}
     out["heldout_ss"] = best.heldout_ss
     # the moved parameters refitted with both effects; those no longer significant stay nominal
     if cal.moved and cal.nominal is not None:
-        cal_m = dataclasses.replace(cal, free=list(cal.moved))
-        theta, q_tr, _, cov = _gram_fit(tr, cal_m, keys["free"], keys["off"], ho, rule, with_cov=True)
         n_tr = sum(s_.n for s_ in tr)
         scale = max(1.0, q_tr / max(n_tr - theta.size, 1))
-        nf = len(cal_m.free)
         # intervals at least as wide as with every calibrated parameter free under its prior
         # (see final_parameters): those held at nominal are known only to within it
         second_tau = best.parameters[next(iter(best.parameters))] if _is_lag(rest, best.name) else None
         first_tau = decision.winner.fit.tau if first.is_lag else None
-        both = [(first, first_tau), (next(c for c in rest if c.name == best.name), second_tau)]
-        sd_all = marginal_sd(cal, tr, ho, rule, both)
+        both = [(first, first_tau), (second_c, second_tau)]
+        marginal = marginal_sd(cal, tr, ho, rule, both, with_estimate=True)
         sd_own = np.sqrt(np.maximum(np.diag(cov[:nf, :nf]) * scale, 0.0))
-        sd_interval = np.maximum(sd_own, sd_all[np.array(cal_m.free, dtype=int)])
+        sd_interval = np.maximum(sd_own, selection_sd(theta[:nf], cal_m.free, marginal))
         if len(tr) >= 3:  # and at least the jackknife over the training runs, as for one effect
             var_jk = jackknife_var(
                 lambda runs: _gram_fit(runs, cal_m, keys["free"], keys["off"], ho, rule)[0][:nf], tr
             )
             sd_interval = np.maximum(sd_interval, np.sqrt(var_jk))
-        out["parameter_fits"] = admissible_fits(
+        fits = parameter_fits(
             cal.nominal,
-            parameter_fits(
-                cal.nominal,
-                cal.base,
-                cal_m.free,
-                theta[:nf],
-                cov[:nf, :nf] * scale,
-                cal.rule,
-                identified=cal.free,
-                sd_interval=sd_interval,
-            ),
+            cal.base,
+            cal_m.free,
+            theta[:nf],
+            cov[:nf, :nf] * scale,
+            cal.rule,
+            identified=cal.free,
+            sd_interval=sd_interval,
         )
+        # every moved parameter keeps its joint value, as with one effect (final_parameters,
+        # moved_all): the effects' coefficients were fitted with these values, and one set back
+        # to nominal because its change is within the test's threshold no longer matches them
+        free_names = {CALIBRATED[j] for j in cal_m.free}
+        fits = [dataclasses.replace(f, moved=True) if f.name in free_names else f for f in fits]
+        out["parameter_fits"] = admissible_fits(cal.nominal, fits)
     out["reason"] = (
         f"{best.name} removes {min(explained, 1.0):.0%} of the held-out excess left by {first.name} "
         f"(gain {best.gain:.1f} > threshold {best.threshold:.1f})"
@@ -1302,7 +1406,7 @@ def decide(
     if calibration is not None and calibration.nominal is not None:
         kw = {"identified": calibration.free, "moved_all": True}
         fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, None)
-        marginal = marginal_sd(calibration, tr, ho, rule, [])
+        marginal = marginal_sd(calibration, tr, ho, rule, [], with_estimate=True)
         ref_params = admissible_fits(
             calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
         )
@@ -1310,7 +1414,12 @@ def decide(
         if named:
             cand = next(c for c in candidates if c.name == winner.name)
             fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, cand)
-            marginal = marginal_sd(calibration, tr, ho, rule, [(cand, fit_m.tau)])
+            if cand.is_lag and fit_m.tau:
+                # the model's time constant is the one its parameters were refitted at
+                winner = dataclasses.replace(
+                    winner, parameters=cand.to_parameters(np.array([1.0]), fit_m.tau)
+                )
+            marginal = marginal_sd(calibration, tr, ho, rule, [(cand, fit_m.tau)], with_estimate=True)
             params = admissible_fits(
                 calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
             )

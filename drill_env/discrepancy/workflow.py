@@ -209,10 +209,13 @@ def _where_table(eqs: list[RunEquations], nominal: dict[str, RunComparison], rul
 
 
 def _second_parameters(decision: Decision, second: dict[str, Any]) -> None:
-    """With two effects, the parameters are those refitted jointly with both."""
+    """With two effects, the parameters and the first effect's coefficients are those refitted
+    jointly with both."""
     fits = second.get("parameter_fits")
     if fits:
         decision.parameters = fits
+    if second.get("first_parameters") and decision.winner is not None:
+        decision.winner = dataclasses.replace(decision.winner, parameters=dict(second["first_parameters"]))
 
 
 def _with_second(model: RigParams, second: dict[str, Any]) -> RigParams:
@@ -407,10 +410,10 @@ def analyse(
                 effects = [decision.effect]
                 second = second_effect(decision, stats_cal, setup, rule=rule)
                 if second.get("named"):
-                    kept = decision.parameters
+                    kept = decision.parameters, decision.winner
                     _second_parameters(decision, second)  # the parameters refitted with both
                     both = _with_second(model_of(decision), second)
-                    decision.parameters = kept
+                    decision.parameters, decision.winner = kept
                     with_both = {
                         eq.run.name: compare_run(
                             both, eq, dataset.encoder_counts_per_rev, compare_config, measured_cache=cache
