@@ -19,6 +19,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
                                         # (drill_env.agents.residual); absent or null: the policy is the controller
+    warm_start: {controller: lqi, steps: 100000}  # optional: clone a classical controller into the
+                                        # policy before the first rollout (drill_env.agents.warm_start)
 
 Domain randomisation is the environment's ``domain_randomization`` argument in
 ``env_kwargs`` (:class:`drill_env.envs.config.DomainRandomization`: relative ranges of the
@@ -139,6 +141,7 @@ class TrainConfig:
     evaluation: EvalConfig = field(default_factory=EvalConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
     residual: Any = None  # drill_env.agents.residual.ResidualConfig, or None
+    warm_start: Any = None  # drill_env.agents.warm_start.WarmStartConfig, or None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -190,6 +193,11 @@ class TrainConfig:
         from drill_env.agents.residual import ResidualConfig
 
         object.__setattr__(self, "residual", ResidualConfig.from_any(self.residual))
+        from drill_env.agents.warm_start import WarmStartConfig
+
+        object.__setattr__(self, "warm_start", WarmStartConfig.from_any(self.warm_start))
+        if self.warm_start is not None and self.residual is not None:
+            raise ValueError("warm_start: a residual policy starts as its base controller already; drop one")
         dr = self.env_kwargs.get("domain_randomization")
         if dr is not None:
             from drill_env.envs.config import DomainRandomization
@@ -215,6 +223,7 @@ class TrainConfig:
             "evaluation": vars(self.evaluation).copy(),
             "convergence": vars(self.convergence).copy(),
             **({"residual": self.residual.to_dict()} if self.residual is not None else {}),
+            **({"warm_start": self.warm_start.to_dict()} if self.warm_start is not None else {}),
         }
 
 
@@ -749,6 +758,11 @@ def train(
                 self.next_eval += cfg.evaluation.every_steps
             return True
 
+    warm = None
+    if cfg.warm_start is not None:  # part of the training's wall time
+        from drill_env.agents.warm_start import warm_start
+
+        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed)
     model.learn(total_timesteps=cfg.total_timesteps, callback=_Eval(), progress_bar=progress_bar)
     if not rows or rows[-1]["timesteps"] != model.num_timesteps:
         run_eval(model.num_timesteps)
@@ -774,6 +788,7 @@ def train(
         "total_timesteps": int(model.num_timesteps),
         "wall_time_s": round(wall, 1),
         "evaluation_wall_time_s": round(eval_time[0], 1),
+        "warm_start": warm,
         "n_evaluations": len(rows),
         "final_eval_return": rows[-1]["mean_return"],
         "best_eval_return": best["return"],

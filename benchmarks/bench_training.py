@@ -146,6 +146,19 @@ def time_to_policy(config: Path, preset: str, folder: Path, check_every: int, bu
             state["next"] += check_every
             return not check()  # False stops the training
 
+    if cfg.warm_start is not None:  # counted in the training time, checked like any policy
+        from drill_env.agents.warm_start import warm_start
+
+        state["t0"] = time.perf_counter()
+        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, 0)
+        print(
+            f"    warm start: {warm['steps']} steps of {warm['controller']} cloned in {warm['wall_time_s']:.0f} s "
+            f"(action MSE {warm['action_mse_before']:.3g} -> {warm['action_mse_after']:.3g})",
+            flush=True,
+        )
+        if check():
+            return state["result"]
+
     model.learn(cfg.total_timesteps, callback=_Check())
     if state["result"] is None or state["result"]["steps"] != model.num_timesteps:
         check()
