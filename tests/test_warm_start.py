@@ -141,3 +141,16 @@ def test_training_with_a_warm_start_records_it(tmp_path, one_torch_thread):
     assert ws["controller"] == "lqi" and ws["steps"] >= 1000 and ws["wall_time_s"] <= summary["wall_time_s"]
     assert summary["config"]["warm_start"]["steps"] == 1000
     assert load_config(tmp_path / "out" / "config.yaml").warm_start == WarmStartConfig(steps=1000, epochs=2)
+
+
+@pytest.mark.parametrize("suffix", ["", "_no_brake"])
+def test_warm_start_configs_differ_from_the_shipped_ones_only_where_they_say(suffix):
+    warm = load_config(CONFIGS / f"ppo_warm_start{suffix}.yaml").to_dict()
+    scratch = load_config(CONFIGS / f"ppo{suffix}.yaml").to_dict()
+    assert warm.pop("warm_start")["controller"] == "lqi"
+    for key in ("total_timesteps", "evaluation"):
+        warm.pop(key), scratch.pop(key)
+    for hp in (warm["hyperparameters"], scratch["hyperparameters"]):
+        hp.pop("learning_rate")
+        hp["policy_kwargs"].pop("log_std_init")
+    assert warm == scratch
