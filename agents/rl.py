@@ -21,6 +21,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
                                         # (drill_env.agents.residual); absent or null: the policy is the controller
     warm_start: {controller: lqi, steps: 100000}  # optional: clone a classical controller into the
                                         # policy before the first rollout (drill_env.agents.warm_start)
+    ignored_observations: [lower_angle_sin, ...]  # optional: entries the policy network takes
+                                        # no weights from (zeroed and frozen; the value still sees them)
 
 Domain randomisation is the environment's ``domain_randomization`` argument in
 ``env_kwargs`` (:class:`drill_env.envs.config.DomainRandomization`: relative ranges of the
@@ -92,6 +94,8 @@ __all__ = [
     "train",
     "evaluation_episodes",
     "make_train_vec_env",
+    "ignore_observations",
+    "observation_names",
 ]
 
 ALGOS = ("ppo", "sac")
@@ -142,6 +146,7 @@ class TrainConfig:
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
     residual: Any = None  # drill_env.agents.residual.ResidualConfig, or None
     warm_start: Any = None  # drill_env.agents.warm_start.WarmStartConfig, or None
+    ignored_observations: tuple[str, ...] = ()  # entries the policy network gets no weights from
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -198,6 +203,14 @@ class TrainConfig:
         object.__setattr__(self, "warm_start", WarmStartConfig.from_any(self.warm_start))
         if self.warm_start is not None and self.residual is not None:
             raise ValueError("warm_start: a residual policy starts as its base controller already; drop one")
+        ignored = self.ignored_observations
+        if isinstance(ignored, str) or not isinstance(ignored, (list, tuple)):
+            raise ValueError(f"ignored_observations: expected a list of observation names, got {ignored!r}")
+        names = observation_names(self.env_id)
+        for name in ignored:
+            if name not in names:
+                raise ValueError(f"ignored_observations: {name!r} is not one of {list(names)}")
+        object.__setattr__(self, "ignored_observations", tuple(ignored))
         dr = self.env_kwargs.get("domain_randomization")
         if dr is not None:
             from drill_env.envs.config import DomainRandomization
@@ -224,6 +237,9 @@ class TrainConfig:
             "convergence": vars(self.convergence).copy(),
             **({"residual": self.residual.to_dict()} if self.residual is not None else {}),
             **({"warm_start": self.warm_start.to_dict()} if self.warm_start is not None else {}),
+            **(
+                {"ignored_observations": list(self.ignored_observations)} if self.ignored_observations else {}
+            ),
         }
 
 
@@ -645,6 +661,34 @@ def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
     return hp
 
 
+def observation_names(env_id: str) -> tuple[str, ...]:
+    """The names of the observation entries of ``env_id`` (its version's table)."""
+    from drill_env.envs import ENV_VERSIONS
+    from drill_env.envs.config import OBSERVATION_NAMES, OBSERVATION_NAMES_V1
+
+    return OBSERVATION_NAMES_V1 if ENV_VERSIONS[env_id] >= 1 else OBSERVATION_NAMES
+
+
+def ignore_observations(model: Any, cfg: TrainConfig) -> None:
+    """Zero the weights from ``cfg.ignored_observations`` into the first layer of the policy
+    network (PPO: the actor's MLP; SAC: the actor's) and keep them zero in training (their
+    gradient is masked; Adam then never moves them). The saved policy is a plain MLP that
+    does not depend on those entries; the value networks still see them."""
+    if not cfg.ignored_observations:
+        return
+    import torch
+
+    names = observation_names(cfg.env_id)
+    columns = [names.index(n) for n in cfg.ignored_observations]
+    pol = model.policy
+    first = pol.actor.latent_pi[0] if hasattr(pol, "actor") else pol.mlp_extractor.policy_net[0]
+    mask = torch.ones_like(first.weight)
+    mask[:, columns] = 0.0
+    with torch.no_grad():
+        first.weight.mul_(mask)
+    first.weight.register_hook(lambda grad: grad * mask)
+
+
 def make_train_vec_env(cfg: TrainConfig, seed: int):
     """The training rigs of ``cfg``: ``cfg.n_envs`` envs of ``cfg.env_id`` seeded ``seed, seed + 1, ...``
     with episode statistics (``rollout/ep_rew_mean``), as SB3's native batched adapter
@@ -698,6 +742,7 @@ def train(
         venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=gamma)
     hp = algo_kwargs(cfg.hyperparameters)
     model = _algo_class(cfg.algo)("MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **hp)
+    ignore_observations(model, cfg)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
 
     eval_env = gym.make(cfg.env_id, **cfg.env_kwargs)

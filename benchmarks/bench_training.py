@@ -53,7 +53,7 @@ def _model(cfg, seed: int = 0):
     import torch
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from drill_env.agents.rl import _algo_class, algo_kwargs, make_train_vec_env
+    from drill_env.agents.rl import _algo_class, algo_kwargs, ignore_observations, make_train_vec_env
 
     torch.set_num_threads(cfg.torch_threads)
     venv = make_train_vec_env(cfg, seed)
@@ -61,9 +61,11 @@ def _model(cfg, seed: int = 0):
         venv = VecNormalize(
             venv, norm_obs=False, norm_reward=True, gamma=float(cfg.hyperparameters.get("gamma", 0.99))
         )
-    return _algo_class(cfg.algo)(
+    model = _algo_class(cfg.algo)(
         "MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **algo_kwargs(cfg.hyperparameters)
     )
+    ignore_observations(model, cfg)
+    return model
 
 
 def throughput(config: Path, steps: int, **overrides) -> float:

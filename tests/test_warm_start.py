@@ -7,13 +7,15 @@ import pytest
 from gymnasium import spaces
 from test_train import CONFIGS, small_config
 
-from drill_env.agents.rl import TrainConfig, load_config, train
+from drill_env.agents.rl import TrainConfig, load_config, load_policy, train
 from drill_env.agents.warm_start import (
     WarmStartConfig,
     collect_demonstrations,
     nominal_controller,
     warm_start,
 )
+
+ANGLES = ["lower_angle_sin", "lower_angle_cos", "upper_angle_sin", "upper_angle_cos"]
 
 
 class _ConstantRig:
@@ -148,9 +150,38 @@ def test_warm_start_configs_differ_from_the_shipped_ones_only_where_they_say(suf
     warm = load_config(CONFIGS / f"ppo_warm_start{suffix}.yaml").to_dict()
     scratch = load_config(CONFIGS / f"ppo{suffix}.yaml").to_dict()
     assert warm.pop("warm_start")["controller"] == "lqi"
+    assert warm.pop("ignored_observations") == ANGLES
     for key in ("total_timesteps", "evaluation"):
         warm.pop(key), scratch.pop(key)
     for hp in (warm["hyperparameters"], scratch["hyperparameters"]):
         hp.pop("learning_rate")
         hp["policy_kwargs"].pop("log_std_init")
     assert warm == scratch
+
+
+def test_ignored_observations_name_the_field():
+    with pytest.raises(ValueError, match="ignored_observations: 'angle'"):
+        TrainConfig(algo="ppo", env_id="DrillString-v1", ignored_observations=["angle"])
+    with pytest.raises(ValueError, match="ignored_observations: 'lower_angle_sin'"):  # v0 has no angles
+        TrainConfig(algo="ppo", env_id="DrillString-v0", ignored_observations=["lower_angle_sin"])
+    with pytest.raises(ValueError, match="ignored_observations: expected a list"):
+        TrainConfig(algo="ppo", env_id="DrillString-v1", ignored_observations="lower_angle_sin")
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_the_trained_policy_does_not_depend_on_ignored_observations(tmp_path, algo, one_torch_thread):
+    cfg = small_config(algo, 256).to_dict()
+    cfg["ignored_observations"] = ANGLES
+    summary = train(TrainConfig(**cfg), 2, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    assert summary["config"]["ignored_observations"] == ANGLES
+    policy = load_policy(tmp_path / "out" / "policy.zip", trusted=True)  # made by this test
+    obs = np.random.default_rng(3).uniform(-1, 1, (64, 13)).astype(np.float32)
+    moved = obs.copy()
+    moved[:, 8:12] = np.random.default_rng(4).uniform(-1, 1, (64, 4))
+    a, _ = policy.predict(obs, deterministic=True)
+    b, _ = policy.predict(moved, deterministic=True)
+    np.testing.assert_array_equal(a, b)
+    other = obs.copy()
+    other[:, 0] += 0.5  # the lower speed still matters
+    c, _ = policy.predict(other, deterministic=True)
+    assert np.abs(c - a).max() > 1e-4
