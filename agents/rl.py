@@ -19,6 +19,10 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
                                         # (drill_env.agents.residual); absent or null: the policy is the controller
+    warm_start: {controller: lqi, steps: 100000}  # optional: clone a classical controller into the
+                                        # policy before the first rollout (drill_env.agents.warm_start)
+    ignored_observations: [lower_angle_sin, ...]  # optional: entries the policy network takes
+                                        # no weights from (zeroed and frozen; the value still sees them)
 
 Domain randomisation is the environment's ``domain_randomization`` argument in
 ``env_kwargs`` (:class:`drill_env.envs.config.DomainRandomization`: relative ranges of the
@@ -90,6 +94,8 @@ __all__ = [
     "train",
     "evaluation_episodes",
     "make_train_vec_env",
+    "ignore_observations",
+    "observation_names",
 ]
 
 ALGOS = ("ppo", "sac")
@@ -139,6 +145,8 @@ class TrainConfig:
     evaluation: EvalConfig = field(default_factory=EvalConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
     residual: Any = None  # drill_env.agents.residual.ResidualConfig, or None
+    warm_start: Any = None  # drill_env.agents.warm_start.WarmStartConfig, or None
+    ignored_observations: tuple[str, ...] = ()  # entries the policy network gets no weights from
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -190,6 +198,19 @@ class TrainConfig:
         from drill_env.agents.residual import ResidualConfig
 
         object.__setattr__(self, "residual", ResidualConfig.from_any(self.residual))
+        from drill_env.agents.warm_start import WarmStartConfig
+
+        object.__setattr__(self, "warm_start", WarmStartConfig.from_any(self.warm_start))
+        if self.warm_start is not None and self.residual is not None:
+            raise ValueError("warm_start: a residual policy starts as its base controller already; drop one")
+        ignored = self.ignored_observations
+        if isinstance(ignored, str) or not isinstance(ignored, (list, tuple)):
+            raise ValueError(f"ignored_observations: expected a list of observation names, got {ignored!r}")
+        names = observation_names(self.env_id)
+        for name in ignored:
+            if name not in names:
+                raise ValueError(f"ignored_observations: {name!r} is not one of {list(names)}")
+        object.__setattr__(self, "ignored_observations", tuple(ignored))
         dr = self.env_kwargs.get("domain_randomization")
         if dr is not None:
             from drill_env.envs.config import DomainRandomization
@@ -215,6 +236,10 @@ class TrainConfig:
             "evaluation": vars(self.evaluation).copy(),
             "convergence": vars(self.convergence).copy(),
             **({"residual": self.residual.to_dict()} if self.residual is not None else {}),
+            **({"warm_start": self.warm_start.to_dict()} if self.warm_start is not None else {}),
+            **(
+                {"ignored_observations": list(self.ignored_observations)} if self.ignored_observations else {}
+            ),
         }
 
 
@@ -636,6 +661,34 @@ def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
     return hp
 
 
+def observation_names(env_id: str) -> tuple[str, ...]:
+    """The names of the observation entries of ``env_id`` (its version's table)."""
+    from drill_env.envs import ENV_VERSIONS
+    from drill_env.envs.config import OBSERVATION_NAMES, OBSERVATION_NAMES_V1
+
+    return OBSERVATION_NAMES_V1 if ENV_VERSIONS[env_id] >= 1 else OBSERVATION_NAMES
+
+
+def ignore_observations(model: Any, cfg: TrainConfig) -> None:
+    """Zero the weights from ``cfg.ignored_observations`` into the first layer of the policy
+    network (PPO: the actor's MLP; SAC: the actor's) and keep them zero in training (their
+    gradient is masked; Adam then never moves them). The saved policy is a plain MLP that
+    does not depend on those entries; the value networks still see them."""
+    if not cfg.ignored_observations:
+        return
+    import torch
+
+    names = observation_names(cfg.env_id)
+    columns = [names.index(n) for n in cfg.ignored_observations]
+    pol = model.policy
+    first = pol.actor.latent_pi[0] if hasattr(pol, "actor") else pol.mlp_extractor.policy_net[0]
+    mask = torch.ones_like(first.weight)
+    mask[:, columns] = 0.0
+    with torch.no_grad():
+        first.weight.mul_(mask)
+    first.weight.register_hook(lambda grad: grad * mask)
+
+
 def make_train_vec_env(cfg: TrainConfig, seed: int):
     """The training rigs of ``cfg``: ``cfg.n_envs`` envs of ``cfg.env_id`` seeded ``seed, seed + 1, ...``
     with episode statistics (``rollout/ep_rew_mean``), as SB3's native batched adapter
@@ -689,6 +742,7 @@ def train(
         venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=gamma)
     hp = algo_kwargs(cfg.hyperparameters)
     model = _algo_class(cfg.algo)("MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **hp)
+    ignore_observations(model, cfg)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
 
     eval_env = gym.make(cfg.env_id, **cfg.env_kwargs)
@@ -749,6 +803,11 @@ def train(
                 self.next_eval += cfg.evaluation.every_steps
             return True
 
+    warm = None
+    if cfg.warm_start is not None:  # part of the training's wall time
+        from drill_env.agents.warm_start import warm_start
+
+        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed)
     model.learn(total_timesteps=cfg.total_timesteps, callback=_Eval(), progress_bar=progress_bar)
     if not rows or rows[-1]["timesteps"] != model.num_timesteps:
         run_eval(model.num_timesteps)
@@ -774,6 +833,7 @@ def train(
         "total_timesteps": int(model.num_timesteps),
         "wall_time_s": round(wall, 1),
         "evaluation_wall_time_s": round(eval_time[0], 1),
+        "warm_start": warm,
         "n_evaluations": len(rows),
         "final_eval_return": rows[-1]["mean_return"],
         "best_eval_return": best["return"],

@@ -14,12 +14,14 @@ Two measurements:
    ``--repeats`` times, baseline and shipped config alternating, and the best of each kept
    (on a shared machine the best run is the least disturbed); ratio new / baseline.
    Target: PPO >= 5x (aim 10x).
-2. **Time to a suppressing policy** (``--time-to-policy``): PPO with the shipped configs of
-   both rigs, the quick benchmark of the policy every ``--check-every`` env-steps; reports
-   the training wall time (benchmark runs excluded) at which the mean suppression first
-   reaches 0.99 in the Hopf-cycle and the stick-slip regime. Target: under 5 minutes per
-   rig on 2 cores. A rig that has not reached it after ``--budget`` seconds is reported as
-   missed.
+2. **Time to a suppressing policy** (``--time-to-policy``): PPO with the warm-start configs
+   of both rigs (``configs/agents/ppo_warm_start.yaml``, ``ppo_warm_start_no_brake.yaml``:
+   the policy cloned from the LQI, then PPO; ``--from-scratch``: the shipped configs
+   ``ppo.yaml``, ``ppo_no_brake.yaml``), the quick benchmark of the policy after the warm
+   start and every ``--check-every`` env-steps; reports the training wall time (warm start
+   included, benchmark runs excluded) at which the mean suppression first reaches 0.99 in
+   the Hopf-cycle and the stick-slip regime. Target: under 5 minutes per rig on 2 cores. A
+   rig that has not reached it after ``--budget`` seconds is reported as missed.
 
 Exit code 1 when a target is missed (0 when all measured ones are met).
 
@@ -27,6 +29,7 @@ Run::
 
     python benchmarks/bench_training.py                    # throughput, ~3 minutes
     python benchmarks/bench_training.py --time-to-policy   # + both trainings and quick benchmarks
+    python benchmarks/bench_training.py --time-to-policy --from-scratch   # ... without the warm start
     python benchmarks/bench_training.py --quick            # a smoke test, seconds
 """
 
@@ -50,7 +53,7 @@ def _model(cfg, seed: int = 0):
     import torch
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from drill_env.agents.rl import _algo_class, algo_kwargs, make_train_vec_env
+    from drill_env.agents.rl import _algo_class, algo_kwargs, ignore_observations, make_train_vec_env
 
     torch.set_num_threads(cfg.torch_threads)
     venv = make_train_vec_env(cfg, seed)
@@ -58,9 +61,11 @@ def _model(cfg, seed: int = 0):
         venv = VecNormalize(
             venv, norm_obs=False, norm_reward=True, gamma=float(cfg.hyperparameters.get("gamma", 0.99))
         )
-    return _algo_class(cfg.algo)(
+    model = _algo_class(cfg.algo)(
         "MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **algo_kwargs(cfg.hyperparameters)
     )
+    ignore_observations(model, cfg)
+    return model
 
 
 def throughput(config: Path, steps: int, **overrides) -> float:
@@ -146,6 +151,19 @@ def time_to_policy(config: Path, preset: str, folder: Path, check_every: int, bu
             state["next"] += check_every
             return not check()  # False stops the training
 
+    if cfg.warm_start is not None:  # counted in the training time, checked like any policy
+        from drill_env.agents.warm_start import warm_start
+
+        state["t0"] = time.perf_counter()
+        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, 0)
+        print(
+            f"    warm start: {warm['steps']} steps of {warm['controller']} cloned in {warm['wall_time_s']:.0f} s "
+            f"(action MSE {warm['action_mse_before']:.3g} -> {warm['action_mse_after']:.3g})",
+            flush=True,
+        )
+        if check():
+            return state["result"]
+
     model.learn(cfg.total_timesteps, callback=_Check())
     if state["result"] is None or state["result"]["steps"] != model.num_timesteps:
         check()
@@ -178,6 +196,12 @@ def main(argv: list[str] | None = None) -> int:
         default=600.0,
         help="training wall seconds per rig before giving up (--time-to-policy)",
     )
+    ap.add_argument(
+        "--from-scratch",
+        action="store_true",
+        help="--time-to-policy with the shipped configs (ppo.yaml, ppo_no_brake.yaml) instead of the "
+        "warm-start ones",
+    )
     ap.add_argument("--quick", action="store_true", help="a smoke test: few steps")
     a = ap.parse_args(argv)
     for name in ("steps", "sac_steps", "repeats", "check_every"):
@@ -205,13 +229,18 @@ def main(argv: list[str] | None = None) -> int:
             line += f"   (target >= {PPO_SPEEDUP_TARGET:g}x: {'met' if ok else 'MISSED'})"
         print(line, flush=True)
     if a.time_to_policy:
+        names = (
+            ("ppo.yaml", "ppo_no_brake.yaml")
+            if a.from_scratch
+            else ("ppo_warm_start.yaml", "ppo_warm_start_no_brake.yaml")
+        )
         print(
-            "time to a suppressing policy (training with the shipped PPO configs, the quick benchmark "
+            f"time to a suppressing policy (training with {' and '.join(names)}, the quick benchmark "
             f"every {a.check_every} steps; target < {TIME_TO_POLICY_TARGET_S:.0f} s of training per rig)",
             flush=True,
         )
         with tempfile.TemporaryDirectory() as tmp:
-            for preset, name in (("brake", "ppo.yaml"), ("no_brake", "ppo_no_brake.yaml")):
+            for preset, name in zip(("brake", "no_brake"), names, strict=True):
                 r = time_to_policy(cfgs / name, preset, Path(tmp), a.check_every, a.budget)
                 supp = ", ".join(f"{k} {v:.4f}" for k, v in sorted(r["suppression"].items()))
                 rms = ", ".join(f"{k} {v:.4f}" for k, v in sorted(r["rms_error"].items()))

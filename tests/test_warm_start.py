@@ -1,0 +1,187 @@
+"""Warm start of a policy by behaviour cloning of a classical controller (agents/warm_start.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from gymnasium import spaces
+from test_train import CONFIGS, small_config
+
+from drill_env.agents.rl import TrainConfig, load_config, load_policy, train
+from drill_env.agents.warm_start import (
+    WarmStartConfig,
+    collect_demonstrations,
+    nominal_controller,
+    warm_start,
+)
+
+ANGLES = ["lower_angle_sin", "lower_angle_cos", "upper_angle_sin", "upper_angle_cos"]
+
+
+class _ConstantRig:
+    """An SB3-like vector env whose every step pays ``reward`` and ends episodes at ``length``."""
+
+    def __init__(self, n_envs: int, reward: float, length: int):
+        self.num_envs, self.reward, self.length = n_envs, reward, length
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.t = 0
+        self.actions: list[np.ndarray] = []
+
+    def reset(self):
+        self.t = 0
+        return np.zeros((self.num_envs, 2), np.float32)
+
+    def step(self, action):
+        self.actions.append(np.array(action))
+        self.t += 1
+        done = np.full(self.num_envs, self.t % self.length == 0)
+        obs = np.full((self.num_envs, 2), self.t, np.float32)
+        return obs, np.full(self.num_envs, self.reward), done, [{}] * self.num_envs
+
+
+class _Half:
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return np.full((len(obs), 1), 0.5, np.float32), state
+
+
+def test_demonstration_returns_are_the_discounted_sums():
+    gamma, length = 0.9, 5
+    rig = _ConstantRig(3, 2.0, length)
+    data = collect_demonstrations(rig, _Half(), 20, 0.0, gamma, seed=0)  # 7 rounds of 3 rigs
+    assert data["obs"].shape == (21, 2) and data["action"].shape == (21, 1)
+    assert np.all(data["action"] == 0.5) and all(np.all(a == 0.5) for a in rig.actions)  # no noise
+    ret = data["returns"].reshape(7, 3)[:, 0]
+    run = data["running_returns"].reshape(7, 3)[:, 0]
+    # the first episode (steps 0-4) ends: the return from step k is 2 (1 - g^(5-k)) / (1 - g)
+    for k in range(5):
+        assert ret[k] == pytest.approx(2.0 * (1 - gamma ** (5 - k)) / (1 - gamma))
+        assert run[k] == pytest.approx(2.0 * (1 - gamma ** (k + 1)) / (1 - gamma))
+    # the second is cut by the rollout's end: completed by the geometric tail of its last reward
+    assert ret[5] == pytest.approx(2.0 / (1 - gamma)) and ret[6] == pytest.approx(2.0 / (1 - gamma))
+    assert run[5] == pytest.approx(2.0) and run[6] == pytest.approx(2.0 * (1 + gamma))
+
+
+def test_action_noise_goes_to_the_rig_not_to_the_labels():
+    rig = _ConstantRig(400, 0.0, 10)
+    data = collect_demonstrations(rig, _Half(), 400, 0.2, 0.99, seed=1)
+    assert np.all(data["action"] == 0.5)
+    applied = rig.actions[0]
+    assert applied.std() == pytest.approx(0.2, rel=0.15) and applied.mean() == pytest.approx(0.5, abs=0.03)
+    # data aggregation: the driver acts, the controller labels
+    rig = _ConstantRig(400, 0.0, 10)
+    data = collect_demonstrations(
+        rig, _Half(), 400, 0.0, 0.99, seed=1, driver=lambda obs: -0.25 * np.ones((len(obs), 1))
+    )
+    assert np.all(data["action"] == 0.5) and np.all(rig.actions[0] == -0.25)
+
+
+def test_warm_start_config_names_the_field():
+    for bad, field in (
+        ({"controller": "mpc"}, "warm_start.controller"),
+        ({"steps": 0}, "warm_start.steps"),
+        ({"epochs": 1.5}, "warm_start.epochs"),
+        ({"learning_rate": 0.0}, "warm_start.learning_rate"),
+        ({"action_noise": -0.1}, "warm_start.action_noise"),
+        ({"rounds": 0}, "warm_start.rounds"),
+        ({"noise": 0.1}, "unknown key"),
+    ):
+        with pytest.raises(ValueError, match=field):
+            WarmStartConfig.from_any(bad)
+    with pytest.raises(ValueError, match="warm_start"):
+        TrainConfig(algo="ppo", warm_start="lqi")
+    residual = load_config(CONFIGS / "ppo_residual.yaml").to_dict()
+    with pytest.raises(ValueError, match="warm_start"):
+        TrainConfig(**{**residual, "warm_start": {"controller": "lqi"}})
+
+
+@pytest.fixture
+def one_torch_thread():
+    """As the training configs run: many small torch ops thrash with more threads on few cores."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_the_clone_acts_like_the_controller_on_rigs_it_was_not_fitted_on(algo, one_torch_thread):
+    cfg = TrainConfig(**{**small_config(algo, 256).to_dict(), "n_envs": 16})
+    model = _model(cfg)
+    lqi = nominal_controller("lqi", cfg.env_id, cfg.env_kwargs)
+    ws = WarmStartConfig(controller="lqi", steps=4000, epochs=30, batch_size=256, action_noise=0.05)
+    info = warm_start(model, ws, cfg.env_id, cfg.env_kwargs, seed=0)
+    assert info["steps"] >= 4000 and info["action_mse_after"] < 0.05 * info["action_mse_before"]
+    # fresh rigs (other seeds), driven by the controller: the clone's action against the controller's
+    from drill_env.envs.sb3 import sb3_vec_env
+
+    venv = sb3_vec_env(cfg.env_id, 8, seed=777, **cfg.env_kwargs)
+    test = collect_demonstrations(venv, lqi, 800, 0.05, 0.99, seed=5)
+    venv.close()
+    clone, _ = model.predict(test["obs"], deterministic=True)
+    spread = float(np.mean((test["action"] - test["action"].mean()) ** 2))
+    assert float(np.mean((clone - test["action"]) ** 2)) < 0.1 * spread
+
+
+def _model(cfg):
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from drill_env.agents.rl import _algo_class, algo_kwargs, make_train_vec_env
+
+    venv = VecNormalize(make_train_vec_env(cfg, 0), norm_obs=False, norm_reward=True)
+    return _algo_class(cfg.algo)(
+        "MlpPolicy", venv, seed=0, verbose=0, device="cpu", **algo_kwargs(cfg.hyperparameters)
+    )
+
+
+def test_training_with_a_warm_start_records_it(tmp_path, one_torch_thread):
+    cfg = small_config("ppo", 256).to_dict()
+    cfg["warm_start"] = {"controller": "lqi", "steps": 1000, "epochs": 2}
+    summary = train(TrainConfig(**cfg), 1, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    ws = summary["warm_start"]
+    assert ws["controller"] == "lqi" and ws["steps"] >= 1000 and ws["wall_time_s"] <= summary["wall_time_s"]
+    assert summary["config"]["warm_start"]["steps"] == 1000
+    assert load_config(tmp_path / "out" / "config.yaml").warm_start == WarmStartConfig(steps=1000, epochs=2)
+
+
+@pytest.mark.parametrize("suffix", ["", "_no_brake"])
+def test_warm_start_configs_differ_from_the_shipped_ones_only_where_they_say(suffix):
+    warm = load_config(CONFIGS / f"ppo_warm_start{suffix}.yaml").to_dict()
+    scratch = load_config(CONFIGS / f"ppo{suffix}.yaml").to_dict()
+    assert warm.pop("warm_start")["controller"] == "lqi"
+    assert warm.pop("ignored_observations") == ANGLES
+    for key in ("total_timesteps", "evaluation"):
+        warm.pop(key), scratch.pop(key)
+    for hp in (warm["hyperparameters"], scratch["hyperparameters"]):
+        hp.pop("learning_rate")
+        hp["policy_kwargs"].pop("log_std_init")
+    assert warm == scratch
+
+
+def test_ignored_observations_name_the_field():
+    with pytest.raises(ValueError, match="ignored_observations: 'angle'"):
+        TrainConfig(algo="ppo", env_id="DrillString-v1", ignored_observations=["angle"])
+    with pytest.raises(ValueError, match="ignored_observations: 'lower_angle_sin'"):  # v0 has no angles
+        TrainConfig(algo="ppo", env_id="DrillString-v0", ignored_observations=["lower_angle_sin"])
+    with pytest.raises(ValueError, match="ignored_observations: expected a list"):
+        TrainConfig(algo="ppo", env_id="DrillString-v1", ignored_observations="lower_angle_sin")
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_the_trained_policy_does_not_depend_on_ignored_observations(tmp_path, algo, one_torch_thread):
+    cfg = small_config(algo, 256).to_dict()
+    cfg["ignored_observations"] = ANGLES
+    summary = train(TrainConfig(**cfg), 2, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    assert summary["config"]["ignored_observations"] == ANGLES
+    policy = load_policy(tmp_path / "out" / "policy.zip", trusted=True)  # made by this test
+    obs = np.random.default_rng(3).uniform(-1, 1, (64, 13)).astype(np.float32)
+    moved = obs.copy()
+    moved[:, 8:12] = np.random.default_rng(4).uniform(-1, 1, (64, 4))
+    a, _ = policy.predict(obs, deterministic=True)
+    b, _ = policy.predict(moved, deterministic=True)
+    np.testing.assert_array_equal(a, b)
+    other = obs.copy()
+    other[:, 0] += 0.5  # the lower speed still matters
+    c, _ = policy.predict(other, deterministic=True)
+    assert np.abs(c - a).max() > 1e-4
