@@ -70,7 +70,11 @@ class ResidualConfig:
             raise ValueError(f"residual.zero_start: {self.zero_start!r} is not true or false")
         v = self.initial_log_std
         if v is not None:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and -10 <= v <= 2):
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not (math.isfinite(v) and -10 <= v <= 2)
+            ):
                 raise ValueError(f"residual.initial_log_std: {v!r} is outside the allowed range [-10, 2]")
             if not self.zero_start:
                 raise ValueError("residual.initial_log_std: allowed only with zero_start: true")
@@ -137,7 +141,9 @@ def critic_burn_in_callback(model: Any, cfg: ResidualConfig):
     if not cfg.critic_burn_in:
         return None
     if not hasattr(model.policy, "actor"):
-        raise ValueError("residual.critic_burn_in: allowed only for SAC (an actor-critic with a replay buffer)")
+        raise ValueError(
+            "residual.critic_burn_in: allowed only for SAC (an actor-critic with a replay buffer)"
+        )
     from stable_baselines3.common.callbacks import BaseCallback
 
     actor = model.policy.actor

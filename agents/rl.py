@@ -763,7 +763,9 @@ def train(
                 self.next_eval += cfg.evaluation.every_steps
             return True
 
-    model.learn(total_timesteps=cfg.total_timesteps, callback=[*callbacks, _Eval()], progress_bar=progress_bar)
+    model.learn(
+        total_timesteps=cfg.total_timesteps, callback=[*callbacks, _Eval()], progress_bar=progress_bar
+    )
     if not rows or rows[-1]["timesteps"] != model.num_timesteps:
         run_eval(model.num_timesteps)
     wall = time.perf_counter() - t_start

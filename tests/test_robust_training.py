@@ -105,7 +105,9 @@ def test_residual_config_validation():
         ResidualConfig(zero_start=True, initial_log_std=-20.0)
     with pytest.raises(ValueError, match=r"^residual\.zero_start: 'yes' is not true or false$"):
         ResidualConfig(zero_start="yes")
-    cfg = ResidualConfig.from_any({"base": "lqi", "zero_start": True, "initial_log_std": -2, "critic_burn_in": 300})
+    cfg = ResidualConfig.from_any(
+        {"base": "lqi", "zero_start": True, "initial_log_std": -2, "critic_burn_in": 300}
+    )
     assert ResidualConfig.from_any(cfg.to_dict()) == cfg
     # a burn-in needs an off-policy critic: a PPO config with one is refused when it is loaded
     ppo = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
@@ -258,7 +260,10 @@ def test_committed_robust_policies_were_trained_over_the_family(folder):
     same ranges in every robust config) and load as what their config says."""
     shipped = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())["env_kwargs"]["domain_randomization"]
     for name in ("ppo_residual", "ppo_residual_no_brake", "sac_residual", "sac_residual_no_brake"):
-        assert yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())["env_kwargs"]["domain_randomization"] == shipped
+        assert (
+            yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())["env_kwargs"]["domain_randomization"]
+            == shipped
+        )
         cfg = load_config(CONFIGS / f"{name}.yaml")
         assert (cfg.algo, cfg.residual.base) == (name.split("_")[0], "lqi_angle_ff")
     dr = DomainRandomization.from_any(shipped)

@@ -129,7 +129,9 @@ def register(app: typer.Typer) -> None:
         if out is None:
             agents_dir = fresh_run_folder(Path("runs") / "train", f"{name}_seed{seed}")
             out = agents_dir / sub
-        run_dir = run_dir or (agents_dir / "logs" if agents_dir is not None else out.parent / "logs" / out.name)
+        run_dir = run_dir or (
+            agents_dir / "logs" if agents_dir is not None else out.parent / "logs" / out.name
+        )
         typer.echo(
             f"training {algo} on {cfg.env_id} for {cfg.total_timesteps} steps, seed {seed}; "
             f"logs in {run_dir} (tensorboard --logdir {run_dir})"
