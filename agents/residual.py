@@ -12,7 +12,14 @@ regulation it was designed for (tracking, the integral action), the policy learn
 the base misses on the plants it is trained on.
 
 A training config asks for it with ``residual: {base: lqi, scale: 0.2}``
-(:class:`ResidualConfig`); the base is built with the tuned gains of
+(:class:`ResidualConfig`). Two options start the learning from the base rather than from an
+arbitrary correction, as residual policy learning does (Silver, Allen, Tenenbaum & Kaelbling,
+arXiv 1812.06298, Sec. 4): ``zero_start: true`` zeroes the output layer of the policy's mean,
+so the untrained policy *is* the base controller, with its exploration spread set by
+``initial_log_std``; ``critic_burn_in: N`` (SAC only) trains the critics for the first N
+env-steps while the actor stays as it started, so the actor's first updates follow a critic
+that has seen the base's returns instead of an untrained one (:func:`start_from_base`,
+:func:`critic_burn_in_callback`). The base is built with the tuned gains of
 ``configs/agents/controllers.yaml`` on the nominal model of the training environment (domain
 randomisation changes the plant, never the design), during training by
 :class:`ResidualVecEnv` and at inference by :class:`ResidualPolicy`, both the same function
@@ -28,7 +35,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RESIDUAL_BASES", "ResidualConfig", "ResidualPolicy", "ResidualVecEnv", "base_controller"]
+__all__ = [
+    "RESIDUAL_BASES",
+    "ResidualConfig",
+    "ResidualPolicy",
+    "ResidualVecEnv",
+    "base_controller",
+    "critic_burn_in_callback",
+    "start_from_base",
+]
 
 # Classical controllers a policy can act on top of (those with integral action and tuned gains).
 RESIDUAL_BASES = ("lqi", "lqi_angle_ff", "torque_feedback")
@@ -40,6 +55,9 @@ class ResidualConfig:
 
     base: str = "lqi"
     scale: float = 0.2  # [-] largest correction, fraction of the action range (1 = 5 V)
+    zero_start: bool = False  # zero the policy's mean output layer: the untrained policy is the base
+    initial_log_std: float | None = None  # with zero_start: log of the initial exploration spread
+    critic_burn_in: int = 0  # [env-steps] SAC: critics only, the actor frozen (0: none)
 
     def __post_init__(self) -> None:
         if self.base not in RESIDUAL_BASES:
@@ -48,6 +66,22 @@ class ResidualConfig:
         if isinstance(s, bool) or not isinstance(s, (int, float)) or not (math.isfinite(s) and 0 < s <= 1):
             raise ValueError(f"residual.scale: {s!r} is outside the allowed range (0, 1]")
         object.__setattr__(self, "scale", float(s))
+        if not isinstance(self.zero_start, bool):
+            raise ValueError(f"residual.zero_start: {self.zero_start!r} is not true or false")
+        v = self.initial_log_std
+        if v is not None:
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not (math.isfinite(v) and -10 <= v <= 2)
+            ):
+                raise ValueError(f"residual.initial_log_std: {v!r} is outside the allowed range [-10, 2]")
+            if not self.zero_start:
+                raise ValueError("residual.initial_log_std: allowed only with zero_start: true")
+            object.__setattr__(self, "initial_log_std", float(v))
+        n = self.critic_burn_in
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise ValueError(f"residual.critic_burn_in: {n!r} is not an integer >= 0")
 
     @classmethod
     def from_any(cls, value: Any) -> ResidualConfig | None:
@@ -55,14 +89,83 @@ class ResidualConfig:
             return value
         if not isinstance(value, Mapping):
             raise ValueError(f"residual: expected a mapping {{base, scale}} or null, got {value!r}")
-        allowed = ("base", "scale")
+        allowed = ("base", "scale", "zero_start", "initial_log_std", "critic_burn_in")
         unknown = sorted(set(value) - set(allowed))
         if unknown:
             raise ValueError(f"residual: unknown key(s) {unknown}; allowed: {list(allowed)}")
         return cls(**value)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"base": self.base, "scale": self.scale}
+        out: dict[str, Any] = {"base": self.base, "scale": self.scale}
+        if self.zero_start:
+            out["zero_start"] = True
+        if self.initial_log_std is not None:
+            out["initial_log_std"] = self.initial_log_std
+        if self.critic_burn_in:
+            out["critic_burn_in"] = self.critic_burn_in
+        return out
+
+
+def start_from_base(model: Any, cfg: ResidualConfig) -> None:
+    """Make an untrained SB3 PPO or SAC ``model`` start as its base controller
+    (``cfg.zero_start``): the last layer of the action mean is zeroed, so the deterministic
+    correction is exactly 0 whatever the observation; its exploration spread is
+    ``exp(cfg.initial_log_std)`` (pre-squash for SAC) where given. Nothing happens without
+    ``zero_start``."""
+    import torch
+
+    if not cfg.zero_start:
+        return
+    policy = model.policy
+    with torch.no_grad():
+        if hasattr(policy, "actor"):  # SAC: mu and log_std are linear layers of the latent
+            actor = policy.actor
+            for layer in (actor.mu,):
+                layer.weight.zero_()
+                layer.bias.zero_()
+            if cfg.initial_log_std is not None:
+                actor.log_std.weight.zero_()
+                actor.log_std.bias.fill_(cfg.initial_log_std)
+        else:  # PPO: action_net is the mean, log_std a free parameter
+            policy.action_net.weight.zero_()
+            policy.action_net.bias.zero_()
+            if cfg.initial_log_std is not None:
+                policy.log_std.fill_(cfg.initial_log_std)
+
+
+def critic_burn_in_callback(model: Any, cfg: ResidualConfig):
+    """An SB3 callback that keeps a SAC actor frozen (no gradient reaches it, its optimiser
+    skips it) in every gradient step taken before ``cfg.critic_burn_in`` env-steps have been
+    collected, while the critics and the entropy coefficient learn; None where there is no
+    burn-in."""
+    if not cfg.critic_burn_in:
+        return None
+    if not hasattr(model.policy, "actor"):
+        raise ValueError(
+            "residual.critic_burn_in: allowed only for SAC (an actor-critic with a replay buffer)"
+        )
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    actor = model.policy.actor
+    steps = cfg.critic_burn_in
+
+    class _BurnIn(BaseCallback):
+        def _set(self, trainable: bool) -> None:
+            for p in actor.parameters():
+                p.requires_grad_(trainable)
+
+        def _on_training_start(self) -> None:
+            self._set(False)
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= steps:
+                self._set(True)
+            return True
+
+        def _on_training_end(self) -> None:
+            self._set(True)
+
+    return _BurnIn()
 
 
 def base_controller(cfg: ResidualConfig, env_id: str, env_kwargs: Mapping[str, Any]):

@@ -211,6 +211,10 @@ class TrainConfig:
             if name not in names:
                 raise ValueError(f"ignored_observations: {name!r} is not one of {list(names)}")
         object.__setattr__(self, "ignored_observations", tuple(ignored))
+        if self.residual is not None and self.residual.critic_burn_in and self.algo != "sac":
+            raise ValueError(
+                f"residual.critic_burn_in: allowed only with algo sac (an off-policy critic), not {self.algo}"
+            )
         dr = self.env_kwargs.get("domain_randomization")
         if dr is not None:
             from drill_env.envs.config import DomainRandomization
@@ -748,10 +752,20 @@ def train(
     eval_env = gym.make(cfg.env_id, **cfg.env_kwargs)
     episodes = evaluation_episodes(cfg.evaluation)
     base = None
+    callbacks: list[Any] = []
     if cfg.residual is not None:
-        from drill_env.agents.residual import ResidualPolicy, base_controller
+        from drill_env.agents.residual import (
+            ResidualPolicy,
+            base_controller,
+            critic_burn_in_callback,
+            start_from_base,
+        )
 
         base = base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs)
+        start_from_base(model, cfg.residual)
+        burn_in = critic_burn_in_callback(model, cfg.residual)
+        if burn_in is not None:
+            callbacks.append(burn_in)
 
     def current_policy() -> Any:
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
@@ -808,7 +822,9 @@ def train(
         from drill_env.agents.warm_start import warm_start
 
         warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed)
-    model.learn(total_timesteps=cfg.total_timesteps, callback=_Eval(), progress_bar=progress_bar)
+    model.learn(
+        total_timesteps=cfg.total_timesteps, callback=[*callbacks, _Eval()], progress_bar=progress_bar
+    )
     if not rows or rows[-1]["timesteps"] != model.num_timesteps:
         run_eval(model.num_timesteps)
     wall = time.perf_counter() - t_start

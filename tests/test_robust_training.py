@@ -97,6 +97,22 @@ def test_residual_config_validation():
         ResidualConfig(base="ppo")
     with pytest.raises(ValueError, match=r"^residual: unknown key\(s\) \['gain'\]"):
         ResidualConfig.from_any({"gain": 1.0})
+    with pytest.raises(ValueError, match=r"^residual\.critic_burn_in: -5 is not an integer >= 0$"):
+        ResidualConfig(critic_burn_in=-5)
+    with pytest.raises(ValueError, match=r"^residual\.initial_log_std: allowed only with zero_start: true$"):
+        ResidualConfig(initial_log_std=-2.0)
+    with pytest.raises(ValueError, match=r"^residual\.initial_log_std: -20\.0 is outside the allowed range"):
+        ResidualConfig(zero_start=True, initial_log_std=-20.0)
+    with pytest.raises(ValueError, match=r"^residual\.zero_start: 'yes' is not true or false$"):
+        ResidualConfig(zero_start="yes")
+    cfg = ResidualConfig.from_any(
+        {"base": "lqi", "zero_start": True, "initial_log_std": -2, "critic_burn_in": 300}
+    )
+    assert ResidualConfig.from_any(cfg.to_dict()) == cfg
+    # a burn-in needs an off-policy critic: a PPO config with one is refused when it is loaded
+    ppo = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
+    with pytest.raises(ValueError, match=r"^residual\.critic_burn_in: allowed only with algo sac"):
+        TrainConfig(**{**ppo, "residual": {"base": "lqi", "critic_burn_in": 100}})
 
 
 def _tiny_robust_config(residual=None) -> TrainConfig:
@@ -195,13 +211,59 @@ def test_residual_training_rigs_with_a_zero_correction_run_the_base_controller()
     plain_rigs.close()
 
 
+def _tiny_sac_config(residual) -> TrainConfig:
+    cfg = load_config(CONFIGS / "sac_residual.yaml").to_dict()
+    cfg.update(total_timesteps=256, n_envs=2, torch_threads=1, residual=residual)
+    cfg["evaluation"] = {"every_steps": 128, "episodes_per_regime": 1, "seed": 5}
+    cfg["env_kwargs"] = {"warmup_time": 2.0, "warmup_jitter": 0.5}
+    cfg["hyperparameters"].update(learning_starts=64, batch_size=32, gradient_steps=2, buffer_size=1000)
+    return TrainConfig(**cfg)
+
+
+def test_a_zero_start_sac_residual_is_its_base_until_the_burn_in_ends(tmp_path):
+    """zero_start: the untrained policy's deterministic correction is exactly zero (the policy is
+    its base controller) with the asked exploration spread; critic_burn_in: the actor is the
+    same after the burn-in's gradient steps while the critics learn, and learns after it."""
+    import torch
+    from stable_baselines3 import SAC
+
+    from drill_env.agents.residual import critic_burn_in_callback, start_from_base
+
+    residual = ResidualConfig(base="lqi", zero_start=True, initial_log_std=-2.5, critic_burn_in=10_000)
+    # through `train`: a run shorter than the burn-in leaves the policy at its start
+    train(_tiny_sac_config(residual.to_dict()), 3, tmp_path / "sac", tmp_path / "logs", progress_bar=False)
+    model = SAC.load(str(tmp_path / "logs" / "final_policy.zip"), device="cpu")
+    assert model.num_timesteps >= 256 and model._n_updates > 0  # the critics did learn
+    obs = np.random.default_rng(0).normal(size=(50, model.observation_space.shape[0])).astype(np.float32)
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], 0.0)
+    _, log_std, _ = model.policy.actor.get_action_dist_params(torch.as_tensor(obs))
+    np.testing.assert_array_equal(log_std.detach().numpy(), -2.5)
+
+    # a burn-in shorter than the run: frozen for its steps, then learning
+    venv = make_train_vec_env(_tiny_sac_config(None), 4)
+    model = SAC("MlpPolicy", venv, learning_starts=32, batch_size=32, gradient_steps=1, seed=4, device="cpu")
+    short = ResidualConfig(base="lqi", zero_start=True, critic_burn_in=100)
+    start_from_base(model, short)
+    mu0 = model.policy.actor.mu.weight.detach().clone()
+    critic0 = [p.detach().clone() for p in model.critic.parameters()]
+    model.learn(96, callback=critic_burn_in_callback(model, short))
+    assert torch.equal(model.policy.actor.mu.weight, mu0)
+    assert any(not torch.equal(a, b) for a, b in zip(critic0, model.critic.parameters(), strict=True))
+    model.learn(64, callback=critic_burn_in_callback(model, short), reset_num_timesteps=False)
+    assert not torch.equal(model.policy.actor.mu.weight, mu0)
+    venv.close()
+
+
 @pytest.mark.parametrize("folder", ["ppo_robust", "ppo_robust_no_brake"])
 def test_committed_robust_policies_were_trained_over_the_family(folder):
     """The committed ppo_robust policies were trained with the shipped randomisation (the
     same ranges in every robust config) and load as what their config says."""
     shipped = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())["env_kwargs"]["domain_randomization"]
     for name in ("ppo_residual", "ppo_residual_no_brake", "sac_residual", "sac_residual_no_brake"):
-        assert yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())["env_kwargs"]["domain_randomization"] == shipped
+        assert (
+            yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())["env_kwargs"]["domain_randomization"]
+            == shipped
+        )
         cfg = load_config(CONFIGS / f"{name}.yaml")
         assert (cfg.algo, cfg.residual.base) == (name.split("_")[0], "lqi_angle_ff")
     dr = DomainRandomization.from_any(shipped)

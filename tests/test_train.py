@@ -211,6 +211,13 @@ def test_cli_train_and_tune_default_to_fresh_run_folders(tmp_path, monkeypatch):
     from drill_env.agents.registry import policy_path
 
     assert policy_path("ppo", "brake", runs[0]) == runs[0] / "ppo" / "policy.zip"
+    # two runs into sibling folders (as results/agents/NAME) keep their logs apart
+    for name in ("ppo", "ppo_other"):
+        out = runner.invoke(app, [*args, "--out", f"agents/{name}"])
+        assert out.exit_code == 0, out.output
+    progress = {n: (tmp_path / "agents" / "logs" / n / "progress.csv") for n in ("ppo", "ppo_other")}
+    assert all(f.is_file() and f.stat().st_size > 0 for f in progress.values())
+    assert (tmp_path / "agents" / "logs" / "ppo" / "final_policy.zip").is_file()
 
 
 def test_a_run_shorter_than_one_logging_interval_writes_everything(tmp_path):

@@ -69,7 +69,8 @@ def register(app: typer.Typer) -> None:
         run_dir: Path | None = typer.Option(
             None,
             help="Where the CSV and TensorBoard logs and the final policy go (default: "
-            "the run folder's logs/, or OUT/../logs with an explicit --out).",
+            "the run folder's logs/, or OUT/../logs/NAME with an explicit --out ending in NAME, so "
+            "that runs into sibling folders keep their logs apart and one TensorBoard shows them all).",
         ),
         total_timesteps: int | None = typer.Option(None, help="Override the config's total_timesteps."),
         params: Path | None = typer.Option(
@@ -128,7 +129,9 @@ def register(app: typer.Typer) -> None:
         if out is None:
             agents_dir = fresh_run_folder(Path("runs") / "train", f"{name}_seed{seed}")
             out = agents_dir / sub
-        run_dir = run_dir or (agents_dir / "logs" if agents_dir is not None else out.parent / "logs")
+        run_dir = run_dir or (
+            agents_dir / "logs" if agents_dir is not None else out.parent / "logs" / out.name
+        )
         typer.echo(
             f"training {algo} on {cfg.env_id} for {cfg.total_timesteps} steps, seed {seed}; "
             f"logs in {run_dir} (tensorboard --logdir {run_dir})"
