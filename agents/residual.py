@@ -120,9 +120,8 @@ def start_from_base(model: Any, cfg: ResidualConfig) -> None:
     with torch.no_grad():
         if hasattr(policy, "actor"):  # SAC: mu and log_std are linear layers of the latent
             actor = policy.actor
-            for layer in (actor.mu,):
-                layer.weight.zero_()
-                layer.bias.zero_()
+            actor.mu.weight.zero_()
+            actor.mu.bias.zero_()
             if cfg.initial_log_std is not None:
                 actor.log_std.weight.zero_()
                 actor.log_std.bias.fill_(cfg.initial_log_std)

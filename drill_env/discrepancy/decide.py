@@ -68,7 +68,7 @@ from drill_env.discrepancy.calibrate import (
 )
 from drill_env.discrepancy.effects import CANDIDATES, Candidate
 from drill_env.discrepancy.equation_error import RunEquations
-from drill_env.params import ParameterError, RigParams
+from drill_env.params import IDENTIFIED_PARAMETERS, ParameterError, RigParams
 
 NOT_AN_EFFECT = ("none", "recalibrated", "unexplained")  # verdicts that name no effect
 
@@ -917,14 +917,8 @@ def sensor_worse(before: dict[str, float], after: dict[str, float], floors: dict
     return worse
 
 
-_LOWER_CURVE = (
-    "lower_static",
-    "lower_viscous",
-    "lower_hump_1",
-    "lower_hump_2",
-    "lower_hump_rate_1",
-    "lower_hump_rate_2",
-)
+# the identified parameters of the lower friction curve, eq. (14), in their listed order
+_LOWER_CURVE = tuple(n for n in IDENTIFIED_PARAMETERS if n.startswith("lower_") and n != "lower_inertia")
 
 
 def admissible_fits(nominal: RigParams, fits: list[ParameterFit]) -> list[ParameterFit]:
