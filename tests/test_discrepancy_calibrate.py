@@ -10,9 +10,9 @@ from typer.testing import CliRunner
 
 import drill_env
 from drill_env.cli import app
-from drill_env.discrepancy.calibrate import CALIBRATED, calibration_columns
+from drill_env.discrepancy.calibrate import CALIBRATED, calibration_columns, calibration_statistics
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.decide import DecisionRule, sensor_worse
+from drill_env.discrepancy.decide import DecisionRule, run_statistics, sensor_worse
 from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
 from drill_env.discrepancy.synth import IDENTIFIED, SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import analyse
@@ -135,6 +135,44 @@ def test_calibration_columns_are_the_derivative_of_the_residual():
             scale = max(np.abs(xu[:, j]).max(initial=0.0), np.abs(xl[:, j]).max(initial=0.0), 1e-12)
             assert np.abs(du - xu[:, j]).max(initial=0.0) <= 1e-3 * scale, name
             assert np.abs(dl - xl[:, j]).max(initial=0.0) <= 1e-3 * scale, name
+
+
+def _rho(sums):
+    return sums[0] / np.sqrt(sums[1] * sums[2])
+
+
+def test_neighbour_correlation_after_a_parameter_change():
+    # A parameter error makes neighbouring windows' residuals alike (a structure the
+    # recalibration removes, not a missing effect). The correlation the decision predicts
+    # for the residual after a parameter change d, from the statistics at the nominal model,
+    # is checked against the equation error recomputed at the changed parameters.
+    changed = _rel(lower_inertia=0.05, motor_constant=0.03)
+    syn = make_dataset("none", seed=48, config=SMALL, truth_overrides=changed)
+    noise = estimate_angle_noise(syn.runs, 2 * np.pi / SMALL.encoder_counts_per_rev)
+    truth = NOMINAL.replace(**changed)
+    d = np.array([getattr(truth, n) - getattr(NOMINAL, n) for n in CALIBRATED])
+    for run in (syn.runs[1], syn.runs[3], syn.runs[-1]):
+        eq = RunEquations(run, NOMINAL, noise)
+        cs = calibration_statistics(eq)
+        nominal = run_statistics(eq).neighbour
+        assert np.allclose(cs.neighbour_sums(np.zeros(d.size)), nominal, rtol=1e-10)
+        # the same sums from the residual z - A d and the window centres directly
+        xu, xl = calibration_columns(eq)
+        r = []
+        for w, x in ((eq.upper, xu), (eq.lower, xl)):
+            rw = w.z + (x / w.sigma[:, None]) @ d
+            adj = np.diff(w.centers) == 2 * (eq.L + eq.g_half) + 1
+            r.append((rw[:-1][adj], rw[1:][adj]))
+        direct = [
+            sum(float(a @ b) for a, b in r),
+            sum(float(a @ a) for a, _ in r),
+            sum(float(b @ b) for _, b in r),
+        ]
+        assert np.allclose(cs.neighbour_sums(d), direct, rtol=1e-8)
+        recomputed = _rho(run_statistics(RunEquations(run, truth, noise)).neighbour)
+        assert _rho(nominal) > 0.7, run.name  # the parameter error's structure
+        assert abs(_rho(cs.neighbour_sums(d)) - recomputed) < 0.03, run.name
+        assert abs(recomputed) < 0.2, run.name
 
 
 def test_scale_is_not_identifiable():

@@ -14,8 +14,10 @@ from drill_env.discrepancy.study import (
     PAIRS,
     Truth,
     _Job,
+    _jobs,
     _run_jobs,
     _summarise,
+    check_first_seed,
     check_workers,
     truths,
 )
@@ -85,6 +87,21 @@ def test_the_grid_covers_the_real_conditions():
     assert Truth(()).expected(0.0) == "none" and Truth(()).expected(0.02) == "recalibrated"
     assert Truth(("motor_inductance",)).expected(0.05) == "motor_inductance"
     assert Truth(("external_torque",)).expected(0.0) == "unexplained"
+
+
+def test_first_seed_gives_datasets_the_default_study_never_saw():
+    default = {(j.part, j.effects, j.seed, j.angle_noise, j.param_error) for j in _jobs(3, 2)}
+    other = _jobs(3, 2, first_seed=3)
+    assert len(other) == len(default)
+    assert not default & {(j.part, j.effects, j.seed, j.angle_noise, j.param_error) for j in other}
+    # the same truths and conditions, only other seeds
+    assert sorted((j.part, j.effects, j.angle_noise, j.param_error) for j in other) == sorted(
+        (p, e, n, r) for p, e, _, n, r in default
+    )
+    check_first_seed(97, 3, 2)
+    for bad, counts in ((98, (3, 2)), (-1, (3,)), (1.5, (3,)), (True, (3,))):
+        with pytest.raises(ValueError, match="first_seed"):
+            check_first_seed(bad, *counts)
 
 
 def test_workers_are_checked():

@@ -272,6 +272,8 @@ def test_concurrent_benchmarks_the_second_fails_and_the_first_is_complete(tmp_pa
         (["--seeds", "-1"], "--seeds must be an integer from 1 to 100"),
         (["--seeds", "101"], "--seeds must be an integer from 1 to 100,"),
         (["--sweep-seeds", "0"], "--sweep-seeds must be an integer from 1 to 100"),
+        (["--first-seed", "-1"], "--first-seed must be an integer from 0 to 97"),
+        (["--seeds", "5", "--first-seed", "96"], "--first-seed must be an integer from 0 to 95"),
         (["--workers", "-1"], "--workers must be an integer from 0 (one per CPU core) to 256"),
         (["--workers", "257"], "--workers must be an integer from 0 (one per CPU core) to 256"),
         (["--paper-case-only", "--skip-paper-case"], "nothing to do"),

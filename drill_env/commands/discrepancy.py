@@ -140,6 +140,10 @@ def discrepancy_study(
     out: Path = typer.Option(Path("results/discrepancy"), help="Output folder of the study."),
     seeds: int = typer.Option(3, help="Seeds per truth and condition (angle noise x parameter error)."),
     sweep_seeds: int = typer.Option(2, help="Seeds per point of the magnitude sweep."),
+    first_seed: int = typer.Option(
+        0,
+        help="Index of the first seed (0: the committed study; any other start gives datasets it never saw).",
+    ),
     workers: int = typer.Option(
         0, help="Processes that share the datasets (0: one per CPU core); the result does not depend on it."
     ),
@@ -157,6 +161,11 @@ def discrepancy_study(
     for name, value in (("--seeds", seeds), ("--sweep-seeds", sweep_seeds)):
         if not 1 <= value <= MAX_SEEDS:
             _fail(f"{name} must be an integer from 1 to {MAX_SEEDS}, got {value!r}")
+    if not 0 <= first_seed <= MAX_SEEDS - max(seeds, sweep_seeds):
+        _fail(
+            f"--first-seed must be an integer from 0 to {MAX_SEEDS - max(seeds, sweep_seeds)} with these "
+            f"--seeds/--sweep-seeds (first seed + seeds <= {MAX_SEEDS}), got {first_seed!r}"
+        )
     if not 0 <= workers <= 256:
         _fail(f"--workers must be an integer from 0 (one per CPU core) to 256, got {workers!r}")
     workers = workers or (os.cpu_count() or 1)
@@ -187,7 +196,12 @@ def discrepancy_study(
                             typer.echo(f"{i}/{n} datasets, {time.perf_counter() - t0:.0f} s")
 
                     summary = run_study(
-                        out, seeds=seeds, sweep_seeds=sweep_seeds, workers=workers, progress=progress
+                        out,
+                        seeds=seeds,
+                        sweep_seeds=sweep_seeds,
+                        first_seed=first_seed,
+                        workers=workers,
+                        progress=progress,
                     )
                 typer.echo(
                     f"accuracy {summary['accuracy']:.1%} over {summary['n_datasets']} datasets; "

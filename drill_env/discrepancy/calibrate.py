@@ -143,6 +143,17 @@ class CalibrationStatistics:
     # any joint fit of several candidates is a choice of its blocks
     gram: np.ndarray | None = None
     index: dict[Any, np.ndarray] = field(default_factory=dict)
+    # [z, A] at the first and second window of each pair of neighbouring windows (D1, D2):
+    # D1'D2, D1'D1 and D2'D2 stacked, so that the neighbour correlation of the residual after
+    # any parameter change d is that of v = [1, -d]
+    neighbour: np.ndarray | None = None
+
+    def neighbour_sums(self, d: np.ndarray) -> tuple[float, float, float]:
+        """Sums over neighbouring windows of r_i r_j, r_i^2 and r_j^2 for the residual
+        ``r = z - A d`` after the parameter change ``d`` (every calibrated parameter)."""
+        v = np.concatenate([[1.0], -np.asarray(d, dtype=float)])
+        ab, aa, bb = (float(v @ m @ v) for m in self.neighbour)
+        return ab, aa, bb
 
 
 def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatistics:
@@ -150,6 +161,10 @@ def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatis
     a = -np.vstack([xu / eq.upper.sigma[:, None], xl / eq.lower.sigma[:, None]])
     z = np.concatenate([eq.upper.z, eq.lower.z])
     st = CalibrationStatistics(name=eq.run.name, ata=a.T @ a, atz=a.T @ z)
+    i, j = eq.neighbour_pairs()
+    za = np.column_stack([z, a])
+    d1, d2 = za[i], za[j]
+    st.neighbour = np.stack([d1.T @ d2, d1.T @ d1, d2.T @ d2])
     blocks = [z[:, None], a]
     index: dict[Any, np.ndarray] = {"z": np.array([0]), "A": np.arange(1, 1 + a.shape[1])}
     pos = 1 + a.shape[1]

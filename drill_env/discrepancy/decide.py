@@ -49,6 +49,7 @@ The rule (all numbers in :class:`DecisionRule`):
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import asdict, dataclass, field, fields
@@ -63,6 +64,7 @@ from drill_env.discrepancy.calibrate import (
     CalibrationStatistics,
     ParameterFit,
     calibrated_params,
+    calibration_columns,
     parameter_fits,
     solve_joint,
 )
@@ -91,6 +93,7 @@ __all__ = [
     "sensor_worse",
     "line_scan",
     "LineScan",
+    "recalibrated_equations",
     "split_runs",
 ]
 
@@ -142,25 +145,13 @@ def run_statistics(eq: RunEquations, candidates: tuple[Candidate, ...] = CANDIDA
             X = _weighted(eq, *c.columns(eq))
             st.linear[c.name] = (X.T @ X, X.T @ z)
     # correlation of neighbouring windows (adjacent on the window grid)
-    s_ab = s_aa = s_bb = 0.0
-    pairs = 0
-    for w in (eq.upper, eq.lower):
-        if len(w) < 2:
-            continue
-        step = np.diff(w.centers)
-        adj = step == _grid_step(eq)
-        za, zb = w.z[:-1][adj], w.z[1:][adj]
-        s_ab += float(za @ zb)
-        s_aa += float(za @ za)
-        s_bb += float(zb @ zb)
-        pairs += int(adj.sum())
+    i, j = eq.neighbour_pairs()
+    za, zb = z[i], z[j]
+    s_ab, s_aa, s_bb = float(za @ zb), float(za @ za), float(zb @ zb)
+    pairs = int(i.size)
     st.neighbour = (s_ab, s_aa, s_bb)
     st.n_pairs = pairs
     return st
-
-
-def _grid_step(eq: RunEquations) -> int:
-    return 2 * (eq.L + eq.g_half) + 1
 
 
 @dataclass
@@ -411,7 +402,7 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
                 groups.append((eq, w))
     if not groups:
         return LineScan(float("nan"), 0.0, float("inf"), False, 0, [], False, {})
-    stride_t = min(_grid_step(eq) * eq.dt for eq, _ in groups)
+    stride_t = min(eq.stride * eq.dt for eq, _ in groups)
     t_max = max(eq.run.duration for eq, _ in groups)
     f_lo = 3.0 / t_max
     f_hi = 0.45 / stride_t
@@ -690,6 +681,45 @@ def _recalibration_gain(held, cal: CalibrationSetup) -> tuple[float, float]:
     return float(gain), thr
 
 
+def _neighbour_after(st: RunStatistics, cal: CalibrationSetup, ref: JointFit) -> tuple[float, float, float]:
+    """Neighbour sums of one run's residual after the parameter changes of ``ref``."""
+    cs = cal.stats.get(st.name)
+    if not cal.free or cs is None or cs.neighbour is None:
+        return st.neighbour
+    d = np.zeros(cs.ata.shape[0])
+    d[cal.free] = ref.theta[: len(cal.free)]
+    return cs.neighbour_sums(d)
+
+
+def recalibrated_equations(
+    eqs: list[RunEquations],
+    stats_by_run: dict[str, RunStatistics],
+    train: list[str],
+    heldout: list[str],
+    cal: CalibrationSetup | None,
+    rule: DecisionRule | None = None,
+) -> list[RunEquations]:
+    """The equations with each window's residual after the recalibration alone (the parameter
+    changes :func:`decide` fits on the training runs without any candidate): the structure
+    a parameter change removes is not scanned for a line. Without a calibration, ``eqs``."""
+    if cal is None or not cal.free:
+        return eqs
+    rule = rule or DecisionRule()
+    ref = _fit_linear_joint(
+        [stats_by_run[n] for n in train], [stats_by_run[n] for n in heldout], cal, None, rule
+    )
+    d = np.zeros(len(CALIBRATED))
+    d[cal.free] = ref.theta[: len(cal.free)]
+    out = []
+    for eq in eqs:
+        xu, xl = calibration_columns(eq)
+        e = copy.copy(eq)  # shares everything but the windows' residuals
+        e.upper = dataclasses.replace(eq.upper, residual=eq.upper.residual + xu @ d)
+        e.lower = dataclasses.replace(eq.lower, residual=eq.lower.residual + xl @ d)
+        out.append(e)
+    return out
+
+
 def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates, cal: CalibrationSetup):
     n_h = sum(s.n for s in held)
     ref = _fit_linear_joint(train, held, cal, None, rule)  # recalibration alone
@@ -702,9 +732,12 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates,
     def excess_significant(q, n):
         return q > n * (1.0 + rule.floor_tolerance) + rule.excess_z * math.sqrt(2.0 * n)
 
-    s_ab = sum(s.neighbour[0] for s in train + held)
-    s_aa = sum(s.neighbour[1] for s in train + held)
-    s_bb = sum(s.neighbour[2] for s in train + held)
+    # the neighbour correlation of the residual of the recalibrated model (the structure a
+    # parameter change removes is not a missing effect)
+    neighbour = {s.name: _neighbour_after(s, cal, ref) for s in train + held}
+    s_ab = sum(neighbour[s.name][0] for s in train + held)
+    s_aa = sum(neighbour[s.name][1] for s in train + held)
+    s_bb = sum(neighbour[s.name][2] for s in train + held)
     pairs = sum(s.n_pairs for s in train + held)
     rho = s_ab / math.sqrt(s_aa * s_bb) if s_aa > 0 and s_bb > 0 else 0.0
     rho_z = rho * math.sqrt(max(pairs, 1))
@@ -715,7 +748,8 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates,
     rho_z_robust = rho_z
     if len(train + held) > 1:
         for st in train + held:
-            a, b, c = s_ab - st.neighbour[0], s_aa - st.neighbour[1], s_bb - st.neighbour[2]
+            nb = neighbour[st.name]
+            a, b, c = s_ab - nb[0], s_aa - nb[1], s_bb - nb[2]
             p = max(pairs - st.n_pairs, 1)
             rho_z_robust = min(rho_z_robust, a / math.sqrt(b * c) * math.sqrt(p) if b > 0 and c > 0 else 0.0)
     excess_h = q0_h - n_h

@@ -383,10 +383,27 @@ class RunEquations:
         # Non-overlapping windows whose whole support (angles, speeds) lies in the run.
         reach = L + g_half
         stride = 2 * reach + 1
+        self.stride = stride  # samples between neighbouring windows
         centers = np.arange(reach + g_half, n - reach - g_half, stride)
         self.n_windows = centers.size
         self.upper = self._windows("upper", centers, self.speed_u, reach)
         self.lower = self._windows("lower", centers, self.speed_l, reach)
+
+    def neighbour_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Indices, into the windows of both disks stacked (upper, then lower), of each pair of
+        windows that are neighbours on the window grid (kept windows of one disk, one stride
+        apart)."""
+        first, second = [], []
+        offset = 0
+        for w in (self.upper, self.lower):
+            if len(w) >= 2:
+                adj = np.flatnonzero(np.diff(w.centers) == self.stride)
+                first.append(offset + adj)
+                second.append(offset + adj + 1)
+            offset += len(w)
+        if not first:
+            return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+        return np.concatenate(first), np.concatenate(second)
 
     # -- kernel machinery --------------------------------------------------------------------
     def _place(self, w: np.ndarray, first: int) -> np.ndarray:

@@ -50,6 +50,7 @@ __all__ = [
     "run_study",
     "paper_case",
     "expected_verdict",
+    "check_first_seed",
     "check_seed_count",
     "check_workers",
     "MAX_SEEDS",
@@ -73,8 +74,9 @@ PAIRS: tuple[tuple[str, str], ...] = (
 )
 MAGNITUDE_FACTORS = (0.1, 0.3, 1.0)
 SWEEP_CONDITION = (0.0, 0.02)  # (angle noise [rad], parameter error [-]) of the magnitude sweep
-# Seeds: the grid uses 10000 + 100 * (condition index) + s, the sweep 20000 + 100 * (factor index) + s;
-# at most 100 seeds per cell keeps every dataset of the study distinct.
+# Seeds: the grid uses 10000 + 100 * (condition index) + s, the sweep 20000 + 100 * (factor index) + s,
+# s from ``first_seed`` on; s below 100 keeps every dataset of the study distinct (a study from
+# another ``first_seed`` is one on datasets the default study never saw).
 MAX_SEEDS = 100
 
 
@@ -115,6 +117,19 @@ def check_seed_count(name: str, value: object) -> None:
     """ValueError unless ``value`` is a number of seeds the study can use (1 to MAX_SEEDS)."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_SEEDS:
         raise ValueError(f"{name} must be an integer from 1 to {MAX_SEEDS}, got {value!r}")
+
+
+def check_first_seed(first_seed: object, *counts: int) -> None:
+    """ValueError unless ``first_seed`` is a seed index from which ``counts`` seeds stay below
+    :data:`MAX_SEEDS`."""
+    if isinstance(first_seed, bool) or not isinstance(first_seed, (int, np.integer)) or first_seed < 0:
+        raise ValueError(f"first_seed must be an integer >= 0, got {first_seed!r}")
+    n = max(counts, default=1)
+    if first_seed + n > MAX_SEEDS:
+        raise ValueError(
+            f"first_seed must be an integer from 0 to {MAX_SEEDS - n} with {n} seeds "
+            f"(first_seed + seeds <= {MAX_SEEDS}), got {first_seed!r}"
+        )
 
 
 def check_workers(value: object) -> None:
@@ -229,18 +244,18 @@ def _one(job: _Job, base: SynthConfig, bootstrap: int) -> dict:
     }
 
 
-def _jobs(seeds: int, sweep_seeds: int) -> list[_Job]:
+def _jobs(seeds: int, sweep_seeds: int, first_seed: int = 0) -> list[_Job]:
     jobs: list[_Job] = []
     for c, (noise, err) in enumerate(CONDITIONS):
         for tr in truths():
-            for s in range(seeds):
+            for s in range(first_seed, first_seed + seeds):
                 jobs.append(_Job("grid", tr.effects, 10_000 + 100 * c + s, noise, err))
     noise, err = SWEEP_CONDITION
     for k, f in enumerate(MAGNITUDE_FACTORS):
         for e, h in HIDDEN_EFFECTS.items():
             if e == "none" or not h.in_library:
                 continue
-            for s in range(sweep_seeds):
+            for s in range(first_seed, first_seed + sweep_seeds):
                 jobs.append(_Job(f"magnitude:{f:g}", (e,), 20_000 + 100 * k + s, noise, err, h.low * f))
     return jobs
 
@@ -276,21 +291,26 @@ def run_study(
     bootstrap: int = 100,
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
+    first_seed: int = 0,
 ) -> dict:
     """Run the study and write ``study.json``, ``confusion.md`` and the figures to ``out``.
 
     ``seeds`` (datasets per truth and condition) and ``sweep_seeds`` (per point of the
-    magnitude sweep) are 1 to :data:`MAX_SEEDS`; ``workers`` processes share the datasets;
+    magnitude sweep) are 1 to :data:`MAX_SEEDS`, taken from seed index ``first_seed`` on (0: the
+    committed study; any other start gives datasets it never saw); ``workers`` processes share the datasets;
     nothing is written unless the arguments are valid. ``base`` sets the experiment design
     (its noise and parameter error are those of each condition)."""
     check_seed_count("seeds", seeds)
     check_seed_count("sweep_seeds", sweep_seeds)
+    check_first_seed(first_seed, seeds, sweep_seeds)
     check_workers(workers)
     if isinstance(bootstrap, bool) or not isinstance(bootstrap, (int, np.integer)) or bootstrap < 0:
         raise ValueError(f"bootstrap must be an integer >= 0, got {bootstrap!r}")
     out = Path(out)
     with output_lock(out, "discrepancy-study"):
-        return _run_study(out, seeds, sweep_seeds, base or SynthConfig(), bootstrap, workers, progress)
+        return _run_study(
+            out, seeds, sweep_seeds, base or SynthConfig(), bootstrap, workers, progress, first_seed
+        )
 
 
 def _run_jobs(jobs: list[_Job], base: SynthConfig, bootstrap: int, workers: int, progress) -> list[dict]:
@@ -319,9 +339,11 @@ def _run_jobs(jobs: list[_Job], base: SynthConfig, bootstrap: int, workers: int,
     return [r for r in rows if r is not None]
 
 
-def _run_study(out: Path, seeds, sweep_seeds, base: SynthConfig, bootstrap, workers, progress) -> dict:
+def _run_study(
+    out: Path, seeds, sweep_seeds, base: SynthConfig, bootstrap, workers, progress, first_seed: int = 0
+) -> dict:
     t0 = time.perf_counter()
-    done = _run_jobs(_jobs(seeds, sweep_seeds), base, bootstrap, workers, progress)
+    done = _run_jobs(_jobs(seeds, sweep_seeds, first_seed), base, bootstrap, workers, progress)
     summary = _summarise(done)
     summary["errors"] = sum(r["verdict"] == "error" for r in done)
     summary["wall_seconds"] = time.perf_counter() - t0
@@ -335,13 +357,14 @@ def _run_study(out: Path, seeds, sweep_seeds, base: SynthConfig, bootstrap, work
         "encoder_counts_per_rev": base.encoder_counts_per_rev,
         "seeds": seeds,
         "sweep_seeds": sweep_seeds,
+        "first_seed": first_seed,
         "bootstrap": bootstrap,
     }
     atomic_write_text(
         out / "study.json",
         json.dumps({"design": design, "rows": done, "summary": summary}, indent=2, default=float) + "\n",
     )
-    _write_markdown(out, done, summary, base, seeds, sweep_seeds)
+    _write_markdown(out, done, summary, base, seeds, sweep_seeds, first_seed)
     _plot(out, done, summary)
     return summary
 
@@ -410,22 +433,31 @@ def _md_cell(text: str) -> str:
     return str(text).replace("|", "\\|")
 
 
-def _write_markdown(out: Path, rows, summary, base: SynthConfig, seeds, sweep_seeds) -> None:
+def _write_markdown(
+    out: Path, rows, summary, base: SynthConfig, seeds, sweep_seeds, first_seed: int = 0
+) -> None:
     errors = any(r["verdict"] == "error" for r in rows)
     verdicts = list(RESULT_EFFECTS) + (["error"] if errors else [])
     short = {v: v.replace("position_friction_", "pos_").replace("friction_", "fr_") for v in verdicts}
     pct = lambda x: "-" if not math.isfinite(x) else f"{x:.1%}"  # noqa: E731
     s = summary
+    where = "OUT" if out.is_absolute() else out.as_posix()
+    start = f" --first-seed {first_seed}" if first_seed else ""
+    seen = (
+        ""
+        if not first_seed
+        else f" Seeds from index {first_seed} on: none of these datasets is in the default study (index 0 on)."
+    )
     lines = [
         "# Hidden-effect study under real-rig conditions",
         "",
-        f"Regenerate with `drill-env discrepancy-study --out results/discrepancy --seeds {seeds} "
-        f"--sweep-seeds {sweep_seeds}` (add `--workers N` to share the datasets among N processes; the "
+        f"Regenerate with `drill-env discrepancy-study --out {where} --seeds {seeds} "
+        f"--sweep-seeds {sweep_seeds}{start}` (add `--workers N` to share the datasets among N processes; the "
         "result does not depend on N). The workflow never sees the answer. Each dataset is made like "
         "`drill-env synth` makes one: brake preset, constant runs at "
         f"{', '.join(f'{v:g}' for v in base.voltages)} V and {base.random_runs} quasi-random runs, "
         f"{base.duration_s:g} s each at {base.sample_rate_hz:g} Hz, {base.encoder_counts_per_rev} counts/rev "
-        "(floor quantisation), with the condition's added angle noise and parameter error.",
+        "(floor quantisation), with the condition's added angle noise and parameter error." + seen,
         "",
         "## Headline",
         "",

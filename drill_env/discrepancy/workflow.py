@@ -49,6 +49,7 @@ from drill_env.discrepancy.decide import (
     line_scan,
     line_signature,
     moved_fit,
+    recalibrated_equations,
     run_statistics,
     second_effect,
     sensor_worse,
@@ -316,7 +317,9 @@ def analyse(
         )
     timings["calibrate"] = time.perf_counter() - t1
     t1 = time.perf_counter()
-    line = line_scan(eqs_cal, rule)
+    # the residual once the parameters are right: a line (and its signature) is scanned there
+    eqs_line = recalibrated_equations(eqs_cal, stats_cal, train, held, setup, rule)
+    line = line_scan(eqs_line, rule)
     kinds = {r.name: ("constant" if r.is_constant_voltage else "varying") for r in dataset.runs}
     decision = decide(
         stats_cal,
@@ -467,7 +470,7 @@ def analyse(
         gap_after = dict(gap_before)  # no change: the model is the nominal one
     signature = None
     if decision.effect == "unexplained":
-        signature = line_signature(eqs_cal, line.frequency_hz)
+        signature = line_signature(eqs_line, line.frequency_hz)
     timings["total"] = time.perf_counter() - t0
     return DiscrepancyResult(
         dataset=dataset,
