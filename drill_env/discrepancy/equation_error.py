@@ -47,12 +47,12 @@ most are high harmonics that alias close to a peak of ``|A|^2`` (at 2000 counts/
 500 Hz, harmonic 22 of a disk at 0.409 counts/sample sits 0.004 cycles/sample from zero
 frequency, where a rate error of 1e-4 moves it off the peak). The endpoint counts of the
 support fix the rate only to 1/N; averaging the lines over that band put the floor of a
-steady run three times too low. So the rate is the least-squares slope of the readings
-over the longest span (1, 3, 9, 27 supports) on which it is steady, its standard error
-is that of the slope (itself a weighted sum of the encoder error, computed the same
-way), and line m is averaged over ``m (sqrt(3) error + spread/2)`` about ``m c``, spread
-the change of that slope within the support (harmonics 1-256 as lines, the few beyond
-as white).
+steady run three times too low. So the rate is the slope of the readings
+over the longest span (1, 3, 9, 27 supports) on which it is steady (the slope of a
+least-squares cubic, which a bending rate does not bias), its standard error is that of
+the slope (itself a weighted sum of the encoder error, computed the same way), and line
+m is averaged over ``m (sqrt(3) error + spread/2)`` about ``m c``, spread the change of
+that slope within the support (harmonics 1-256 as lines, the few beyond as white).
 The outcome, for the same undithered data: a window in which a line aliases into its
 pass band (a near-integer or near-p/q number of counts per sample at near-constant
 speed) gets a noise variance up to 40 times the white model's and a small weight; a
@@ -430,9 +430,10 @@ class RunEquations:
         return x[centers[:, None] + self.offsets[None, :]]
 
     def _slope_kernel(self, reach: int) -> np.ndarray:
-        """Least-squares slope of a line through 2 reach + 1 samples [per sample]."""
-        k = np.arange(-reach, reach + 1, dtype=float)
-        return k / float(k @ k)
+        """Slope at the centre of the least-squares cubic through 2 reach + 1 samples [per
+        sample], weights in sample order (a rate that changes linearly or bends does not
+        bias it)."""
+        return savgol_coeffs(2 * reach + 1, 3, deriv=1, use="dot")
 
     def _moving_rate(self, disk: str, reach: int) -> np.ndarray:
         """Count rate per sample: the least-squares slope over +-reach samples about each
@@ -458,34 +459,71 @@ class RunEquations:
         return (top - minimum_filter1d(x, span, mode="nearest"))[centers]
 
     def _rate_error(self, disk: str, centers: np.ndarray, reach: int, rate: np.ndarray) -> np.ndarray:
-        """Standard deviation of the least-squares count rate over +-reach [counts/sample]: the
-        slope is a weighted sum of the readings, so its error is one of the encoder error,
-        with the lines where the rate puts them."""
+        """Standard deviation of the least-squares count rate over +-reach [counts/sample].
+
+        The slope is a weighted sum of the readings, so its error is one of the encoder
+        error: with the lines where the rate puts them, or averaged over the 1/N that the
+        counts alone leave open, whichever is larger. The first is right when the rate is
+        known well (at 6/7 counts per sample the harmonics 7, 14, ... pile up next to zero
+        frequency, where a slope over N samples responds most); the second where the rate
+        itself hides the error (at a whole number of counts per sample every line sits at
+        zero frequency, where a slope does not respond, and the readings are a perfect line
+        whatever the rate within 1/N)."""
+        weights, white = self.q_upper if disk == "upper" else self.q_lower
+        a = np.broadcast_to(self._slope_kernel(reach), (centers.size, 2 * reach + 1))
+        zero = np.zeros(centers.size)
+        point = line_variance(a, rate, zero, weights, rate_error=zero)
+        band = line_variance(a, rate, zero, weights)
+        return np.sqrt(white * float(a[0] @ a[0]) + np.maximum(point, band)) / self.step
+
+    def _rate_error_bound(self, disk: str, reach: int, rate: np.ndarray) -> np.ndarray:
+        """Largest standard deviation of the count rate over +-reach (:meth:`_slope_kernel`) for
+        a true rate within 1/N of ``rate`` [counts/sample]: each line at its worst place in
+        the band that the counts leave open."""
         weights, white = self.q_upper if disk == "upper" else self.q_lower
         a = self._slope_kernel(reach)
-        zero = np.zeros(centers.size)
-        var = white * float(a @ a) + line_variance(
-            np.broadcast_to(a, (centers.size, a.size)), rate, zero, weights, rate_error=zero
-        )
-        return np.sqrt(var) / self.step
+        N = a.size
+        P = 1 << int(math.ceil(math.log2(2 * N)))
+        # sliding maxima of the power over 2^j bins (circular), for O(1) band maxima
+        levels = [np.abs(np.fft.fft(a, P)) ** 2]
+        while (2 << (len(levels) - 1)) <= P:
+            prev = levels[-1]
+            levels.append(np.maximum(prev, np.roll(prev, -(1 << (len(levels) - 1)))))
+        top = np.stack(levels)
+        m = np.arange(1, weights.size + 1)
+        width = 2 * np.ceil(m * P / N).astype(np.int64) + 1
+        whole = width >= P
+        width = np.minimum(width, P)
+        lo = (
+            np.floor(np.mod(m[None, :] * np.abs(rate[:, None]), 1.0) * P + 0.5).astype(np.int64) - width // 2
+        ) % P
+        j = np.floor(np.log2(width)).astype(np.int64)
+        hi = (lo + width - (1 << j)) % P
+        band_max = np.maximum(top[j[None, :], lo], top[j[None, :], hi])
+        band_max = np.where(whole[None, :], top[0].max(), band_max)
+        return np.sqrt(white * float(a @ a) + band_max @ weights) / self.step
 
     def _count_rate(self, disk: str, centers: np.ndarray, reach: int):
         """Count rate of each window, its standard error and its change over the support +-reach
         [counts/sample].
 
-        The rate is the least-squares slope of the readings over the longest span (``reach``
-        times 1, 3, 9, ...) whose slope agrees with the next shorter one within twice the
-        shorter's standard error: at a steady rate a long span knows the rate far better
-        than the window's own support (the error of the slope falls as span^-3/2), and a
-        span over which the rate bends fails the test. The change of the rate over the
-        support is the range of the chosen slope, evaluated at every sample of it."""
+        The rate is the slope of the least-squares cubic through the readings over the
+        longest span (``reach`` times 1, 3, 9, ...) on which it is steady: the next longer
+        span's slope must agree with the shorter one's, at the centre and at both ends of
+        the support, within twice the largest error the shorter one can have
+        (:meth:`_rate_error_bound`). At a steady rate a long span knows the rate far better
+        than the window's own support (the error falls as span^-3/2 or span^-1 near a
+        whole number of counts per sample); a span over which the rate swings fails the
+        test. The error is :meth:`_rate_error` of the chosen span; the change of the rate
+        over the support is the range of the chosen slope, evaluated at every sample of it.
+        """
         n = self.theta_u.size
         moving = self._moving_rate(disk, reach)
         rate = moving[centers]
         spread = self._range(moving, reach, centers)
         error = self._rate_error(disk, centers, reach, rate)
         ok = np.ones(centers.size, dtype=bool)
-        prev_rate, prev_error = rate, error
+        prev_moving, prev_bound = moving, self._rate_error_bound(disk, reach, rate)
         for factor in self.config.rate_span_factors:
             span_reach = reach * factor
             ok &= (centers - span_reach >= 0) & (centers + span_reach < n)
@@ -493,7 +531,10 @@ class RunEquations:
                 continue
             moving = self._moving_rate(disk, span_reach)
             r = moving[centers]
-            ok &= np.abs(r - prev_rate) <= 2.0 * prev_error
+            # steady: the slopes agree at the centre and at both ends of the support
+            for shift in (0, -reach, reach):
+                at = np.clip(centers + shift, 0, n - 1)
+                ok &= np.abs(moving[at] - prev_moving[at]) <= 2.0 * prev_bound
             if not ok.any():
                 break
             sel = np.flatnonzero(ok)
@@ -503,7 +544,9 @@ class RunEquations:
             rate = np.where(ok, r, rate)
             error = np.where(ok, e, error)
             spread = np.where(ok, sp, spread)
-            prev_rate, prev_error = r, e
+            b = np.full(centers.size, np.inf)
+            b[sel] = self._rate_error_bound(disk, span_reach, r[sel])
+            prev_moving, prev_bound = moving, b
         return rate, error, spread
 
     def _angle_variance(self, disk: str, centers: np.ndarray, coef: np.ndarray, reach: int):
