@@ -681,14 +681,19 @@ def _recalibration_gain(held, cal: CalibrationSetup) -> tuple[float, float]:
     return float(gain), thr
 
 
+def _parameter_change(cal: CalibrationSetup, fit: JointFit) -> np.ndarray:
+    """The change of every calibrated parameter (:data:`CALIBRATED` order) that ``fit`` makes."""
+    d = np.zeros(len(CALIBRATED))
+    d[cal.free] = fit.theta[: len(cal.free)]
+    return d
+
+
 def _neighbour_after(st: RunStatistics, cal: CalibrationSetup, ref: JointFit) -> tuple[float, float, float]:
     """Neighbour sums of one run's residual after the parameter changes of ``ref``."""
     cs = cal.stats.get(st.name)
     if not cal.free or cs is None or cs.neighbour is None:
         return st.neighbour
-    d = np.zeros(cs.ata.shape[0])
-    d[cal.free] = ref.theta[: len(cal.free)]
-    return cs.neighbour_sums(d)
+    return cs.neighbour_sums(_parameter_change(cal, ref))
 
 
 def recalibrated_equations(
@@ -708,8 +713,7 @@ def recalibrated_equations(
     ref = _fit_linear_joint(
         [stats_by_run[n] for n in train], [stats_by_run[n] for n in heldout], cal, None, rule
     )
-    d = np.zeros(len(CALIBRATED))
-    d[cal.free] = ref.theta[: len(cal.free)]
+    d = _parameter_change(cal, ref)
     out = []
     for eq in eqs:
         xu, xl = calibration_columns(eq)
