@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from drill_env.agents._config import config_section
+
 __all__ = [
     "RESIDUAL_BASES",
     "ResidualConfig",
@@ -85,15 +87,7 @@ class ResidualConfig:
 
     @classmethod
     def from_any(cls, value: Any) -> ResidualConfig | None:
-        if value is None or isinstance(value, cls):
-            return value
-        if not isinstance(value, Mapping):
-            raise ValueError(f"residual: expected a mapping {{base, scale}} or null, got {value!r}")
-        allowed = ("base", "scale", "zero_start", "initial_log_std", "critic_burn_in")
-        unknown = sorted(set(value) - set(allowed))
-        if unknown:
-            raise ValueError(f"residual: unknown key(s) {unknown}; allowed: {list(allowed)}")
-        return cls(**value)
+        return config_section(cls, value, "residual")
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"base": self.base, "scale": self.scale}

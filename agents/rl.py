@@ -73,6 +73,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from drill_env.agents._config import config_section
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.envs import ENV_IDS
 from drill_env.envs.task import REGIMES
@@ -171,7 +172,7 @@ class TrainConfig:
         algo_kwargs(self.hyperparameters)  # lin_ schedules parse
         e = self.evaluation
         if isinstance(e, Mapping):
-            e = _sub(EvalConfig, e, "evaluation")
+            e = config_section(EvalConfig, e, "evaluation")
             object.__setattr__(self, "evaluation", e)
         for name in ("every_steps", "episodes_per_regime"):
             v = getattr(e, name)
@@ -181,7 +182,7 @@ class TrainConfig:
             raise ValueError(f"evaluation.seed: expected an integer >= 0, got {e.seed!r}")
         c = self.convergence
         if isinstance(c, Mapping):
-            c = _sub(ConvergenceConfig, c, "convergence")
+            c = config_section(ConvergenceConfig, c, "convergence")
             object.__setattr__(self, "convergence", c)
         if not (isinstance(c.fraction, (int, float)) and 0 < c.fraction <= 0.5):
             raise ValueError(f"convergence.fraction: {c.fraction!r} is outside the allowed range (0, 0.5]")
@@ -245,14 +246,6 @@ class TrainConfig:
                 {"ignored_observations": list(self.ignored_observations)} if self.ignored_observations else {}
             ),
         }
-
-
-def _sub(cls, value: Mapping[str, Any], name: str):
-    allowed = set(cls.__dataclass_fields__)
-    unknown = sorted(set(value) - allowed)
-    if unknown:
-        raise ValueError(f"{name}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-    return cls(**value)
 
 
 def load_config(path: str | Path, **overrides: Any) -> TrainConfig:

@@ -38,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from drill_env.agents._config import config_section
+
 __all__ = ["WARM_START_CONTROLLERS", "WarmStartConfig", "collect_demonstrations", "warm_start"]
 
 # The classical controllers a policy can be cloned from: those with tuned gains.
@@ -80,15 +82,7 @@ class WarmStartConfig:
 
     @classmethod
     def from_any(cls, value: Any) -> WarmStartConfig | None:
-        if value is None or isinstance(value, cls):
-            return value
-        if not isinstance(value, Mapping):
-            raise ValueError(f"warm_start: expected a mapping or null, got {value!r}")
-        allowed = sorted(cls.__dataclass_fields__)
-        unknown = sorted(set(value) - set(allowed))
-        if unknown:
-            raise ValueError(f"warm_start: unknown key(s) {unknown}; allowed: {allowed}")
-        return cls(**value)
+        return config_section(cls, value, "warm_start")
 
     def to_dict(self) -> dict[str, Any]:
         return {
