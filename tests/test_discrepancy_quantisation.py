@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import drill_env
-from drill_env.discrepancy.dataset import MeasuredDataset
+from drill_env.discrepancy.dataset import MeasuredDataset, MeasuredRun
 from drill_env.discrepancy.decide import DecisionRule, RunStatistics, decide
 from drill_env.discrepancy.equation_error import (
     AngleNoise,
@@ -88,6 +88,43 @@ def test_a_changing_rate_spreads_the_lines():
     weights, white = quantisation_weights(_noise(0.0), "upper", 256)
     swept = line_variance(coef[None, :], np.array([1.002]), np.array([2.0]), weights)[0]
     assert swept == pytest.approx(float(coef @ coef) * (1.0 / 12.0 - white), rel=1e-6)
+
+
+def _constant_rate_floor(rate, twist_counts, seed, counts=2000, fs=500.0, duration_s=200.0):
+    """Mean z^2 of the windows of both disks turning at ``rate`` counts per sample with a constant
+    twist, undithered: the equation error of the quantised angles minus that of the true angles
+    (the quantisation error through the same window coefficients) over the noise floor."""
+    rng = np.random.default_rng(seed)
+    step = 2.0 * math.pi / counts
+    n = int(duration_s * fs) + 1
+    k = np.arange(n)
+    upper = (rng.uniform() + rate * k) * step
+    lower = upper - twist_counts * step
+    q = step / math.sqrt(12.0)
+    noise = AngleNoise(upper=q, lower=q, quantisation=q, samples_used=0)
+    params = drill_env.load_params("brake")
+
+    def run(a, b):
+        return MeasuredRun(name="ramp", t=k / fs, u=np.zeros(n), theta_u=a, theta_l=b)
+
+    read = RunEquations(run(np.floor(upper / step) * step, np.floor(lower / step) * step), params, noise)
+    true = RunEquations(run(upper, lower), params, noise)
+    out = {}
+    for disk in ("upper", "lower"):
+        w, w_true = getattr(read, disk), getattr(true, disk)
+        assert np.array_equal(w.centers, w_true.centers) and len(w) > 100
+        out[disk] = float(np.mean(((w.residual - w_true.residual) / w.sigma) ** 2))
+    return out
+
+
+def test_noise_floor_at_constant_rates():
+    # disks at constant rates, near-rational count rates included (0.3913 ~ 9/23, 0.8571 ~ 6/7,
+    # 2.0047 ~ 2): all windows of a run see their lines at the same frequencies, so a floor that
+    # knows the rate only to 1/N is off by the same factor in every window (0.3 to 3.8 here)
+    cases = [(0.3913, 0.3), (0.1457, 4.6), (0.6129, 0.0), (0.8571, 11.2), (2.0047, 2.5)]
+    z2 = [z for rate, twist in cases for z in _constant_rate_floor(rate, twist, seed=5).values()]
+    assert all(0.4 < z < 2.0 for z in z2), z2
+    assert 0.8 < np.mean(z2) < 1.25, z2
 
 
 # -- the workflow on undithered data -------------------------------------------------------------

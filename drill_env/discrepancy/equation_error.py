@@ -42,10 +42,17 @@ phase. Every window residual is a fixed linear combination ``sum_k a_k e_k`` of 
 errors of both encoders (exact linearisation, the Savitzky-Golay speed of the Stribeck
 term included), so its noise variance is the white rest times ``sum a_k^2`` plus, for
 each line, its power times ``|A(f)|^2`` at the line's frequency (:func:`line_variance`).
-Where the line is, is known only as well as the count rate: from the counts to about one
-count over the window's support of N samples, and the rate changes within the support
-by what a long Savitzky-Golay derivative shows; so line m is averaged over a band of
-``m (1/N + spread/2)`` about ``m c`` (harmonics 1-256 as lines, the few beyond as white).
+Where the line is, is known only as well as the count rate, and the lines that matter
+most are high harmonics that alias close to a peak of ``|A|^2`` (at 2000 counts/rev and
+500 Hz, harmonic 22 of a disk at 0.409 counts/sample sits 0.004 cycles/sample from zero
+frequency, where a rate error of 1e-4 moves it off the peak). The endpoint counts of the
+support fix the rate only to 1/N; averaging the lines over that band put the floor of a
+steady run three times too low. So the rate is the slope of the readings
+over the longest span (1, 3, 9, 27 supports) on which it is steady (the slope of a
+least-squares cubic, which a bending rate does not bias), its standard error is that of
+the slope (itself a weighted sum of the encoder error, computed the same way), and line
+m is averaged over ``m (sqrt(3) error + spread/2)`` about ``m c``, spread the change of
+that slope within the support (harmonics 1-256 as lines, the few beyond as white).
 The outcome, for the same undithered data: a window in which a line aliases into its
 pass band (a near-integer or near-p/q number of counts per sample at near-constant
 speed) gets a noise variance up to 40 times the white model's and a small weight; a
@@ -99,6 +106,7 @@ class EquationErrorConfig:
     min_speed_rad_s: float = 0.03  # a disk slower than this in a window drops the window [rad/s]
     noise_lag_s: float = 0.01  # lag of the third differences that estimate the angle noise [s]
     quantisation_harmonics: int = 256  # harmonics of the quantisation error treated as spectral lines
+    rate_span_factors: tuple[int, ...] = (1, 3, 9, 27)  # spans tried for the count rate [x window support]
 
 
 def stribeck(params: RigParams, w: np.ndarray) -> np.ndarray:
@@ -265,23 +273,31 @@ def quantisation_weights(noise: AngleNoise, disk: str, harmonics: int) -> tuple[
 
 
 def line_variance(
-    coef: np.ndarray, rate: np.ndarray, spread: np.ndarray, weights: np.ndarray, chunk: int = 1_000_000
+    coef: np.ndarray,
+    rate: np.ndarray,
+    spread: np.ndarray,
+    weights: np.ndarray,
+    rate_error: np.ndarray | None = None,
+    chunk: int = 1_000_000,
 ) -> np.ndarray:
     """Variance of ``sum_k coef_k e_k`` from the spectral lines of the quantisation error [rad^2 x coef^2].
 
     At a count rate of c counts per sample the m-th harmonic of the error is a line at the
     digital frequency ``m c`` (mod 1) (Kavanagh 2000); with the encoder's sub-count offset
     uniform it adds ``weights[m-1] |C(m c)|^2`` to the variance, C the Fourier transform of
-    the window's coefficients. The mean rate over a support of N samples is known from the
-    counts only to about 1/N, and it changes by ``spread`` over the support, so harmonic m
-    may sit anywhere within ``m (1/N + spread/2)`` of ``m c``: its term is ``|C|^2`` averaged
-    over that band (over the whole circle, i.e. white, once the band covers it).
+    the window's coefficients. The rate is known to within ``rate_error`` (default 1/N, what
+    the counts at the ends of a support of N samples tell), and it changes by ``spread``
+    over the support, so harmonic m may sit anywhere within ``m (rate_error + spread/2)`` of
+    ``m c``: its term is ``|C|^2`` averaged over that band (over the whole circle, i.e.
+    white, once the band covers it).
 
     Args:
         coef: (windows, N) coefficients of each window on its support.
         rate: (windows,) mean count rate on the support [counts/sample].
         spread: (windows,) max - min of the count rate on the support [counts/sample].
         weights: line powers of harmonics 1, 2, ... (:func:`quantisation_weights`).
+        rate_error: (windows,) half-width of the band in which the rate lies [counts/sample];
+            None: 1/N.
     """
     n, N = coef.shape
     out = np.zeros(n)
@@ -296,7 +312,8 @@ def line_variance(
         cum = np.concatenate(
             [np.zeros((b - a, 1)), np.cumsum(np.concatenate([power, power], axis=1), axis=1)], axis=1
         )
-        half = m[None, :] * (1.0 / N + 0.5 * spread[a:b, None])  # [cycles/sample]
+        err = 1.0 / N if rate_error is None else rate_error[a:b, None]
+        half = m[None, :] * (err + 0.5 * spread[a:b, None])  # [cycles/sample]
         centre = np.mod(m[None, :] * np.abs(rate[a:b, None]), 1.0)
         lo = np.floor((centre - half) * P + 0.5).astype(np.int64) % P
         width = np.maximum(np.floor(2.0 * half * P + 0.5).astype(np.int64), 1)
@@ -372,11 +389,7 @@ class RunEquations:
         self.speed_l, self.choice_l = _adaptive_speed(run.theta_l, halves, dt, cfg.speed_counts * step)
         self.halves = halves
         self.step = step
-        # count rate per sample, for the spread of the spectral lines of the quantisation error
-        # (see line_variance): from the longest Savitzky-Golay window, whose own quantisation
-        # noise is far below the rate changes that matter over a window
-        self.rate_u = _savgol(run.theta_u, g_half, deriv=1) / step
-        self.rate_l = _savgol(run.theta_l, g_half, deriv=1) / step
+        self._rates: dict[tuple[str, int], np.ndarray] = {}  # count rates, see _moving_rate
         self.q_upper = quantisation_weights(noise, "upper", cfg.quantisation_harmonics)
         self.q_lower = quantisation_weights(noise, "lower", cfg.quantisation_harmonics)
 
@@ -416,20 +429,135 @@ class RunEquations:
     def gather(self, x: np.ndarray, centers: np.ndarray) -> np.ndarray:
         return x[centers[:, None] + self.offsets[None, :]]
 
+    def _slope_kernel(self, reach: int) -> np.ndarray:
+        """Slope at the centre of the least-squares cubic through 2 reach + 1 samples [per
+        sample], weights in sample order (a rate that changes linearly or bends does not
+        bias it)."""
+        return savgol_coeffs(2 * reach + 1, 3, deriv=1, use="dot")
+
+    def _moving_rate(self, disk: str, reach: int) -> np.ndarray:
+        """Count rate per sample: the least-squares slope over +-reach samples about each
+        sample [counts/sample] (cached per disk and reach)."""
+        key = (disk, reach)
+        if key not in self._rates:
+            theta = self.theta_u if disk == "upper" else self.theta_l
+            a = self._slope_kernel(reach)
+            out = np.empty(theta.size)
+            if theta.size > a.size:
+                out[reach:-reach] = oaconvolve(theta, a[::-1], mode="valid") / self.step
+                out[:reach] = out[reach]
+                out[-reach:] = out[-reach - 1]
+            else:
+                out[:] = (theta[-1] - theta[0]) / (self.step * max(theta.size - 1, 1))
+            self._rates[key] = out
+        return self._rates[key]
+
+    def _range(self, x: np.ndarray, reach: int, centers: np.ndarray) -> np.ndarray:
+        """max - min of x over +-reach samples about each centre."""
+        span = 2 * reach + 1
+        top = maximum_filter1d(x, span, mode="nearest")
+        return (top - minimum_filter1d(x, span, mode="nearest"))[centers]
+
+    def _rate_error(self, disk: str, centers: np.ndarray, reach: int, rate: np.ndarray) -> np.ndarray:
+        """Standard deviation of the least-squares count rate over +-reach [counts/sample].
+
+        The slope is a weighted sum of the readings, so its error is one of the encoder
+        error: with the lines where the rate puts them, or averaged over the 1/N that the
+        counts alone leave open, whichever is larger. The first is right when the rate is
+        known well (at 6/7 counts per sample the harmonics 7, 14, ... pile up next to zero
+        frequency, where a slope over N samples responds most); the second where the rate
+        itself hides the error (at a whole number of counts per sample every line sits at
+        zero frequency, where a slope does not respond, and the readings are a perfect line
+        whatever the rate within 1/N)."""
+        weights, white = self.q_upper if disk == "upper" else self.q_lower
+        a = np.broadcast_to(self._slope_kernel(reach), (centers.size, 2 * reach + 1))
+        zero = np.zeros(centers.size)
+        point = line_variance(a, rate, zero, weights, rate_error=zero)
+        band = line_variance(a, rate, zero, weights)
+        return np.sqrt(white * float(a[0] @ a[0]) + np.maximum(point, band)) / self.step
+
+    def _rate_error_bound(self, disk: str, reach: int, rate: np.ndarray) -> np.ndarray:
+        """Largest standard deviation of the count rate over +-reach (:meth:`_slope_kernel`) for
+        a true rate within 1/N of ``rate`` [counts/sample]: each line at its worst place in
+        the band that the counts leave open."""
+        weights, white = self.q_upper if disk == "upper" else self.q_lower
+        a = self._slope_kernel(reach)
+        N = a.size
+        P = 1 << int(math.ceil(math.log2(2 * N)))
+        # sliding maxima of the power over 2^j bins (circular), for O(1) band maxima
+        levels = [np.abs(np.fft.fft(a, P)) ** 2]
+        while (2 << (len(levels) - 1)) <= P:
+            prev = levels[-1]
+            levels.append(np.maximum(prev, np.roll(prev, -(1 << (len(levels) - 1)))))
+        top = np.stack(levels)
+        m = np.arange(1, weights.size + 1)
+        width = 2 * np.ceil(m * P / N).astype(np.int64) + 1
+        whole = width >= P
+        width = np.minimum(width, P)
+        lo = (
+            np.floor(np.mod(m[None, :] * np.abs(rate[:, None]), 1.0) * P + 0.5).astype(np.int64) - width // 2
+        ) % P
+        j = np.floor(np.log2(width)).astype(np.int64)
+        hi = (lo + width - (1 << j)) % P
+        band_max = np.maximum(top[j[None, :], lo], top[j[None, :], hi])
+        band_max = np.where(whole[None, :], top[0].max(), band_max)
+        return np.sqrt(white * float(a @ a) + band_max @ weights) / self.step
+
+    def _count_rate(self, disk: str, centers: np.ndarray, reach: int):
+        """Count rate of each window, its standard error and its change over the support +-reach
+        [counts/sample].
+
+        The rate is the slope of the least-squares cubic through the readings over the
+        longest span (``reach`` times 1, 3, 9, ...) on which it is steady: the next longer
+        span's slope must agree with the shorter one's, at the centre and at both ends of
+        the support, within twice the largest error the shorter one can have
+        (:meth:`_rate_error_bound`). At a steady rate a long span knows the rate far better
+        than the window's own support (the error falls as span^-3/2 or span^-1 near a
+        whole number of counts per sample); a span over which the rate swings fails the
+        test. The error is :meth:`_rate_error` of the chosen span; the change of the rate
+        over the support is the range of the chosen slope, evaluated at every sample of it.
+        """
+        n = self.theta_u.size
+        moving = self._moving_rate(disk, reach)
+        rate = moving[centers]
+        spread = self._range(moving, reach, centers)
+        error = self._rate_error(disk, centers, reach, rate)
+        ok = np.ones(centers.size, dtype=bool)
+        prev_moving, prev_bound = moving, self._rate_error_bound(disk, reach, rate)
+        for factor in self.config.rate_span_factors:
+            span_reach = reach * factor
+            ok &= (centers - span_reach >= 0) & (centers + span_reach < n)
+            if factor <= 1 or not ok.any():
+                continue
+            moving = self._moving_rate(disk, span_reach)
+            r = moving[centers]
+            # steady: the slopes agree at the centre and at both ends of the support
+            for shift in (0, -reach, reach):
+                at = np.clip(centers + shift, 0, n - 1)
+                ok &= np.abs(moving[at] - prev_moving[at]) <= 2.0 * prev_bound
+            if not ok.any():
+                break
+            sel = np.flatnonzero(ok)
+            e = np.full(centers.size, np.inf)
+            e[sel] = self._rate_error(disk, centers[sel], span_reach, r[sel])
+            sp = self._range(moving, reach, centers)
+            rate = np.where(ok, r, rate)
+            error = np.where(ok, e, error)
+            spread = np.where(ok, sp, spread)
+            b = np.full(centers.size, np.inf)
+            b[sel] = self._rate_error_bound(disk, span_reach, r[sel])
+            prev_moving, prev_bound = moving, b
+        return rate, error, spread
+
     def _angle_variance(self, disk: str, centers: np.ndarray, coef: np.ndarray, reach: int):
         """Variance of ``sum_k coef_k e_k`` over the support +-reach of each window, e the
         encoder error of ``disk``: white rest plus spectral lines [rad^2 x coef^2], and the
-        share of the lines in it."""
-        theta = self.theta_u if disk == "upper" else self.theta_l
-        rate = self.rate_u if disk == "upper" else self.rate_l
+        share of the lines in it. The lines sit at the count rate of :meth:`_count_rate`,
+        known to within a uniform band of its standard error."""
         weights, white = self.q_upper if disk == "upper" else self.q_lower
         coef = np.broadcast_to(coef, (centers.size, 2 * reach + 1))
-        mean_rate = (theta[centers + reach] - theta[centers - reach]) / (self.step * 2 * reach)
-        span = 2 * reach + 1
-        spread = (
-            maximum_filter1d(rate, span, mode="nearest") - minimum_filter1d(rate, span, mode="nearest")
-        )[centers]
-        lines = line_variance(coef, mean_rate, spread, weights)
+        rate, error, spread = self._count_rate(disk, centers, reach)
+        lines = line_variance(coef, rate, spread, weights, rate_error=math.sqrt(3.0) * error)
         return white * np.sum(coef * coef, axis=1) + lines, lines
 
     def kernel(self, x: np.ndarray, disk: str) -> np.ndarray:
