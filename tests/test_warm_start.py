@@ -415,3 +415,27 @@ def test_training_with_a_distillation_records_it(tmp_path, one_torch_thread):
         policy="ppo", steps=200, rounds=2, epochs=2, learning_rate=3e-3
     )
     assert saved.residual.base == "lqi_angle_ff"
+
+
+def test_train_command_refuses_a_bad_or_missing_teacher_before_training(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from drill_env.agents.registry import AGENTS_DIR_ENV
+    from drill_env.cli import app
+
+    config = (CONFIGS / "ppo_robust_distilled_no_brake.yaml").read_text()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(config.replace("  policy: ppo ", "  policy: ppo_robust "))
+    runner = CliRunner()
+    args = ["train", "--algo", "ppo", "--seed", "0", "--out", str(tmp_path / "out")]
+    res = runner.invoke(app, [*args, "--config", str(bad)])
+    assert res.exit_code == 2 and "warm_start.policy: 'ppo_robust' is not one of" in res.output
+    assert "Traceback" not in res.output
+    monkeypatch.setenv(AGENTS_DIR_ENV, str(tmp_path / "agents"))
+    res = runner.invoke(app, [*args, "--config", str(CONFIGS / "ppo_robust_distilled_no_brake.yaml")])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert (
+        f"no trained ppo policy for preset 'no_brake' at {tmp_path}/agents/ppo_no_brake/policy.zip"
+        in res.output
+    )
+    assert not (tmp_path / "out").exists()  # nothing trained
