@@ -339,13 +339,25 @@ class LQIAngleFeedforward(LQI):
             s[:, 6] = -self.spec.control_dt * y[:, self._i_lower_mean]  # theta = 0 at the start
         return s
 
-    def control(self, y: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _harmonics(self, y: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(theta_l (n,), C_h (n, nh), exp(j h theta_l) (n, nh)) for observations ``y`` in ``state``."""
         nh = len(self.harmonics)
         theta = self._lower_angle(y, state)
         coef = state[:, 7 : 7 + 2 * nh]
-        C = coef[:, 0::2] + 1j * coef[:, 1::2]  # (n, nh)
+        C = coef[:, 0::2] + 1j * coef[:, 1::2]
+        return theta, C, np.exp(1j * np.outer(theta, self.harmonics))
+
+    def feedforward(self, y: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """u_ff [V] (n,): the adaptive feedforward's share of the voltage :meth:`control`
+        requests for observations ``y`` (SI) in ``state`` (the state :meth:`control` is called
+        with, episode starts already reset); the rest of the request is the LQI's feedback."""
+        _, C, rot = self._harmonics(y, state)
+        return np.sum((C * rot).real, axis=1)
+
+    def control(self, y: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nh = len(self.harmonics)
+        theta, C, rot = self._harmonics(y, state)
         g = state[:, 7 + 2 * nh : 7 + 4 * nh : 2] + 1j * state[:, 8 + 2 * nh : 7 + 4 * nh : 2]
-        rot = np.exp(1j * np.outer(theta, self.harmonics))
         u_ff = np.sum((C * rot).real, axis=1)
         u, out, u_req = self._step(y, state, u_ff)
         w = y[:, self._i_target]

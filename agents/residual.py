@@ -43,8 +43,10 @@ __all__ = [
     "ResidualPolicy",
     "ResidualVecEnv",
     "base_controller",
+    "correction_towards",
     "critic_burn_in_callback",
     "start_from_base",
+    "step_base",
 ]
 
 # Classical controllers a policy can act on top of (those with integral action and tuned gains).
@@ -177,6 +179,45 @@ def base_controller(cfg: ResidualConfig, env_id: str, env_kwargs: Mapping[str, A
     finally:
         env.close()
     return classical_controller(cfg.base, spec, ENV_IDS[env_id])
+
+
+def step_base(
+    base: Any, observation: np.ndarray, state: np.ndarray | None, episode_start: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One step of the base controller on a batch of rigs, as :class:`ResidualVecEnv` and
+    :class:`ResidualPolicy` take it (``base.predict``, rows where an episode starts reset
+    from their observation), plus the share of the base's adaptive feedforward in its action.
+
+    Returns ``(action (n, 1), feedforward (n, 1), next state)``: the feedforward is
+    ``base.feedforward(y, state)`` [V] in action units (1 = 5 V), 0 for a base without one
+    (``lqi``, ``torque_feedback``); the base's feedback is ``action - feedforward`` wherever
+    the voltage is off the amplifier's limit.
+    """
+    spec = base.spec
+    obs = np.asarray(observation).reshape(-1, len(spec.observation_names))
+    y = spec.to_physical(obs)
+    if state is None:
+        state = base.initial_state(y)
+    else:
+        state = np.array(state, dtype=np.float64, copy=True)
+        start = np.zeros(len(y), dtype=bool) if episode_start is None else np.asarray(episode_start, bool)
+        if start.any():
+            state[start] = base.initial_state(y[start])
+    if hasattr(base, "feedforward"):
+        volts = np.asarray(base.feedforward(y, state), dtype=np.float64)
+    else:
+        volts = np.zeros(len(y))
+    feedforward = (volts / spec.action_to_volts).astype(np.float32).reshape(-1, 1)
+    action, state = base.predict(obs, state=state)
+    return action, feedforward, state
+
+
+def correction_towards(base_action: np.ndarray, target: np.ndarray, scale: float) -> np.ndarray:
+    """The correction in [-1, 1] that moves ``base_action`` to ``target`` (normalised
+    actions): ``clip((target - base) / scale, -1, 1)``, so that the residual action
+    ``clip(base + scale * correction, -1, 1)`` is ``target`` wherever neither clip acts."""
+    c = (np.asarray(target, dtype=np.float64) - np.asarray(base_action, dtype=np.float64)) / float(scale)
+    return np.clip(c, -1.0, 1.0).astype(np.float32)
 
 
 def _combine(base_action: np.ndarray, correction: np.ndarray, scale: float) -> np.ndarray:

@@ -20,7 +20,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
                                         # (drill_env.agents.residual); absent or null: the policy is the controller
     warm_start: {controller: lqi, steps: 100000}  # optional: clone a classical controller into the
-                                        # policy before the first rollout (drill_env.agents.warm_start)
+                                        # policy before the first rollout (drill_env.agents.warm_start);
+                                        # with residual: {policy: ppo, ...} distils a trained policy
     ignored_observations: [lower_angle_sin, ...]  # optional: entries the policy network takes
                                         # no weights from (zeroed and frozen; the value still sees them)
 
@@ -202,8 +203,17 @@ class TrainConfig:
         from drill_env.agents.warm_start import WarmStartConfig
 
         object.__setattr__(self, "warm_start", WarmStartConfig.from_any(self.warm_start))
-        if self.warm_start is not None and self.residual is not None:
-            raise ValueError("warm_start: a residual policy starts as its base controller already; drop one")
+        ws = self.warm_start
+        if ws is not None and ws.policy is None and self.residual is not None:
+            raise ValueError(
+                "warm_start.controller: a residual policy starts as its base controller already; drop "
+                "one (warm_start.policy distils a trained policy into a residual policy)"
+            )
+        if ws is not None and ws.policy is not None and self.residual is None:
+            raise ValueError(
+                "warm_start.policy: allowed only with residual (a trained policy is distilled into "
+                "the correction of a residual policy)"
+            )
         ignored = self.ignored_observations
         if isinstance(ignored, str) or not isinstance(ignored, (list, tuple)):
             raise ValueError(f"ignored_observations: expected a list of observation names, got {ignored!r}")
@@ -814,7 +824,7 @@ def train(
     if cfg.warm_start is not None:  # part of the training's wall time
         from drill_env.agents.warm_start import warm_start
 
-        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed)
+        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed, residual=cfg.residual)
     model.learn(
         total_timesteps=cfg.total_timesteps, callback=[*callbacks, _Eval()], progress_bar=progress_bar
     )

@@ -26,6 +26,28 @@ critic that knows the cloned policy rather than of a random one.
 The observation of the policy must carry what the controller uses (in ``DrillString-v1``
 the integrated speed error plays the LQI's integrator); the clone is a function of the
 current observation only, the controller may keep state.
+
+Distillation into a residual policy
+-----------------------------------
+A residual config (:mod:`drill_env.agents.residual`) starts as its base controller already,
+so ``warm_start.controller`` is refused there; ``warm_start: {policy: ppo, ...}`` instead
+starts it as a *trained* policy (the teacher: a learned controller of the benchmark,
+:data:`WARM_START_POLICIES`, loaded as the benchmark loads it for the training env's preset,
+from the default agents folder) plus the base's adaptive feedforward. The correction
+labelling each observation is
+
+    label = clip((a_teacher + a_ff - a_base) / scale, -1, 1)
+
+with ``a_base`` the base's action and ``a_ff`` the share of its feedforward in it
+(:func:`drill_env.agents.residual.step_base`; for ``lqi_angle_ff`` the angle-locked
+harmonics, 0 for a base without feedforward): the residual action ``base + scale * label``
+is the teacher's voltage plus the feedforward wherever the clip is inactive, and the label
+is ``(a_teacher - a_base_feedback) / scale`` wherever the base is off the voltage limit. The
+base's state is stepped by its own ``predict`` at every observation and reset at episode
+starts, as the residual training rigs and the residual policy step it. The first round's
+rigs are driven by teacher + feedforward (plus the noise), the later rounds' by the residual
+policy being fitted (base + scale * correction, plus the noise), labelled as above (DAgger).
+Without ``residual``, ``policy`` is refused (a plain policy is not distilled).
 """
 
 from __future__ import annotations
@@ -40,17 +62,29 @@ import numpy as np
 
 from drill_env.agents._config import config_section
 
-__all__ = ["WARM_START_CONTROLLERS", "WarmStartConfig", "collect_demonstrations", "warm_start"]
+__all__ = [
+    "WARM_START_CONTROLLERS",
+    "WARM_START_POLICIES",
+    "WarmStartConfig",
+    "collect_demonstrations",
+    "teacher_policy",
+    "warm_start",
+]
 
 # The classical controllers a policy can be cloned from: those with tuned gains.
 WARM_START_CONTROLLERS = ("lqi", "lqi_angle_ff", "torque_feedback", "pi_upper", "pi_lower")
+# The trained policies a residual policy can be distilled from: the plain learned controllers
+# of the benchmark (drill_env.agents.registry.LEARNED without ppo_robust, itself a residual
+# policy on lqi_angle_ff whose voltage carries the feedforward already).
+WARM_START_POLICIES = ("ppo", "sac")
 
 
 @dataclass(frozen=True)
 class WarmStartConfig:
     """``warm_start`` of a training config (see the module docstring)."""
 
-    controller: str = "lqi"
+    controller: str | None = None  # classical controller to clone; neither this nor policy: lqi
+    policy: str | None = None  # trained policy to distil into a residual policy
     steps: int = 100_000  # env-steps of the controller's rollouts
     epochs: int = 20  # passes of the regression over the rollouts
     batch_size: int = 1024
@@ -59,7 +93,19 @@ class WarmStartConfig:
     rounds: int = 1  # data-aggregation rounds: after the first, the clone drives and the controller labels
 
     def __post_init__(self) -> None:
-        if not isinstance(self.controller, str) or self.controller not in WARM_START_CONTROLLERS:
+        if self.controller is not None and self.policy is not None:
+            raise ValueError(
+                "warm_start: give controller (a classical controller to clone) or policy "
+                "(a trained policy to distil into a residual policy), not both"
+            )
+        if self.policy is not None:
+            if not isinstance(self.policy, str) or self.policy not in WARM_START_POLICIES:
+                raise ValueError(
+                    f"warm_start.policy: {self.policy!r} is not one of {list(WARM_START_POLICIES)}"
+                )
+        elif self.controller is None:
+            object.__setattr__(self, "controller", "lqi")
+        elif not isinstance(self.controller, str) or self.controller not in WARM_START_CONTROLLERS:
             raise ValueError(
                 f"warm_start.controller: {self.controller!r} is not one of {list(WARM_START_CONTROLLERS)}"
             )
@@ -85,8 +131,9 @@ class WarmStartConfig:
         return config_section(cls, value, "warm_start")
 
     def to_dict(self) -> dict[str, Any]:
+        teacher = {"policy": self.policy} if self.policy is not None else {"controller": self.controller}
         return {
-            "controller": self.controller,
+            **teacher,
             "steps": self.steps,
             "epochs": self.epochs,
             "batch_size": self.batch_size,
@@ -229,18 +276,106 @@ def nominal_controller(kind: str, env_id: str, env_kwargs: Mapping[str, Any]) ->
     return classical_controller(kind, spec, ENV_IDS[env_id])
 
 
+def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any:
+    """The trained policy ``name`` (:data:`WARM_START_POLICIES`) as the benchmark loads it for
+    the preset of ``env_id`` from the default agents folder
+    (:func:`drill_env.agents.registry.build_controller`: a missing file is an error naming it),
+    checked against the spaces of the training environment."""
+    import gymnasium as gym
+
+    from drill_env.agents.registry import build_controller
+    from drill_env.envs import ENV_IDS
+
+    if name not in WARM_START_POLICIES:
+        raise ValueError(f"warm_start.policy: {name!r} is not one of {list(WARM_START_POLICIES)}")
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        return build_controller(name, env, ENV_IDS[env_id])
+    finally:
+        env.close()
+
+
+class ResidualLabels:
+    """The labeller of a distillation (module docstring) behind ``predict``, for
+    :func:`collect_demonstrations`: ``predict(obs, state, episode_start)`` returns the
+    correction labels and the state (the teacher's, the base's). Each call also keeps, for
+    the rollout's driver, the base's action (``base_action``) and the action the residual
+    policy should apply (``target``: teacher + feedforward) at those observations."""
+
+    def __init__(self, teacher: Any, base: Any, scale: float):
+        self.teacher, self.base, self.scale = teacher, base, float(scale)
+        self.base_action: np.ndarray | None = None
+        self.target: np.ndarray | None = None
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        from drill_env.agents.residual import correction_towards, step_base
+
+        teacher_state, base_state = (None, None) if state is None else state
+        obs = np.asarray(observation, dtype=np.float32)
+        a_teacher, teacher_state = self.teacher.predict(
+            obs, state=teacher_state, episode_start=episode_start, deterministic=True
+        )
+        a_base, a_ff, base_state = step_base(self.base, obs, base_state, episode_start)
+        a_teacher = np.asarray(a_teacher, dtype=np.float32).reshape(a_base.shape)
+        self.base_action = a_base
+        self.target = a_teacher + a_ff
+        return correction_towards(a_base, self.target, self.scale), (teacher_state, base_state)
+
+
 def warm_start(
-    model: Any, cfg: WarmStartConfig, env_id: str, env_kwargs: Mapping[str, Any], seed: int
+    model: Any,
+    cfg: WarmStartConfig,
+    env_id: str,
+    env_kwargs: Mapping[str, Any],
+    seed: int,
+    residual: Any = None,
 ) -> dict:
-    """Clone ``cfg.controller`` into ``model``'s policy (see the module docstring), on
-    ``model.n_envs`` rigs seeded apart from the training rigs. Returns what it did: steps,
-    wall time, losses."""
+    """Clone ``cfg.controller`` into ``model``'s policy, or distil ``cfg.policy`` into the
+    correction of a residual policy on ``residual`` (a
+    :class:`~drill_env.agents.residual.ResidualConfig`; see the module docstring), on
+    ``model.n_envs`` rigs seeded apart from the training rigs. Returns what it did: the
+    teacher, steps, wall time, losses."""
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from drill_env.agents.residual import _combine, base_controller
     from drill_env.envs.sb3 import sb3_vec_env
 
     t0 = time.perf_counter()
-    controller = nominal_controller(cfg.controller, env_id, env_kwargs)
+
+    def clone(obs: np.ndarray) -> np.ndarray:
+        return model.predict(obs, deterministic=True)[0]
+
+    first_driver: Callable[[np.ndarray], np.ndarray] | None = None
+    later_driver: Callable[[np.ndarray], np.ndarray] = clone
+    if cfg.policy is not None:
+        if residual is None:
+            raise ValueError(
+                "warm_start.policy: allowed only with residual (a trained policy is distilled into "
+                "the correction of a residual policy)"
+            )
+        labels = ResidualLabels(
+            teacher_policy(cfg.policy, env_id, env_kwargs),
+            base_controller(residual, env_id, env_kwargs),
+            residual.scale,
+        )
+        controller: Any = labels
+
+        def teacher_drives(obs: np.ndarray) -> np.ndarray:
+            return labels.target  # teacher + feedforward at these observations
+
+        def residual_drives(obs: np.ndarray) -> np.ndarray:
+            return _combine(labels.base_action, clone(obs), labels.scale)
+
+        first_driver, later_driver = teacher_drives, residual_drives
+        teacher = {"policy": cfg.policy}
+    else:
+        if residual is not None:
+            raise ValueError(
+                "warm_start.controller: a residual policy starts as its base controller already; "
+                "drop one (warm_start.policy distils a trained policy into it)"
+            )
+        controller = nominal_controller(cfg.controller, env_id, env_kwargs)
+        teacher = {"controller": cfg.controller}
     gamma = float(getattr(model, "gamma", 0.99))
     train_env = model.get_env()
     return_scale = 1.0
@@ -250,7 +385,7 @@ def warm_start(
     fits = []
     try:
         for r in range(cfg.rounds):
-            driver = None if r == 0 else (lambda obs: model.predict(obs, deterministic=True)[0])
+            driver = first_driver if r == 0 else later_driver
             new = collect_demonstrations(
                 venv, controller, cfg.steps, cfg.action_noise, gamma, seed + r, driver=driver
             )
@@ -266,7 +401,7 @@ def warm_start(
     finally:
         venv.close()
     return {
-        "controller": cfg.controller,
+        **teacher,
         "steps": int(data["obs"].shape[0]),
         "rounds": cfg.rounds,
         "wall_time_s": time.perf_counter() - t0,

@@ -206,3 +206,236 @@ def test_the_committed_no_brake_ppo_keeps_the_integral_action():
         action, _ = policy.predict(batch, deterministic=True)
         assert np.all(np.diff(action.ravel()) < 0), (volts, action.ravel())
     env.close()
+
+
+# -- distillation of a trained policy into a residual policy ---------------------------------------
+
+DISTILLED = {
+    "DrillString-v1": "ppo_robust_distilled",
+    "DrillStringNoBrake-v1": "ppo_robust_distilled_no_brake",
+}
+
+
+def test_distillation_config_names_the_field():
+    from drill_env.agents.registry import LEARNED
+    from drill_env.agents.warm_start import WARM_START_POLICIES
+
+    assert set(WARM_START_POLICIES) <= set(LEARNED)
+    with pytest.raises(ValueError, match=r"^warm_start: give controller .* or policy .*, not both$"):
+        WarmStartConfig.from_any({"controller": "lqi", "policy": "ppo"})
+    for bad in ("mpc", "ppo_robust", 3):
+        with pytest.raises(
+            ValueError, match=rf"^warm_start\.policy: {bad!r} is not one of \['ppo', 'sac'\]$"
+        ):
+            WarmStartConfig.from_any({"policy": bad})
+    assert WarmStartConfig().controller == "lqi" and WarmStartConfig(policy="sac").controller is None
+    residual = load_config(CONFIGS / "ppo_residual.yaml").to_dict()
+    with pytest.raises(ValueError, match=r"^warm_start\.controller: a residual policy starts as its base"):
+        TrainConfig(**{**residual, "warm_start": {"controller": "lqi"}})
+    with pytest.raises(ValueError, match=r"^warm_start\.policy: allowed only with residual"):
+        TrainConfig(**{**small_config("ppo", 256).to_dict(), "warm_start": {"policy": "ppo"}})
+    cfg = TrainConfig(**{**residual, "warm_start": {"policy": "sac", "steps": 10}})
+    assert cfg.to_dict()["warm_start"]["policy"] == "sac" and "controller" not in cfg.to_dict()["warm_start"]
+    assert TrainConfig(**cfg.to_dict()) == cfg
+
+
+def test_a_missing_teacher_policy_names_its_file(tmp_path, monkeypatch):
+    from drill_env.agents.registry import AGENTS_DIR_ENV
+    from drill_env.agents.warm_start import teacher_policy
+
+    monkeypatch.setenv(AGENTS_DIR_ENV, str(tmp_path))
+    with pytest.raises(
+        ValueError, match=f"no trained sac policy for preset 'no_brake' at {tmp_path}/sac_no_brake/policy.zip"
+    ):
+        teacher_policy("sac", "DrillStringNoBrake-v1", {})
+
+
+@pytest.mark.parametrize("suffix", ["", "_no_brake"])
+def test_distilled_configs_differ_from_the_residual_ones_only_where_they_say(suffix):
+    distilled = load_config(CONFIGS / f"ppo_robust_distilled{suffix}.yaml").to_dict()
+    residual = load_config(CONFIGS / f"ppo_residual{suffix}.yaml").to_dict()
+    warm = load_config(CONFIGS / f"ppo_warm_start{suffix}.yaml").to_dict()
+    ws = distilled.pop("warm_start")
+    assert ws.pop("policy") == "ppo" and ws == {
+        k: v for k, v in warm["warm_start"].items() if k != "controller"
+    }
+    assert distilled.pop("ignored_observations") == ANGLES
+    assert distilled["residual"] == {"base": "lqi_angle_ff", "scale": 0.2}
+    assert (
+        distilled.pop("total_timesteps") == 200_000 and distilled.pop("evaluation")["every_steps"] == 50_000
+    )
+    if suffix == "_no_brake":  # 90 s training episodes, as ppo_warm_start_no_brake.yaml
+        assert distilled["env_kwargs"].pop("max_episode_steps") == 1800
+    hp = distilled.pop("hyperparameters")
+    assert (hp["learning_rate"], hp["n_epochs"], hp["batch_size"]) == ("lin_3.0e-5", 5, 1024)
+    assert hp["policy_kwargs"]["log_std_init"] == -3.0
+    for key in ("total_timesteps", "evaluation", "hyperparameters"):
+        residual.pop(key)
+    assert distilled == residual
+
+
+def _lqi_feedback_and_feedforward(base, obs, state):
+    """Independent of the controller's code: u_nom - K dx [V] from the LQI's entries of the
+    state, and sum_h Re(C_h exp(j h theta_l)) [V] with theta_l from the encoder's sin/cos."""
+    spec = base.spec
+    y = spec.to_physical(obs)
+    col = {n: y[:, spec.index(n)] for n in spec.observation_names}
+    w = col["target_speed"]
+    dx = np.stack(
+        [col["twist"] - state[:, 1], col["upper_speed"] - w, col["lower_speed"] - w, state[:, 0]], axis=1
+    )
+    feedback = col["nominal_voltage"] - np.sum(state[:, 2:6] * dx, axis=1)
+    theta = np.arctan2(col["lower_angle_sin"], col["lower_angle_cos"])
+    ff = sum(
+        state[:, 7 + 2 * i] * np.cos(h * theta) - state[:, 8 + 2 * i] * np.sin(h * theta)
+        for i, h in enumerate((1, 2))
+    )
+    return feedback, ff
+
+
+@pytest.mark.parametrize("env_id", sorted(DISTILLED))
+def test_the_distillation_label_makes_the_residual_voltage_the_teachers_plus_the_feedforward(env_id):
+    import gymnasium as gym
+
+    from drill_env.agents.registry import build_controller
+    from drill_env.agents.residual import _combine, base_controller
+    from drill_env.agents.warm_start import ResidualLabels, teacher_policy
+    from drill_env.envs import ENV_IDS
+    from drill_env.envs.sb3 import sb3_vec_env
+
+    cfg = load_config(CONFIGS / f"{DISTILLED[env_id]}.yaml")
+    # episodes long enough for the feedforward's adaptation to start (after ~15 s) and act
+    kwargs = {**cfg.env_kwargs, "max_episode_steps": 600}
+    scale = cfg.residual.scale
+    labels = ResidualLabels(
+        teacher_policy("ppo", env_id, kwargs), base_controller(cfg.residual, env_id, kwargs), scale
+    )
+    env = gym.make(env_id, **kwargs)
+    teacher = build_controller("ppo", env, ENV_IDS[env_id])  # the benchmark's, loaded anew
+    env.close()
+    base = labels.base
+    n = 3
+    venv = sb3_vec_env(env_id, n, seed=4321, **kwargs)
+    obs, start = venv.reset(), np.ones(n, dtype=bool)
+    state = ref_state = None
+    rng = np.random.default_rng(0)
+    checked = with_ff = 0
+    for _ in range(900):
+        label, state = labels.predict(obs, state=state, episode_start=start)
+        # the base as the residual training rigs step it
+        base_action, next_ref = base.predict(obs, state=ref_state, episode_start=start)
+        np.testing.assert_array_equal(labels.base_action, base_action)
+        if ref_state is not None:
+            keep = ~start  # rows that continue an episode: ref_state is the state control sees
+            feedback, ff = _lqi_feedback_and_feedforward(base, obs[keep], ref_state[keep])
+            a_teacher = teacher.predict(obs[keep], deterministic=True)[0].ravel()
+            want = a_teacher + ff / 5.0
+            lab, a_base = label[keep].ravel(), base_action[keep].ravel()
+            np.testing.assert_allclose(a_base, np.clip(feedback + ff, -5, 5) / 5.0, atol=1e-6)
+            ok = (np.abs(lab) < 1.0) & (np.abs(feedback + ff) < 5.0) & (np.abs(want) <= 1.0)
+            np.testing.assert_allclose(a_base[ok] + scale * lab[ok], want[ok], atol=1e-6)
+            np.testing.assert_allclose(_combine(a_base, lab, scale)[ok], want[ok], atol=1e-6)
+            # the brief's form: the label is the teacher's action less the LQI's feedback
+            np.testing.assert_allclose(lab[ok], (a_teacher - feedback / 5.0)[ok] / scale, atol=1e-5)
+            checked += int(ok.sum())
+            with_ff += int(np.sum(ok & (np.abs(ff) > 0.01)))
+        ref_state = next_ref
+        noisy = labels.target + 0.1 * rng.standard_normal(labels.target.shape).astype(np.float32)
+        obs, _, done, _ = venv.step(np.clip(noisy, -1, 1))
+        start = np.asarray(done, dtype=bool).copy()
+    venv.close()
+    assert checked > 0.9 * 899 * n and with_ff > 100  # the feedforward did act in the check
+
+
+def test_a_tiny_distillation_moves_the_residual_policy_to_the_teacher(one_torch_thread):
+    from drill_env.agents.residual import ResidualPolicy
+    from drill_env.agents.rl import SB3Policy, ignore_observations
+    from drill_env.envs.sb3 import sb3_vec_env
+
+    cfg = load_config(CONFIGS / "ppo_robust_distilled.yaml").to_dict()
+    cfg.update(n_envs=4)
+    cfg["hyperparameters"].update(batch_size=512)  # one rollout of 4 rigs x 128 steps
+    cfg["warm_start"].update(steps=400, rounds=2, epochs=30, batch_size=128)
+    cfg = TrainConfig(**cfg)
+    model = _model(cfg)
+    ignore_observations(model, cfg)
+    info = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed=3, residual=cfg.residual)
+    assert (
+        info["policy"] == "ppo" and "controller" not in info and info["steps"] >= 800 and info["rounds"] == 2
+    )
+    assert info["action_mse_after"] < 0.2 * info["action_mse_before"]
+    assert info["value_mse_after"] < info["value_mse_before"]
+    first = model.policy.mlp_extractor.policy_net[0].weight.detach().numpy()
+    assert np.all(first[:, 8:12] == 0.0)  # the ignored angles stay ignored
+    # held-out rigs (other seeds), driven by teacher + feedforward: the residual policy as the
+    # benchmark runs it against the zero-correction base
+    labels = _labeller(cfg)
+    policy = ResidualPolicy(SB3Policy(model, "ppo"), labels.base, cfg.residual.scale)
+    venv = sb3_vec_env(cfg.env_id, 4, seed=999, **cfg.env_kwargs)
+    obs, start = venv.reset(), np.ones(4, dtype=bool)
+    state = pstate = None
+    err_policy, err_base = [], []
+    for _ in range(150):
+        _, state = labels.predict(obs, state=state, episode_start=start)
+        action, pstate = policy.predict(obs, state=pstate, episode_start=start)
+        target = np.clip(labels.target, -1, 1)
+        err_policy.append(action - target)
+        err_base.append(labels.base_action - target)
+        obs, _, done, _ = venv.step(target)
+        start = np.asarray(done, dtype=bool).copy()
+    venv.close()
+    mse_policy, mse_base = float(np.mean(np.square(err_policy))), float(np.mean(np.square(err_base)))
+    assert mse_policy < 0.5 * mse_base, (mse_policy, mse_base)
+
+
+def _labeller(cfg):
+    from drill_env.agents.residual import base_controller
+    from drill_env.agents.warm_start import ResidualLabels, teacher_policy
+
+    return ResidualLabels(
+        teacher_policy("ppo", cfg.env_id, cfg.env_kwargs),
+        base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs),
+        cfg.residual.scale,
+    )
+
+
+def test_training_with_a_distillation_records_it(tmp_path, one_torch_thread):
+    cfg = load_config(CONFIGS / "ppo_robust_distilled.yaml").to_dict()
+    cfg.update(n_envs=2, total_timesteps=128)
+    cfg["hyperparameters"].update(n_steps=64, batch_size=64, n_epochs=1)
+    cfg["evaluation"] = {"every_steps": 128, "episodes_per_regime": 1, "seed": 7}
+    cfg["env_kwargs"] = {**cfg["env_kwargs"], "warmup_time": 2.0, "warmup_jitter": 0.5}
+    cfg["warm_start"].update(steps=200, rounds=2, epochs=2)
+    summary = train(TrainConfig(**cfg), 1, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    ws = summary["warm_start"]
+    assert ws["policy"] == "ppo" and ws["steps"] >= 400 and ws["wall_time_s"] <= summary["wall_time_s"]
+    assert summary["config"]["warm_start"]["policy"] == "ppo"
+    saved = load_config(tmp_path / "out" / "config.yaml")
+    assert saved.warm_start == WarmStartConfig(
+        policy="ppo", steps=200, rounds=2, epochs=2, learning_rate=3e-3
+    )
+    assert saved.residual.base == "lqi_angle_ff"
+
+
+def test_train_command_refuses_a_bad_or_missing_teacher_before_training(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from drill_env.agents.registry import AGENTS_DIR_ENV
+    from drill_env.cli import app
+
+    config = (CONFIGS / "ppo_robust_distilled_no_brake.yaml").read_text()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(config.replace("  policy: ppo ", "  policy: ppo_robust "))
+    runner = CliRunner()
+    args = ["train", "--algo", "ppo", "--seed", "0", "--out", str(tmp_path / "out")]
+    res = runner.invoke(app, [*args, "--config", str(bad)])
+    assert res.exit_code == 2 and "warm_start.policy: 'ppo_robust' is not one of" in res.output
+    assert "Traceback" not in res.output
+    monkeypatch.setenv(AGENTS_DIR_ENV, str(tmp_path / "agents"))
+    res = runner.invoke(app, [*args, "--config", str(CONFIGS / "ppo_robust_distilled_no_brake.yaml")])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert (
+        f"no trained ppo policy for preset 'no_brake' at {tmp_path}/agents/ppo_no_brake/policy.zip"
+        in res.output
+    )
+    assert not (tmp_path / "out").exists()  # nothing trained

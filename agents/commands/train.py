@@ -118,6 +118,13 @@ def register(app: typer.Typer) -> None:
             except ValueError as exc:
                 _fail(f"--params: {exc}")
             cfg = dataclasses.replace(cfg, env_kwargs={**cfg.env_kwargs, "params": str(params.resolve())})
+        if cfg.warm_start is not None and cfg.warm_start.policy is not None:
+            from drill_env.agents.warm_start import teacher_policy
+
+            try:  # a missing or mismatched teacher is bad input, found before any training
+                teacher_policy(cfg.warm_start.policy, cfg.env_id, cfg.env_kwargs)
+            except ValueError as exc:
+                _fail(str(exc))
         from drill_env.envs import ENV_IDS, ENV_VERSIONS
 
         # laid out like results/agents: the current version's policies at the top, older
