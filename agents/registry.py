@@ -15,8 +15,11 @@ from their committed policies.
   there;
 * ``ppo_robust``: PPO trained with domain randomisation over the standard plant family, kept
   beside the nominal ones as ``results/agents/ppo_robust[_<preset>]/policy.zip``; the
-  committed ones are residual policies on ``lqi_angle_ff`` (``configs/agents/ppo_residual*.yaml``,
-  :mod:`drill_env.agents.residual`; a policy's ``config.yaml`` says which it is).
+  committed ones are residual policies on ``lqi_angle_ff`` (:mod:`drill_env.agents.residual`;
+  a policy's ``config.yaml`` says which it is): with the brake trained from the base
+  (``configs/agents/ppo_residual.yaml``), without it started as the nominal ``ppo`` plus the
+  base's angle-locked feedforward (``configs/agents/ppo_robust_distilled_no_brake.yaml``,
+  :mod:`drill_env.agents.warm_start`).
 """
 
 from __future__ import annotations
@@ -56,6 +59,9 @@ LEARNED = ("ppo", "sac", "ppo_robust")
 _ALGO = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo"}
 # the training config (configs/agents/<name>[_<preset>].yaml) of each
 _CONFIG = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo_residual"}
+# where a rig's policy comes from another recipe than configs/agents/<_CONFIG>_<preset>.yaml
+# (each rig keeps the better recipe on its plant family: README, *Robust and residual policies*)
+_CONFIG_OF_PRESET = {("ppo_robust", "no_brake"): "ppo_robust_distilled_no_brake"}
 CONTROLLERS = CLASSICAL + LEARNED
 
 
@@ -140,7 +146,9 @@ def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) ->
         raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
     root, source = agents_dir_source(agents_dir)
     name = algo if preset == "brake" else f"{algo}_{preset}"
-    base_config = _CONFIG[algo] if preset == "brake" else f"{_CONFIG[algo]}_{preset}"
+    base_config = _CONFIG_OF_PRESET.get(
+        (algo, preset), _CONFIG[algo] if preset == "brake" else f"{_CONFIG[algo]}_{preset}"
+    )
     path = root / name / "policy.zip"
     if not path.is_file():
         # The config's name works from any folder (train resolves it against the packaged

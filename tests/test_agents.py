@@ -404,7 +404,7 @@ class _NoTopLevelAgents:
         return None
 
 
-@pytest.mark.parametrize("name", ["ppo_robust", "ppo_robust_no_brake"])
+@pytest.mark.parametrize("name", ["ppo_robust"])
 def test_a_policy_saved_under_the_former_package_name_loads_under_the_present_one(name, monkeypatch):
     import sys
 

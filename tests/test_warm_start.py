@@ -439,3 +439,39 @@ def test_train_command_refuses_a_bad_or_missing_teacher_before_training(tmp_path
         in res.output
     )
     assert not (tmp_path / "out").exists()  # nothing trained
+
+
+def test_the_committed_no_brake_ppo_robust_applies_the_nominal_ppo_plus_the_feedforward(one_torch_thread):
+    """The shipped ppo_robust without the brake is what its config says: on randomised rigs it
+    did not see, driven by itself, its voltage is the nominal ppo's plus lqi_angle_ff's
+    feedforward, far closer than the base alone is (the distillation kept, PPO's fine-tuning
+    small)."""
+    import gymnasium as gym
+
+    from drill_env.agents.registry import build_controller
+    from drill_env.envs.sb3 import sb3_vec_env
+
+    folder = ROOT / "results" / "agents" / "ppo_robust_no_brake"
+    cfg = load_config(folder / "config.yaml")
+    assert cfg.warm_start is not None and cfg.warm_start.policy == "ppo"
+    labels = _labeller(cfg)
+    env = gym.make(cfg.env_id)
+    policy = build_controller("ppo_robust", env, "no_brake")
+    env.close()
+    n = 4
+    venv = sb3_vec_env(cfg.env_id, n, seed=2718, **cfg.env_kwargs)
+    obs, start = venv.reset(), np.ones(n, dtype=bool)
+    state = pstate = None
+    err_policy, err_base = [], []
+    for _ in range(400):
+        _, state = labels.predict(obs, state=state, episode_start=start)
+        action, pstate = policy.predict(obs, state=pstate, episode_start=start)
+        target = np.clip(labels.target, -1, 1)
+        err_policy.append(action - target)
+        err_base.append(labels.base_action - target)
+        obs, _, done, _ = venv.step(action)
+        start = np.asarray(done, dtype=bool).copy()
+    venv.close()
+    rms_policy = 5.0 * float(np.sqrt(np.mean(np.square(err_policy))))  # [V]
+    rms_base = 5.0 * float(np.sqrt(np.mean(np.square(err_base))))
+    assert rms_policy < 0.2 * rms_base and rms_policy < 0.05, (rms_policy, rms_base)
