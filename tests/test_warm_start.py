@@ -350,7 +350,6 @@ def test_the_distillation_label_makes_the_residual_voltage_the_teachers_plus_the
 def test_a_tiny_distillation_moves_the_residual_policy_to_the_teacher(one_torch_thread):
     from drill_env.agents.residual import ResidualPolicy
     from drill_env.agents.rl import SB3Policy, ignore_observations
-    from drill_env.envs.sb3 import sb3_vec_env
 
     cfg = load_config(CONFIGS / "ppo_robust_distilled.yaml").to_dict()
     cfg.update(n_envs=4)
@@ -371,21 +370,31 @@ def test_a_tiny_distillation_moves_the_residual_policy_to_the_teacher(one_torch_
     # benchmark runs it against the zero-correction base
     labels = _labeller(cfg)
     policy = ResidualPolicy(SB3Policy(model, "ppo"), labels.base, cfg.residual.scale)
-    venv = sb3_vec_env(cfg.env_id, 4, seed=999, **cfg.env_kwargs)
-    obs, start = venv.reset(), np.ones(4, dtype=bool)
+    rms_policy, rms_base = _distance_to_the_target(policy, labels, cfg, 999, 4, 150, drive="target")
+    assert rms_policy < np.sqrt(0.5) * rms_base, (rms_policy, rms_base)
+
+
+def _distance_to_the_target(policy, labels, cfg, seed, n, steps, drive):
+    """RMS distance [action units] of ``policy``'s action and of the base's alone from the
+    distillation's target (teacher + feedforward) on ``n`` rigs of ``cfg``'s training env
+    (seeded ``seed``, randomised as in training) over ``steps`` steps, the rigs driven by the
+    target (``drive="target"``) or by the policy itself."""
+    from drill_env.envs.sb3 import sb3_vec_env
+
+    venv = sb3_vec_env(cfg.env_id, n, seed=seed, **cfg.env_kwargs)
+    obs, start = venv.reset(), np.ones(n, dtype=bool)
     state = pstate = None
     err_policy, err_base = [], []
-    for _ in range(150):
+    for _ in range(steps):
         _, state = labels.predict(obs, state=state, episode_start=start)
         action, pstate = policy.predict(obs, state=pstate, episode_start=start)
         target = np.clip(labels.target, -1, 1)
         err_policy.append(action - target)
         err_base.append(labels.base_action - target)
-        obs, _, done, _ = venv.step(target)
+        obs, _, done, _ = venv.step(target if drive == "target" else action)
         start = np.asarray(done, dtype=bool).copy()
     venv.close()
-    mse_policy, mse_base = float(np.mean(np.square(err_policy))), float(np.mean(np.square(err_base)))
-    assert mse_policy < 0.5 * mse_base, (mse_policy, mse_base)
+    return float(np.sqrt(np.mean(np.square(err_policy)))), float(np.sqrt(np.mean(np.square(err_base))))
 
 
 def _labeller(cfg):
@@ -449,7 +458,6 @@ def test_the_committed_no_brake_ppo_robust_applies_the_nominal_ppo_plus_the_feed
     import gymnasium as gym
 
     from drill_env.agents.registry import build_controller
-    from drill_env.envs.sb3 import sb3_vec_env
 
     folder = ROOT / "results" / "agents" / "ppo_robust_no_brake"
     cfg = load_config(folder / "config.yaml")
@@ -458,20 +466,6 @@ def test_the_committed_no_brake_ppo_robust_applies_the_nominal_ppo_plus_the_feed
     env = gym.make(cfg.env_id)
     policy = build_controller("ppo_robust", env, "no_brake")
     env.close()
-    n = 4
-    venv = sb3_vec_env(cfg.env_id, n, seed=2718, **cfg.env_kwargs)
-    obs, start = venv.reset(), np.ones(n, dtype=bool)
-    state = pstate = None
-    err_policy, err_base = [], []
-    for _ in range(400):
-        _, state = labels.predict(obs, state=state, episode_start=start)
-        action, pstate = policy.predict(obs, state=pstate, episode_start=start)
-        target = np.clip(labels.target, -1, 1)
-        err_policy.append(action - target)
-        err_base.append(labels.base_action - target)
-        obs, _, done, _ = venv.step(action)
-        start = np.asarray(done, dtype=bool).copy()
-    venv.close()
-    rms_policy = 5.0 * float(np.sqrt(np.mean(np.square(err_policy))))  # [V]
-    rms_base = 5.0 * float(np.sqrt(np.mean(np.square(err_base))))
+    rms_policy, rms_base = _distance_to_the_target(policy, labels, cfg, 2718, 4, 400, drive="policy")
+    rms_policy, rms_base = 5.0 * rms_policy, 5.0 * rms_base  # [V]
     assert rms_policy < 0.2 * rms_base and rms_policy < 0.05, (rms_policy, rms_base)
