@@ -71,5 +71,10 @@ def classical_controller(
     if kind == "lqi_angle_ff":
         from drill_env.agents.angle_feedforward import LQIAngleFeedforward
 
-        return LQIAngleFeedforward(spec, **gains)
+        # options of the feedforward itself (e.g. variable_step), beside the LQI's gains
+        options = presets[preset].get(kind, {}).get("options") or {}
+        allowed = LQIAngleFeedforward.OPTIONS
+        if not isinstance(options, dict) or not set(options) <= set(allowed):
+            raise ValueError(f"gains: presets.{preset}.{kind}.options: expected a mapping of {list(allowed)}")
+        return LQIAngleFeedforward(spec, **gains, **options)
     return make_controller(kind, spec, gains)
