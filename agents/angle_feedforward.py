@@ -110,7 +110,8 @@ first learns part of the switch-on transient, then unlearns it), its long averag
 near zero and the gate shut the adaptation where it was needed. On a pure lower position
 friction (a1 = 0.15, 60 s runs, seed 3) and with 3 mrad angle noise on the nominal rig
 (seeds 5, 2), T_d = 0.25-2 and c = 1-4 were tried; 0.5 and 2 halve the feedforward's RMS on
-the noise for at most +20 % of residual amplitude on the friction.
+the noise for at most +21 % of residual amplitude on the friction. Not better in every cell
+of the plant family's quick grid (README), it is an option, off by default.
 
 Stability: the averaged argument above holds for any gain in (0, g_h] (convergence needs
 ``Re(G_true / G_h) > 0``, not a gain size), and the exact linear loop with the gains frozen
