@@ -151,6 +151,23 @@ def test_step_scale_follows_the_harmonic_against_its_noise():
         LQIAngleFeedforward(ControllerSpec.default(), variable_step=True, significance=0.0)
 
 
+def test_gains_file_sets_the_options(tmp_path):
+    from drill_env.agents.gains import classical_controller, gains_path
+
+    data = yaml.safe_load(gains_path().read_text())
+    data["presets"]["brake"]["lqi_angle_ff"] = {"options": {"variable_step": True, "significance": 3.0}}
+    good = tmp_path / "on.yaml"
+    good.write_text(yaml.safe_dump(data))
+    ctrl = classical_controller("lqi_angle_ff", ControllerSpec.default(), "brake", good)
+    assert ctrl.variable_step and ctrl.significance == 3.0
+    assert not classical_controller("lqi_angle_ff", ControllerSpec.default(), "brake").variable_step
+    data["presets"]["brake"]["lqi_angle_ff"] = {"options": {"step": True}}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(ValueError, match="lqi_angle_ff.options"):
+        classical_controller("lqi_angle_ff", ControllerSpec.default(), "brake", bad)
+
+
 def test_phase_error_of_a_detuned_rig_is_far_from_ninety_degrees():
     lqi = lqi_of("brake")
     true = nominal_params(load_params(DETUNED))
