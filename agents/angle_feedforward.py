@@ -363,6 +363,21 @@ class LQIAngleFeedforward(LQI):
         "significance",
     )
 
+    @classmethod
+    def check_options(cls, options: Any, where: str = "options") -> dict[str, Any]:
+        """``options`` (a gains file's ``lqi_angle_ff.options``) checked without building the
+        controller: a mapping of :data:`OPTIONS` to allowed values; a ValueError naming
+        ``where.<option>`` and the allowed range otherwise."""
+        if not isinstance(options, dict) or not set(options) <= set(cls.OPTIONS):
+            raise ValueError(f"{where}: expected a mapping of {list(cls.OPTIONS)}, got {options!r}")
+        for name, value in options.items():
+            if name == "variable_step":
+                if not isinstance(value, (bool, np.bool_)):
+                    raise ValueError(f"{where}.variable_step: expected true or false, got {value!r}")
+            else:
+                _gain(f"{where}.{name}", value, positive=name != "hold_decays")
+        return dict(options)
+
     def __init__(
         self,
         spec: ControllerSpec,

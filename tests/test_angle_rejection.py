@@ -4,6 +4,7 @@ designing on a given rig model (``drill-env tune/train --params``)."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -166,6 +167,35 @@ def test_gains_file_sets_the_options(tmp_path):
     bad.write_text(yaml.safe_dump(data))
     with pytest.raises(ValueError, match="lqi_angle_ff.options"):
         classical_controller("lqi_angle_ff", ControllerSpec.default(), "brake", bad)
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"step": True}, r"lqi_angle_ff\.options: expected a mapping of"),
+        ({"variable_step": "yes"}, r"lqi_angle_ff\.options\.variable_step: expected true or false"),
+        (
+            {"significance": 0.0},
+            r"lqi_angle_ff\.options\.significance: 0\.0 is outside the allowed range \(0, inf\)",
+        ),
+        ({"averaging_times": float("nan")}, r"options\.averaging_times: nan is outside the allowed range"),
+    ],
+)
+def test_benchmark_refuses_bad_feedforward_options_before_any_run(tmp_path, options, message):
+    """A bad option in a --gains file is a one-line error naming it (exit 2), before the runs."""
+    from drill_env.agents.gains import gains_path
+
+    data = yaml.safe_load(gains_path().read_text())
+    data["presets"]["brake"]["lqi_angle_ff"] = {"options": options}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        app, ["benchmark", "--quick", "--controllers", "lqi_angle_ff", "--gains", str(bad), "--out", str(out)]
+    )
+    assert res.exit_code == 2, res.output
+    assert re.search(message, res.output) and "Traceback" not in res.output
+    assert not (out / "benchmark.csv").exists()
 
 
 def test_phase_error_of_a_detuned_rig_is_far_from_ninety_degrees():
