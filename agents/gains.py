@@ -39,6 +39,15 @@ def _load_gains_cached(path: str) -> dict[str, Any]:
     data = load_yaml(p, what="gains file (written by drill-env tune)", error=ValueError) or {}
     if not isinstance(data, dict) or "presets" not in data:
         raise ValueError(f"gains: {path} has no 'presets' mapping")
+    presets = data["presets"] if isinstance(data["presets"], dict) else {}
+    for preset, entries in presets.items():  # the feedforward's options, before any run needs them
+        options = (entries or {}).get("lqi_angle_ff", {}) if isinstance(entries, dict) else {}
+        if isinstance(options, dict) and options.get("options") is not None:
+            from drill_env.agents.angle_feedforward import LQIAngleFeedforward
+
+            LQIAngleFeedforward.check_options(
+                options["options"], f"gains: {path}: presets.{preset}.lqi_angle_ff.options"
+            )
     return data
 
 
@@ -71,5 +80,8 @@ def classical_controller(
     if kind == "lqi_angle_ff":
         from drill_env.agents.angle_feedforward import LQIAngleFeedforward
 
-        return LQIAngleFeedforward(spec, **gains)
+        # options of the feedforward itself (e.g. variable_step), beside the LQI's gains
+        options = presets[preset].get(kind, {}).get("options") or {}
+        options = LQIAngleFeedforward.check_options(options, f"gains: presets.{preset}.{kind}.options")
+        return LQIAngleFeedforward(spec, **gains, **options)
     return make_controller(kind, spec, gains)

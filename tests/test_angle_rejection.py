@@ -4,6 +4,7 @@ designing on a given rig model (``drill-env tune/train --params``)."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from drill_env.agents.angle_feedforward import (
     design,
     feedforward_closed_loop,
     phase_error,
+    step_scale,
     voltage_to_lower_speed,
 )
 from drill_env.agents.base import ControllerSpec
@@ -113,6 +115,89 @@ def test_feedforward_keeps_the_nominal_loop_stable_over_the_envelope(preset):
         assert d.adaptation_time[0] <= 20.0
 
 
+@pytest.mark.parametrize("preset", ["brake", "no_brake"])
+def test_variable_step_keeps_the_nominal_loop_stable(preset):
+    # The variable step scales each g_h by s_h in [0, 1]; frozen at any s the exact linear
+    # loop stays stable, and for a slow adaptation decays as averaging predicts: at s / T
+    # of the slowest adapted harmonic (T its adaptation time).
+    lqi = lqi_of(preset)
+    p = lqi.spec.params
+    checked = 0
+    for eq in design_points(p):
+        d = design(p, eq.x3, lqi)
+        times = d.adaptation_time[np.isfinite(d.adaptation_time)]
+        if times.size == 0:
+            continue
+        rig = sampled_rig(p, eq, lqi.spec.control_dt, lqi.spec.sensors)
+        for s in (1e-3, 0.01, 0.1, 0.25, 0.5, 0.75, 1.0):
+            M = feedforward_closed_loop(rig, lqi, s * d.gains)
+            rho = np.max(np.abs(np.linalg.eigvals(M)))
+            assert rho < 1.0, (eq.u, s, rho)
+            rate = -math.log(rho) / lqi.spec.control_dt
+            assert rate >= 0.5 * min(d.lqi_decay_rate, s / times.max()), (eq.u, s, rate)
+            if s <= 0.1:
+                assert rate == pytest.approx(s / times.max(), rel=0.05), (eq.u, s)
+            checked += 1
+    assert checked >= 7 * 7
+
+
+def test_step_scale_follows_the_harmonic_against_its_noise():
+    P = np.array([0.0, 1e-3, 1e-2, 1.0]) * np.exp(0.3j)
+    s = step_scale(P, np.full(4, 1e-5), significance=4.0)
+    np.testing.assert_allclose(s, [0.0, 1e-6 / 4.1e-5, 1e-4 / 1.4e-4, 1.0 / (1.0 + 4e-5)], rtol=1e-12)
+    assert step_scale(np.zeros(1, complex), np.zeros(1))[0] == 0.0  # nothing seen yet: no step
+    with pytest.raises(ValueError, match="variable_step"):
+        LQIAngleFeedforward(ControllerSpec.default(), variable_step="yes")
+    with pytest.raises(ValueError, match="significance"):
+        LQIAngleFeedforward(ControllerSpec.default(), variable_step=True, significance=0.0)
+
+
+def test_gains_file_sets_the_options(tmp_path):
+    from drill_env.agents.gains import classical_controller, gains_path
+
+    data = yaml.safe_load(gains_path().read_text())
+    data["presets"]["brake"]["lqi_angle_ff"] = {"options": {"variable_step": True, "significance": 3.0}}
+    good = tmp_path / "on.yaml"
+    good.write_text(yaml.safe_dump(data))
+    ctrl = classical_controller("lqi_angle_ff", ControllerSpec.default(), "brake", good)
+    assert ctrl.variable_step and ctrl.significance == 3.0
+    assert not classical_controller("lqi_angle_ff", ControllerSpec.default(), "brake").variable_step
+    data["presets"]["brake"]["lqi_angle_ff"] = {"options": {"step": True}}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(ValueError, match="lqi_angle_ff.options"):
+        classical_controller("lqi_angle_ff", ControllerSpec.default(), "brake", bad)
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"step": True}, r"lqi_angle_ff\.options: expected a mapping of"),
+        ({"variable_step": "yes"}, r"lqi_angle_ff\.options\.variable_step: expected true or false"),
+        (
+            {"significance": 0.0},
+            r"lqi_angle_ff\.options\.significance: 0\.0 is outside the allowed range \(0, inf\)",
+        ),
+        ({"averaging_times": float("nan")}, r"options\.averaging_times: nan is outside the allowed range"),
+    ],
+)
+def test_benchmark_refuses_bad_feedforward_options_before_any_run(tmp_path, options, message):
+    """A bad option in a --gains file is a one-line error naming it (exit 2), before the runs."""
+    from drill_env.agents.gains import gains_path
+
+    data = yaml.safe_load(gains_path().read_text())
+    data["presets"]["brake"]["lqi_angle_ff"] = {"options": options}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        app, ["benchmark", "--quick", "--controllers", "lqi_angle_ff", "--gains", str(bad), "--out", str(out)]
+    )
+    assert res.exit_code == 2, res.output
+    assert re.search(message, res.output) and "Traceback" not in res.output
+    assert not (out / "benchmark.csv").exists()
+
+
 def test_phase_error_of_a_detuned_rig_is_far_from_ninety_degrees():
     lqi = lqi_of("brake")
     true = nominal_params(load_params(DETUNED))
@@ -130,16 +215,24 @@ def test_phase_error_of_a_detuned_rig_is_far_from_ninety_degrees():
 # -- on the simulated rig --------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("variable_step", [False, True])
 @pytest.mark.parametrize("voltage", [0.8, 1.0])
-def test_rejects_a_pure_position_friction(voltage):
+def test_rejects_a_pure_position_friction(voltage, variable_step):
     # a1 = 0.15 at the lower disk, nothing else changed; phase and seed not used in the design
     plant = load_params("brake").replace(lower_position_amp_1=0.15, lower_position_phase_1=-1.9)
     env = make_env("brake", SHORT, 1, params=plant)
     design_env = make_env("brake", SHORT, 1)
-    amps = {}
-    for name in ("lqi", "lqi_angle_ff"):
-        ctrl = build_controller(name, design_env, "brake")
-        amps[name] = evaluate(ctrl, "brake", voltage, 7, SHORT, env=env, open_loop_amplitude=0.0)
+    gains = load_gains()["presets"]["brake"]["lqi"]["gains"]
+    ctrls = {
+        "lqi": build_controller("lqi", design_env, "brake"),
+        "lqi_angle_ff": LQIAngleFeedforward(
+            ControllerSpec.from_env(design_env), variable_step=variable_step, **gains
+        ),
+    }
+    amps = {
+        name: evaluate(ctrl, "brake", voltage, 7, SHORT, env=env, open_loop_amplitude=0.0)
+        for name, ctrl in ctrls.items()
+    }
     assert amps["lqi"].amplitude > 0.5  # the LQI alone leaves a large forced oscillation
     assert amps["lqi_angle_ff"].amplitude < 0.1 * amps["lqi"].amplitude
     assert amps["lqi_angle_ff"].rms_error < 0.2 * amps["lqi"].rms_error
@@ -172,6 +265,37 @@ def test_no_loss_on_the_nominal_rig(voltage, seed):
     assert res["lqi_angle_ff"].suppression >= 0.99
     assert res["lqi_angle_ff"].rms_error <= res["lqi"].rms_error + 0.01
     assert res["lqi_angle_ff"].stick_fraction == 0.0
+
+
+class _FeedforwardAmplitude:
+    """Runs a :class:`LQIAngleFeedforward` and records the RMS over a revolution of its u_ff,
+    sqrt(sum_h |C_h|^2 / 2) [V], every control period."""
+
+    def __init__(self, ctrl: LQIAngleFeedforward):
+        self.ctrl, self.rms = ctrl, []
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        action, state = self.ctrl.predict(obs, state=state, episode_start=episode_start)
+        self.rms.append(math.sqrt(np.sum(state[0, 7:11] ** 2) / 2))
+        return action, state
+
+
+def test_variable_step_stops_learning_the_angle_noise():
+    # nominal braked rig, nothing locked to the angle, 3 mrad encoder angle noise; voltage and
+    # seed not used in the design
+    settings = EpisodeSettings()
+    env = make_env("brake", settings, overrides={"sensors": {"angle_noise_std": 3e-3}})
+    spec = ControllerSpec.from_env(make_env("brake", settings))
+    gains = load_gains()["presets"]["brake"]["lqi"]["gains"]
+    rms, res = {}, {}
+    window = int(settings.window / spec.control_dt)
+    for on in (False, True):
+        rec = _FeedforwardAmplitude(LQIAngleFeedforward(spec, variable_step=on, **gains))
+        res[on] = evaluate(rec, "brake", 0.85, 11, settings, env=env)
+        rms[on] = float(np.sqrt(np.mean(np.square(rec.rms[-window:]))))
+    assert rms[False] > 2e-3  # off, the coefficients wander on the noise
+    assert rms[True] < 0.6 * rms[False], rms
+    assert res[True].suppression >= res[False].suppression - 0.002
 
 
 def test_registered_on_the_lqi_gains():
