@@ -93,16 +93,21 @@ def test_linear_form_reproduces_the_controller_on_the_sampled_rig(preset, voltag
     assert np.max(np.abs(z[:n])) > 1e-5  # the comparison was not between zeros
 
 
-@pytest.mark.parametrize("preset", ["brake", "no_brake"])
-def test_feedforward_keeps_the_nominal_loop_stable_over_the_envelope(preset):
+def _design_loops(preset):
+    """(LQI, operating point, feedforward design, sampled nominal rig) at every design point
+    of the envelope of ``preset``."""
     lqi = lqi_of(preset)
     p = lqi.spec.params
-    adapted = 0
     for eq in design_points(p):
-        d = design(p, eq.x3, lqi)
+        yield lqi, eq, design(p, eq.x3, lqi), sampled_rig(p, eq, lqi.spec.control_dt, lqi.spec.sensors)
+
+
+@pytest.mark.parametrize("preset", ["brake", "no_brake"])
+def test_feedforward_keeps_the_nominal_loop_stable_over_the_envelope(preset):
+    adapted = 0
+    for lqi, eq, d, rig in _design_loops(preset):
         assert d.decay_rate > 0, (eq.u, d)
         # decay rate of the exact linear loop, eigenvalues of its matrix computed directly
-        rig = sampled_rig(p, eq, lqi.spec.control_dt, lqi.spec.sensors)
         rho = np.max(np.abs(np.linalg.eigvals(feedforward_closed_loop(rig, lqi, d.gains))))
         assert rho < 1.0
         assert d.decay_rate == pytest.approx(-math.log(rho) / lqi.spec.control_dt, rel=1e-9)
@@ -110,6 +115,7 @@ def test_feedforward_keeps_the_nominal_loop_stable_over_the_envelope(preset):
             adapted += int(np.isfinite(d.adaptation_time[0]))
             assert d.noise_ratio <= 1.3 + 1e-12
     assert adapted == 5
+    p = lqi.spec.params
     for u in (0.7, 1.0, 1.5):  # where the rig turns near the torsional resonance
         d = design(p, design_point(p, voltage=u).x3, lqi)
         assert d.adaptation_time[0] <= 20.0
@@ -120,15 +126,11 @@ def test_variable_step_keeps_the_nominal_loop_stable(preset):
     # The variable step scales each g_h by s_h in [0, 1]; frozen at any s the exact linear
     # loop stays stable, and for a slow adaptation decays as averaging predicts: at s / T
     # of the slowest adapted harmonic (T its adaptation time).
-    lqi = lqi_of(preset)
-    p = lqi.spec.params
     checked = 0
-    for eq in design_points(p):
-        d = design(p, eq.x3, lqi)
+    for lqi, eq, d, rig in _design_loops(preset):
         times = d.adaptation_time[np.isfinite(d.adaptation_time)]
         if times.size == 0:
             continue
-        rig = sampled_rig(p, eq, lqi.spec.control_dt, lqi.spec.sensors)
         for s in (1e-3, 0.01, 0.1, 0.25, 0.5, 0.75, 1.0):
             M = feedforward_closed_loop(rig, lqi, s * d.gains)
             rho = np.max(np.abs(np.linalg.eigvals(M)))
