@@ -25,6 +25,7 @@ from their committed policies.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -49,6 +50,7 @@ __all__ = [
     "load_gains",
     "observation_version",
     "policy_path",
+    "teacher_policy",
 ]
 
 # The one list of the benchmark's controllers, in the order of its tables and legends: the
@@ -206,3 +208,22 @@ def observation_version(name: str, preset: str, agents_dir: str | Path | None = 
     from drill_env.agents.rl import policy_observation_version
 
     return policy_observation_version(policy_path(name, preset, agents_dir))
+
+
+def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any:
+    """The trained policy ``name`` of a distillation (``warm_start.policy``, one of
+    :data:`drill_env.agents.warm_start.WARM_START_POLICIES`) as the benchmark loads it for the
+    preset of ``env_id`` from the default agents folder (:func:`build_controller`: a missing
+    file is an error naming it), checked against the spaces of the training environment."""
+    import gymnasium as gym
+
+    from drill_env.agents.warm_start import WARM_START_POLICIES
+    from drill_env.envs import ENV_IDS
+
+    if name not in WARM_START_POLICIES:
+        raise ValueError(f"warm_start.policy: {name!r} is not one of {list(WARM_START_POLICIES)}")
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        return build_controller(name, env, ENV_IDS[env_id])
+    finally:
+        env.close()

@@ -726,10 +726,13 @@ def train(
     *,
     progress_bar: bool = True,
     on_eval: Callable[[int, float], None] | None = None,
+    teacher: Any = None,
 ) -> dict[str, Any]:
     """Train ``cfg.algo`` on ``cfg.env_id`` with ``seed``; write the run (CSV, TensorBoard,
     checkpoints) to ``run_dir`` and the policy, config, summary and learning curve to
-    ``out_dir``. Returns the summary."""
+    ``out_dir``. Returns the summary. A config that distils a trained policy
+    (``warm_start.policy``) takes it loaded as ``teacher``
+    (:func:`drill_env.agents.registry.teacher_policy`)."""
     import gymnasium as gym
     import stable_baselines3
     import torch
@@ -824,7 +827,9 @@ def train(
     if cfg.warm_start is not None:  # part of the training's wall time
         from drill_env.agents.warm_start import warm_start
 
-        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed, residual=cfg.residual)
+        warm = warm_start(
+            model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed, residual=cfg.residual, teacher=teacher
+        )
     model.learn(
         total_timesteps=cfg.total_timesteps, callback=[*callbacks, _Eval()], progress_bar=progress_bar
     )

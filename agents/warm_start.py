@@ -67,7 +67,6 @@ __all__ = [
     "WARM_START_POLICIES",
     "WarmStartConfig",
     "collect_demonstrations",
-    "teacher_policy",
     "warm_start",
 ]
 
@@ -276,25 +275,6 @@ def nominal_controller(kind: str, env_id: str, env_kwargs: Mapping[str, Any]) ->
     return classical_controller(kind, spec, ENV_IDS[env_id])
 
 
-def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any:
-    """The trained policy ``name`` (:data:`WARM_START_POLICIES`) as the benchmark loads it for
-    the preset of ``env_id`` from the default agents folder
-    (:func:`drill_env.agents.registry.build_controller`: a missing file is an error naming it),
-    checked against the spaces of the training environment."""
-    import gymnasium as gym
-
-    from drill_env.agents.registry import build_controller
-    from drill_env.envs import ENV_IDS
-
-    if name not in WARM_START_POLICIES:
-        raise ValueError(f"warm_start.policy: {name!r} is not one of {list(WARM_START_POLICIES)}")
-    env = gym.make(env_id, **env_kwargs)
-    try:
-        return build_controller(name, env, ENV_IDS[env_id])
-    finally:
-        env.close()
-
-
 class ResidualLabels:
     """The labeller of a distillation (module docstring) behind ``predict``, for
     :func:`collect_demonstrations`: ``predict(obs, state, episode_start)`` returns the
@@ -329,12 +309,14 @@ def warm_start(
     env_kwargs: Mapping[str, Any],
     seed: int,
     residual: Any = None,
+    teacher: Any = None,
 ) -> dict:
     """Clone ``cfg.controller`` into ``model``'s policy, or distil ``cfg.policy`` into the
     correction of a residual policy on ``residual`` (a
     :class:`~drill_env.agents.residual.ResidualConfig`; see the module docstring), on
-    ``model.n_envs`` rigs seeded apart from the training rigs. Returns what it did: the
-    teacher, steps, wall time, losses."""
+    ``model.n_envs`` rigs seeded apart from the training rigs; ``teacher`` is the loaded
+    ``cfg.policy`` (:func:`drill_env.agents.registry.teacher_policy`: the registry sits above
+    this module). Returns what it did: the teacher, steps, wall time, losses."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     from drill_env.agents.residual import _combine, base_controller
@@ -353,8 +335,13 @@ def warm_start(
                 "warm_start.policy: allowed only with residual (a trained policy is distilled into "
                 "the correction of a residual policy)"
             )
+        if teacher is None:
+            raise ValueError(
+                f"warm_start.policy: {cfg.policy!r} must be loaded by the caller and passed as the "
+                "teacher (drill_env.agents.registry.teacher_policy)"
+            )
         labels = ResidualLabels(
-            teacher_policy(cfg.policy, env_id, env_kwargs),
+            teacher,
             base_controller(residual, env_id, env_kwargs),
             residual.scale,
         )
@@ -367,7 +354,7 @@ def warm_start(
             return _combine(labels.base_action, clone(obs), labels.scale)
 
         first_driver, later_driver = teacher_drives, residual_drives
-        teacher = {"policy": cfg.policy}
+        source = {"policy": cfg.policy}
     else:
         if residual is not None:
             raise ValueError(
@@ -375,7 +362,7 @@ def warm_start(
                 "drop one (warm_start.policy distils a trained policy into it)"
             )
         controller = nominal_controller(cfg.controller, env_id, env_kwargs)
-        teacher = {"controller": cfg.controller}
+        source = {"controller": cfg.controller}
     gamma = float(getattr(model, "gamma", 0.99))
     train_env = model.get_env()
     return_scale = 1.0
@@ -401,7 +388,7 @@ def warm_start(
     finally:
         venv.close()
     return {
-        **teacher,
+        **source,
         "steps": int(data["obs"].shape[0]),
         "rounds": cfg.rounds,
         "wall_time_s": time.perf_counter() - t0,

@@ -7,6 +7,7 @@ import pytest
 from gymnasium import spaces
 from test_train import CONFIGS, ROOT, small_config
 
+from drill_env.agents.registry import teacher_policy
 from drill_env.agents.rl import TrainConfig, load_config, load_policy, train
 from drill_env.agents.warm_start import (
     WarmStartConfig,
@@ -241,7 +242,6 @@ def test_distillation_config_names_the_field():
 
 def test_a_missing_teacher_policy_names_its_file(tmp_path, monkeypatch):
     from drill_env.agents.registry import AGENTS_DIR_ENV
-    from drill_env.agents.warm_start import teacher_policy
 
     monkeypatch.setenv(AGENTS_DIR_ENV, str(tmp_path))
     with pytest.raises(
@@ -299,7 +299,7 @@ def test_the_distillation_label_makes_the_residual_voltage_the_teachers_plus_the
 
     from drill_env.agents.registry import build_controller
     from drill_env.agents.residual import _combine, base_controller
-    from drill_env.agents.warm_start import ResidualLabels, teacher_policy
+    from drill_env.agents.warm_start import ResidualLabels
     from drill_env.envs import ENV_IDS
     from drill_env.envs.sb3 import sb3_vec_env
 
@@ -358,7 +358,12 @@ def test_a_tiny_distillation_moves_the_residual_policy_to_the_teacher(one_torch_
     cfg = TrainConfig(**cfg)
     model = _model(cfg)
     ignore_observations(model, cfg)
-    info = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed=3, residual=cfg.residual)
+    with pytest.raises(ValueError, match="warm_start.policy: 'ppo' must be loaded by the caller"):
+        warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed=3, residual=cfg.residual)
+    teacher = teacher_policy("ppo", cfg.env_id, cfg.env_kwargs)
+    info = warm_start(
+        model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed=3, residual=cfg.residual, teacher=teacher
+    )
     assert (
         info["policy"] == "ppo" and "controller" not in info and info["steps"] >= 800 and info["rounds"] == 2
     )
@@ -399,7 +404,7 @@ def _distance_to_the_target(policy, labels, cfg, seed, n, steps, drive):
 
 def _labeller(cfg):
     from drill_env.agents.residual import base_controller
-    from drill_env.agents.warm_start import ResidualLabels, teacher_policy
+    from drill_env.agents.warm_start import ResidualLabels
 
     return ResidualLabels(
         teacher_policy("ppo", cfg.env_id, cfg.env_kwargs),
@@ -415,7 +420,9 @@ def test_training_with_a_distillation_records_it(tmp_path, one_torch_thread):
     cfg["evaluation"] = {"every_steps": 128, "episodes_per_regime": 1, "seed": 7}
     cfg["env_kwargs"] = {**cfg["env_kwargs"], "warmup_time": 2.0, "warmup_jitter": 0.5}
     cfg["warm_start"].update(steps=200, rounds=2, epochs=2)
-    summary = train(TrainConfig(**cfg), 1, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    cfg = TrainConfig(**cfg)
+    teacher = teacher_policy("ppo", cfg.env_id, cfg.env_kwargs)
+    summary = train(cfg, 1, tmp_path / "out", tmp_path / "run", progress_bar=False, teacher=teacher)
     ws = summary["warm_start"]
     assert ws["policy"] == "ppo" and ws["steps"] >= 400 and ws["wall_time_s"] <= summary["wall_time_s"]
     assert summary["config"]["warm_start"]["policy"] == "ppo"

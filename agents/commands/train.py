@@ -118,11 +118,12 @@ def register(app: typer.Typer) -> None:
             except ValueError as exc:
                 _fail(f"--params: {exc}")
             cfg = dataclasses.replace(cfg, env_kwargs={**cfg.env_kwargs, "params": str(params.resolve())})
+        teacher = None
         if cfg.warm_start is not None and cfg.warm_start.policy is not None:
-            from drill_env.agents.warm_start import teacher_policy
+            from drill_env.agents.registry import teacher_policy
 
             try:  # a missing or mismatched teacher is bad input, found before any training
-                teacher_policy(cfg.warm_start.policy, cfg.env_id, cfg.env_kwargs)
+                teacher = teacher_policy(cfg.warm_start.policy, cfg.env_id, cfg.env_kwargs)
             except ValueError as exc:
                 _fail(str(exc))
         from drill_env.envs import ENV_IDS, ENV_VERSIONS
@@ -155,7 +156,9 @@ def register(app: typer.Typer) -> None:
         except OutputFolderError as exc:
             _fail(str(exc))
         with held:
-            summary = run_training(cfg, seed, out, run_dir, progress_bar=progress, on_eval=on_eval)
+            summary = run_training(
+                cfg, seed, out, run_dir, progress_bar=progress, on_eval=on_eval, teacher=teacher
+            )
         verdict = "converged" if summary["converged"] else "NOT converged"
         typer.echo(
             f"{algo}: {summary['total_timesteps']} steps in {summary['wall_time_s']:.0f} s; "
