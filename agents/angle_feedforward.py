@@ -327,6 +327,12 @@ def step_scale(
     return np.where(den > 0, p2 / np.where(den > 0, den, 1.0), 0.0)
 
 
+def _flag(name: str, value: Any) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected true or false, got {value!r}")
+    return bool(value)
+
+
 class LQIAngleFeedforward(LQI):
     """The tuned LQI plus adaptive feedforward on harmonics of the lower disk's measured
     angle (see the module docstring).
@@ -372,8 +378,7 @@ class LQIAngleFeedforward(LQI):
             raise ValueError(f"{where}: expected a mapping of {list(cls.OPTIONS)}, got {options!r}")
         for name, value in options.items():
             if name == "variable_step":
-                if not isinstance(value, (bool, np.bool_)):
-                    raise ValueError(f"{where}.variable_step: expected true or false, got {value!r}")
+                _flag(f"{where}.variable_step", value)
             else:
                 _gain(f"{where}.{name}", value, positive=name != "hold_decays")
         return dict(options)
@@ -394,9 +399,7 @@ class LQIAngleFeedforward(LQI):
         self.adaptation_time = _gain("adaptation_time", adaptation_time, positive=True)
         self.hold_decays = _gain("hold_decays", hold_decays)
         self.error_clip = _gain("error_clip", error_clip, positive=True)
-        if not isinstance(variable_step, (bool, np.bool_)):
-            raise ValueError(f"variable_step: expected true or false, got {variable_step!r}")
-        self.variable_step = bool(variable_step)
+        self.variable_step = _flag("variable_step", variable_step)
         self.averaging_times = _gain("averaging_times", averaging_times, positive=True)
         self.significance = _gain("significance", significance, positive=True)
         nh = len(self.harmonics)

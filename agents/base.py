@@ -186,26 +186,34 @@ class Controller:
         if obs.shape[-1:] != (n_obs,) or obs.ndim > 2:
             raise ValueError(f"observation: expected shape ({n_obs},) or (n, {n_obs}), got {obs.shape}")
         y = self.spec.to_physical(obs.reshape(-1, n_obs))
-        n = y.shape[0]
-        if state is None:
-            state = self.initial_state(y)
-        else:
-            state = np.array(state, dtype=np.float64, copy=True)
-            if state.shape != (n, self.state_size):
-                raise ValueError(f"state: expected shape ({n}, {self.state_size}), got {state.shape}")
-            if episode_start is not None:
-                start = np.asarray(episode_start, dtype=bool).reshape(-1)
-                if start.size == 1 and n > 1:
-                    start = np.repeat(start, n)
-                if start.shape != (n,):
-                    raise ValueError(
-                        f"episode_start: expected {n} flags, got shape {np.shape(episode_start)}"
-                    )
-                if start.any():
-                    state[start] = self.initial_state(y[start])
-        volts, state = self.control(y, state)
+        volts, state = self.control(y, self.start_state(y, state, episode_start))
         action = self.spec.to_action(volts)
         return (action[0] if single else action), state
+
+    def start_state(
+        self,
+        y: np.ndarray,
+        state: np.ndarray | None,
+        episode_start: np.ndarray | Sequence[bool] | None = None,
+    ) -> np.ndarray:
+        """The state :meth:`control` is called with for physical observations ``y`` (n, ...):
+        a copy of ``state``, its rows where an episode starts set to :meth:`initial_state`
+        (all of them where ``state`` is None)."""
+        n = y.shape[0]
+        if state is None:
+            return self.initial_state(y)
+        state = np.array(state, dtype=np.float64, copy=True)
+        if state.shape != (n, self.state_size):
+            raise ValueError(f"state: expected shape ({n}, {self.state_size}), got {state.shape}")
+        if episode_start is not None:
+            start = np.asarray(episode_start, dtype=bool).reshape(-1)
+            if start.size == 1 and n > 1:
+                start = np.repeat(start, n)
+            if start.shape != (n,):
+                raise ValueError(f"episode_start: expected {n} flags, got shape {np.shape(episode_start)}")
+            if start.any():
+                state[start] = self.initial_state(y[start])
+        return state
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.describe().items() if k != "name")

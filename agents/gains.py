@@ -41,12 +41,12 @@ def _load_gains_cached(path: str) -> dict[str, Any]:
         raise ValueError(f"gains: {path} has no 'presets' mapping")
     presets = data["presets"] if isinstance(data["presets"], dict) else {}
     for preset, entries in presets.items():  # the feedforward's options, before any run needs them
-        options = (entries or {}).get("lqi_angle_ff", {}) if isinstance(entries, dict) else {}
-        if isinstance(options, dict) and options.get("options") is not None:
+        ff = entries.get("lqi_angle_ff") if isinstance(entries, dict) else None
+        if isinstance(ff, dict) and ff.get("options") is not None:
             from drill_env.agents.angle_feedforward import LQIAngleFeedforward
 
             LQIAngleFeedforward.check_options(
-                options["options"], f"gains: {path}: presets.{preset}.lqi_angle_ff.options"
+                ff["options"], f"gains: {path}: presets.{preset}.lqi_angle_ff.options"
             )
     return data
 
@@ -80,8 +80,8 @@ def classical_controller(
     if kind == "lqi_angle_ff":
         from drill_env.agents.angle_feedforward import LQIAngleFeedforward
 
-        # options of the feedforward itself (e.g. variable_step), beside the LQI's gains
+        # options of the feedforward itself (e.g. variable_step), beside the LQI's gains; checked
+        # when the file was read
         options = presets[preset].get(kind, {}).get("options") or {}
-        options = LQIAngleFeedforward.check_options(options, f"gains: presets.{preset}.{kind}.options")
         return LQIAngleFeedforward(spec, **gains, **options)
     return make_controller(kind, spec, gains)

@@ -196,13 +196,7 @@ def step_base(
     spec = base.spec
     obs = np.asarray(observation).reshape(-1, len(spec.observation_names))
     y = spec.to_physical(obs)
-    if state is None:
-        state = base.initial_state(y)
-    else:
-        state = np.array(state, dtype=np.float64, copy=True)
-        start = np.zeros(len(y), dtype=bool) if episode_start is None else np.asarray(episode_start, bool)
-        if start.any():
-            state[start] = base.initial_state(y[start])
+    state = base.start_state(y, state, episode_start)
     if hasattr(base, "feedforward"):
         volts = np.asarray(base.feedforward(y, state), dtype=np.float64)
     else:
