@@ -19,7 +19,11 @@ from their committed policies.
   a policy's ``config.yaml`` says which it is): with the brake trained from the base
   (``configs/agents/ppo_residual.yaml``), without it started as the nominal ``ppo`` plus the
   base's angle-locked feedforward (``configs/agents/ppo_robust_distilled_no_brake.yaml``,
-  :mod:`drill_env.agents.warm_start`).
+  :mod:`drill_env.agents.warm_start`);
+* ``sac_robust``: SAC trained with the same randomisation, kept as
+  ``results/agents/sac_robust[_<preset>]/policy.zip``: residual policies on ``lqi_angle_ff``
+  that start as their base (zero start, the critics trained before the actor moves;
+  ``configs/agents/sac_robust.yaml``, ``sac_robust_no_brake.yaml``).
 """
 
 from __future__ import annotations
@@ -56,11 +60,11 @@ __all__ = [
 # The one list of the benchmark's controllers, in the order of its tables and legends: the
 # figures, the command-line help and the checks of a controller name all derive from these.
 CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi_angle_ff")
-LEARNED = ("ppo", "sac", "ppo_robust")
+LEARNED = ("ppo", "sac", "ppo_robust", "sac_robust")
 # the algorithm of each learned controller
-_ALGO = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo"}
+_ALGO = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo", "sac_robust": "sac"}
 # the training config (configs/agents/<name>[_<preset>].yaml) of each
-_CONFIG = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo_residual"}
+_CONFIG = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo_residual", "sac_robust": "sac_robust"}
 # where a rig's policy comes from another recipe than configs/agents/<_CONFIG>_<preset>.yaml
 # (each rig keeps the better recipe on its plant family: README, *Robust and residual policies*)
 _CONFIG_OF_PRESET = {("ppo_robust", "no_brake"): "ppo_robust_distilled_no_brake"}

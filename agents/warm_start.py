@@ -73,8 +73,8 @@ __all__ = [
 # The classical controllers a policy can be cloned from: those with tuned gains.
 WARM_START_CONTROLLERS = ("lqi", "lqi_angle_ff", "torque_feedback", "pi_upper", "pi_lower")
 # The trained policies a residual policy can be distilled from: the plain learned controllers
-# of the benchmark (drill_env.agents.registry.LEARNED without ppo_robust, itself a residual
-# policy on lqi_angle_ff whose voltage carries the feedforward already).
+# of the benchmark (drill_env.agents.registry.LEARNED without ppo_robust and sac_robust,
+# themselves residual policies on lqi_angle_ff whose voltage carries the feedforward already).
 WARM_START_POLICIES = ("ppo", "sac")
 
 

@@ -3,6 +3,7 @@ the training config, a tiny randomised training run the benchmark loads, residua
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 from pathlib import Path
@@ -254,26 +255,34 @@ def test_a_zero_start_sac_residual_is_its_base_until_the_burn_in_ends(tmp_path):
     venv.close()
 
 
-@pytest.mark.parametrize("folder", ["ppo_robust", "ppo_robust_no_brake"])
-def test_committed_robust_policies_were_trained_over_the_family(folder):
-    """The committed ppo_robust policies were trained with the shipped randomisation (the
-    same ranges in every robust config) and load as what their config says."""
+ROBUST_POLICIES = [(n, p) for n in ("ppo_robust", "sac_robust") for p in ("brake", "no_brake")]
+
+
+@pytest.mark.parametrize(("name", "preset"), ROBUST_POLICIES)
+def test_committed_robust_policies_were_trained_over_the_family(name, preset):
+    """The committed robust policies were trained with the shipped randomisation (the same
+    ranges in every robust config), load as what their config says, and are learned: the
+    kept (evaluation-best) policy is a later one than the start and beat it."""
     shipped = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())["env_kwargs"]["domain_randomization"]
-    for name in ("ppo_residual", "ppo_residual_no_brake", "sac_residual", "sac_residual_no_brake"):
+    for config in ("ppo_residual", "ppo_residual_no_brake", "sac_residual", "sac_residual_no_brake"):
         assert (
-            yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())["env_kwargs"]["domain_randomization"]
+            yaml.safe_load((CONFIGS / f"{config}.yaml").read_text())["env_kwargs"]["domain_randomization"]
             == shipped
         )
-        cfg = load_config(CONFIGS / f"{name}.yaml")
-        assert (cfg.algo, cfg.residual.base) == (name.split("_")[0], "lqi_angle_ff")
+        cfg = load_config(CONFIGS / f"{config}.yaml")
+        assert (cfg.algo, cfg.residual.base) == (config.split("_")[0], "lqi_angle_ff")
     dr = DomainRandomization.from_any(shipped)
     assert dr.effects["lower_position_amp_1"] == (0.0, 0.15)
+    folder = name if preset == "brake" else f"{name}_{preset}"
     path = ROOT / "results" / "agents" / folder
     committed = yaml.safe_load((path / "config.yaml").read_text())
     assert committed["env_kwargs"]["domain_randomization"] == shipped
-    preset = "brake" if folder == "ppo_robust" else "no_brake"
+    assert committed["algo"] == name.split("_")[0]
+    summary = json.loads((path / "training_summary.json").read_text())
+    start = np.loadtxt(path / "eval.csv", delimiter=",", skiprows=1, usecols=2, max_rows=1)
+    assert summary["best_at_timesteps"] > 0 and summary["best_eval_return"] > float(start)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # committed: loads without a warning
         env = make_env(preset, EpisodeSettings(), 1)
-        policy = build_controller("ppo_robust", env, preset)
+        policy = build_controller(name, env, preset)
     assert isinstance(policy, ResidualPolicy) == ("residual" in committed)
