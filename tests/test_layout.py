@@ -199,7 +199,7 @@ def test_every_controller_has_its_own_style():
     assert len(set(s.marker for s in styles)) == len(styles)
 
 
-@pytest.mark.parametrize("added", [("sac_robust",), ("sac_robust", "td3", "ddpg")])
+@pytest.mark.parametrize("added", [("td3",), ("td3", "ddpg", "tqc")])
 def test_a_controller_added_to_the_list_gets_a_style_of_its_own(monkeypatch, added):
     from drill_env.agents import registry
 
