@@ -55,6 +55,7 @@ __all__ = [
     "observation_version",
     "policy_path",
     "teacher_policy",
+    "training_config",
 ]
 
 # The one list of the benchmark's controllers, in the order of its tables and legends: the
@@ -143,6 +144,15 @@ def default_agents_dir() -> Path:
     return agents_dir_source()[0]
 
 
+def training_config(algo: str, preset: str) -> str:
+    """The name of the shipped training config (``configs/agents/<name>.yaml``) of the
+    committed policy of learned controller ``algo`` for ``preset``."""
+    if algo not in LEARNED:
+        raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
+    default = _CONFIG[algo] if preset == "brake" else f"{_CONFIG[algo]}_{preset}"
+    return _CONFIG_OF_PRESET.get((algo, preset), default)
+
+
 def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) -> Path:
     """The trained policy of ``algo`` for ``preset``: ``<agents_dir>/<algo>/policy.zip`` for
     the braked rig, ``<agents_dir>/<algo>_<preset>/policy.zip`` for any other preset
@@ -152,9 +162,7 @@ def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) ->
         raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
     root, source = agents_dir_source(agents_dir)
     name = algo if preset == "brake" else f"{algo}_{preset}"
-    base_config = _CONFIG_OF_PRESET.get(
-        (algo, preset), _CONFIG[algo] if preset == "brake" else f"{_CONFIG[algo]}_{preset}"
-    )
+    base_config = training_config(algo, preset)
     path = root / name / "policy.zip"
     if not path.is_file():
         # The config's name works from any folder (train resolves it against the packaged

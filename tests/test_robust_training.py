@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from drill_env.agents.base import ControllerSpec
 from drill_env.agents.evaluation import EpisodeSettings, evaluate, make_env
 from drill_env.agents.gains import classical_controller
-from drill_env.agents.registry import build_controller, observation_version
+from drill_env.agents.registry import build_controller, observation_version, training_config
 from drill_env.agents.residual import ResidualConfig, ResidualPolicy, base_controller
 from drill_env.agents.rl import TrainConfig, UntrustedPolicyWarning, load_config, make_train_vec_env, train
 from drill_env.cli import app
@@ -278,6 +278,8 @@ def test_committed_robust_policies_were_trained_over_the_family(name, preset):
     committed = yaml.safe_load((path / "config.yaml").read_text())
     assert committed["env_kwargs"]["domain_randomization"] == shipped
     assert committed["algo"] == name.split("_")[0]
+    # the shipped config of that policy is the one it was trained with
+    assert committed == load_config(CONFIGS / f"{training_config(name, preset)}.yaml").to_dict()
     summary = json.loads((path / "training_summary.json").read_text())
     start = np.loadtxt(path / "eval.csv", delimiter=",", skiprows=1, usecols=2, max_rows=1)
     assert summary["best_at_timesteps"] > 0 and summary["best_eval_return"] > float(start)
