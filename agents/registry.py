@@ -158,11 +158,9 @@ def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) ->
     the braked rig, ``<agents_dir>/<algo>_<preset>/policy.zip`` for any other preset
     (``agents_dir`` as :func:`agents_dir_source` finds it). A missing policy is an error
     naming that file, never a policy trained on another rig."""
-    if algo not in LEARNED:
-        raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
+    base_config = training_config(algo, preset)  # checks the name
     root, source = agents_dir_source(agents_dir)
     name = algo if preset == "brake" else f"{algo}_{preset}"
-    base_config = training_config(algo, preset)
     path = root / name / "policy.zip"
     if not path.is_file():
         # The config's name works from any folder (train resolves it against the packaged
