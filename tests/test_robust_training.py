@@ -290,7 +290,9 @@ def test_committed_robust_policies_were_trained_over_the_family(name, preset):
     assert isinstance(policy, ResidualPolicy) == ("residual" in committed)
 
 
-@pytest.mark.parametrize(("name", "preset"), [("sac_robust", "no_brake"), ("ppo_robust", "no_brake")])
+@pytest.mark.parametrize(
+    ("name", "preset"), [("sac_robust", "brake"), ("sac_robust", "no_brake"), ("ppo_robust", "no_brake")]
+)
 def test_committed_policies_that_ignore_the_encoder_angles_do(name, preset):
     """A committed policy whose config ignores the encoder angles acts the same whatever the
     angles: its correction is no forcing at the rotation frequency."""
