@@ -68,8 +68,9 @@ harmonic: with half a turn the regressor ``exp(-j h theta_l)`` changes sign, so 
 error, which the LQI's integral removes, is not learnt as a harmonic). Half a turn, not a whole
 one: at the lowest speeds a turn per adaptation time forced 40 s where 20 s is as stable, and
 the braked rig's lower position friction at 0.3 V was still half uncancelled after 90 s
-(suppression 0.55 against 0.91 with half a turn, README). The nominal loop is then stable at every design point of the envelope
-(:func:`drill_env.agents.tuning.design_points`) of both rigs; with the brake at 0.7-1.5 V the first
+(suppression 0.55 against 0.91 with half a turn, README). The nominal loop is then stable at
+every design point of the envelope (:func:`drill_env.agents.tuning.design_points`) of both
+rigs; with the brake at 0.7-1.5 V the first
 harmonic adapts in 10 s (the second in 10 s up to 1 V, 40 s at 1.25 V, not at 1.5 V),
 decay rate 0.025-0.12 1/s against the LQI's 0.10-0.15 (``tests/test_angle_rejection.py``,
 which also checks that the analysed matrix reproduces the controller's code on the
@@ -281,8 +282,9 @@ def design(
     noise from encoder quantisation (:func:`drill_env.agents.linear_model.measurement_noise`, through
     a discrete Lyapunov equation as in :mod:`drill_env.agents.tuning`) by at most ``NOISE_RATIO``,
     among those in which the harmonic turns at least half a revolution (``h w* T >= pi``,
-    :data:`MIN_TURNS`); none: the harmonic is not adapted there. (Where |G_h| is small, a fast adaptation needs a large
-    gain 1/G_h that acts on the torsional mode and passes the noise too.)
+    :data:`MIN_TURNS`); none: the harmonic is not adapted there. (Where |G_h| is small, a fast
+    adaptation needs a large gain 1/G_h that acts on the torsional mode and passes the noise
+    too.)
     """
     dt = lqi.spec.control_dt
     rig = sampled_rig(params, design_point(params, speed=speed), dt, lqi.spec.sensors)
