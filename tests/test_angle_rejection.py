@@ -257,17 +257,10 @@ def test_rejects_position_friction_at_the_lowest_slipping_speed():
     reference = evaluate(
         OpenLoop(ControllerSpec.from_env(env)), "brake", 0.3, 6, settings, env=env, open_loop_amplitude=0.0
     )
+    ctrls = {"lqi": build_controller("lqi", design_env, "brake"), "lqi_angle_ff": ff}
     res = {
-        name: evaluate(
-            build_controller(name, design_env, "brake"),
-            "brake",
-            0.3,
-            6,
-            settings,
-            env=env,
-            open_loop_amplitude=reference.amplitude,
-        )
-        for name in ("lqi", "lqi_angle_ff")
+        name: evaluate(ctrl, "brake", 0.3, 6, settings, env=env, open_loop_amplitude=reference.amplitude)
+        for name, ctrl in ctrls.items()
     }
     assert res["lqi"].suppression < 0.0
     assert res["lqi_angle_ff"].rms_error < 0.2 * res["lqi"].rms_error
