@@ -19,7 +19,17 @@ so the untrained policy *is* the base controller, with its exploration spread se
 ``initial_log_std``; ``critic_burn_in: N`` (SAC only) trains the critics for the first N
 env-steps while the actor stays as it started, so the actor's first updates follow a critic
 that has seen the base's returns instead of an untrained one (:func:`start_from_base`,
-:func:`critic_burn_in_callback`). The base is built with the tuned gains of
+:func:`critic_burn_in_callback`).
+
+``observe_base: true`` also gives the correction what the base is doing, as residual policy
+learning does (Silver et al., Sec. 3): its observation is the rig's followed by
+:data:`BASE_OBSERVATIONS`, the base's action and the share of the base's adaptive feedforward
+in it (normalised, 1 = 5 V; :func:`step_base`). A correction that sees only the measurements
+cannot tell the feedforward, a function of what the base has adapted so far, from the rest
+of the voltage. The saved policy's network then takes ``len(BASE_OBSERVATIONS)`` more inputs
+than the rig has observations (:func:`observation_with_base`).
+
+The base is built with the tuned gains of
 ``configs/agents/controllers.yaml`` on the nominal model of the training environment (domain
 randomisation changes the plant, never the design), during training by
 :class:`ResidualVecEnv` and at inference by :class:`ResidualPolicy`, both the same function
@@ -38,6 +48,7 @@ import numpy as np
 from drill_env.agents._config import config_section
 
 __all__ = [
+    "BASE_OBSERVATIONS",
     "RESIDUAL_BASES",
     "ResidualConfig",
     "ResidualPolicy",
@@ -45,12 +56,17 @@ __all__ = [
     "base_controller",
     "correction_towards",
     "critic_burn_in_callback",
+    "observation_with_base",
     "start_from_base",
     "step_base",
 ]
 
 # Classical controllers a policy can act on top of (those with integral action and tuned gains).
 RESIDUAL_BASES = ("lqi", "lqi_angle_ff", "torque_feedback")
+
+# What an ``observe_base`` correction sees after the rig's observation: the base's action and
+# its adaptive feedforward's share, both normalised (1 = 5 V).
+BASE_OBSERVATIONS = ("base_action", "base_feedforward")
 
 
 @dataclass(frozen=True)
@@ -62,6 +78,7 @@ class ResidualConfig:
     zero_start: bool = False  # zero the policy's mean output layer: the untrained policy is the base
     initial_log_std: float | None = None  # with zero_start: log of the initial exploration spread
     critic_burn_in: int = 0  # [env-steps] SAC: critics only, the actor frozen (0: none)
+    observe_base: bool = False  # the correction also sees BASE_OBSERVATIONS
 
     def __post_init__(self) -> None:
         if self.base not in RESIDUAL_BASES:
@@ -83,6 +100,8 @@ class ResidualConfig:
             if not self.zero_start:
                 raise ValueError("residual.initial_log_std: allowed only with zero_start: true")
             object.__setattr__(self, "initial_log_std", float(v))
+        if not isinstance(self.observe_base, bool):
+            raise ValueError(f"residual.observe_base: {self.observe_base!r} is not true or false")
         n = self.critic_burn_in
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:
             raise ValueError(f"residual.critic_burn_in: {n!r} is not an integer >= 0")
@@ -99,6 +118,8 @@ class ResidualConfig:
             out["initial_log_std"] = self.initial_log_std
         if self.critic_burn_in:
             out["critic_burn_in"] = self.critic_burn_in
+        if self.observe_base:
+            out["observe_base"] = True
         return out
 
 
@@ -206,6 +227,20 @@ def step_base(
     return action, feedforward, state
 
 
+def observation_with_base(
+    observation: np.ndarray, base_action: np.ndarray, feedforward: np.ndarray
+) -> np.ndarray:
+    """What an ``observe_base`` correction sees: ``observation`` ((n_obs,) or (n, n_obs))
+    followed by the base's action and feedforward (:func:`step_base`), float32."""
+    obs = np.asarray(observation, dtype=np.float32)
+    rows = obs.reshape(-1, obs.shape[-1])
+    extra = np.concatenate(
+        [np.reshape(base_action, (len(rows), 1)), np.reshape(feedforward, (len(rows), 1))], axis=1
+    ).astype(np.float32)
+    out = np.concatenate([rows, extra], axis=1)
+    return out[0] if obs.ndim == 1 else out
+
+
 def correction_towards(base_action: np.ndarray, target: np.ndarray, scale: float) -> np.ndarray:
     """The correction in [-1, 1] that moves ``base_action`` to ``target`` (normalised
     actions): ``clip((target - base) / scale, -1, 1)``, so that the residual action
@@ -223,24 +258,54 @@ def _combine(base_action: np.ndarray, correction: np.ndarray, scale: float) -> n
 
 class ResidualPolicy:
     """A trained correction ``policy`` on top of ``base`` behind SB3's ``predict`` (the
-    benchmark's one evaluation path); the state is the base's."""
+    benchmark's one evaluation path); the state is the base's. With ``observe_base`` the
+    policy's observation is the rig's followed by :data:`BASE_OBSERVATIONS`."""
 
-    def __init__(self, policy: Any, base: Any, scale: float, name: str | None = None):
+    def __init__(
+        self, policy: Any, base: Any, scale: float, name: str | None = None, *, observe_base: bool = False
+    ):
         self.policy, self.base, self.scale = policy, base, float(scale)
+        self.observe_base = bool(observe_base)
         self.name = name or getattr(policy, "name", "residual")
         self.path = getattr(policy, "path", None)
 
     @property
     def observation_space(self):
-        return self.policy.observation_space
+        """The rig's observation the policy runs on (without the base's entries it adds)."""
+        space = self.policy.observation_space
+        if not self.observe_base:
+            return space
+        from gymnasium import spaces
+
+        n = space.shape[0] - len(BASE_OBSERVATIONS)
+        return spaces.Box(space.low[:n], space.high[:n], dtype=space.dtype)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        base_action, state = self.base.predict(observation, state=state, episode_start=episode_start)
-        correction, _ = self.policy.predict(observation, deterministic=deterministic)
-        return _combine(base_action, correction, self.scale), state
+        if not self.observe_base:
+            base_action, state = self.base.predict(observation, state=state, episode_start=episode_start)
+            correction, _ = self.policy.predict(observation, deterministic=deterministic)
+            return _combine(base_action, correction, self.scale), state
+        obs = np.asarray(observation)
+        base_action, feedforward, state = step_base(self.base, obs, state, episode_start)
+        seen = observation_with_base(obs, base_action, feedforward)
+        correction, _ = self.policy.predict(seen, deterministic=deterministic)
+        action = _combine(base_action, np.reshape(correction, base_action.shape), self.scale)
+        return (action[0] if obs.ndim == 1 else action), state
 
     def check_env(self, env: Any) -> None:
-        self.policy.check_env(env)
+        """Raise ValueError unless the env's spaces are the ones the policy was trained on."""
+        if not self.observe_base:
+            self.policy.check_env(env)
+            return
+        obs, mo = env.observation_space, self.observation_space
+        if obs.shape != mo.shape or not np.allclose(obs.low, mo.low) or not np.allclose(obs.high, mo.high):
+            raise ValueError(
+                f"observation_space: {obs} differs from the policy's {mo} before its "
+                f"{list(BASE_OBSERVATIONS)} ({self.path})"
+            )
+        act, ma = env.action_space, self.policy.action_space
+        if act.shape != ma.shape or not np.allclose(act.low, ma.low) or not np.allclose(act.high, ma.high):
+            raise ValueError(f"action_space: {act} differs from the policy's {ma} ({self.path})")
 
     def describe(self) -> dict[str, Any]:
         return {
@@ -248,44 +313,65 @@ class ResidualPolicy:
             "path": self.path,
             "residual_on": self.base.describe(),
             "scale": self.scale,
+            **({"observes": list(BASE_OBSERVATIONS)} if self.observe_base else {}),
         }
 
 
 def _vec_env_wrapper():
+    from gymnasium import spaces
     from stable_baselines3.common.vec_env import VecEnvWrapper
 
     class _ResidualVecEnv(VecEnvWrapper):
-        """Training rigs whose action is the policy's correction: each step the base controller
-        (batched over the rigs, its state reset where an episode starts) gives its action and
-        the rigs receive ``clip(base + scale * correction, -1, 1)``."""
+        """Training rigs whose action is the policy's correction: the base controller (batched
+        over the rigs, its state reset where an episode starts) gives its action for every
+        observation the rigs return, and the rigs receive ``clip(base + scale * correction,
+        -1, 1)``. With ``observe_base`` each observation, the terminal observations of ended
+        episodes among them, is followed by :data:`BASE_OBSERVATIONS` (for a terminal one,
+        what the base would do there, with its state of that episode)."""
 
-        def __init__(self, venv, base: Any, scale: float):
-            super().__init__(venv)
-            self.base, self.scale = base, float(scale)
-            self._obs: np.ndarray | None = None
+        def __init__(self, venv, base: Any, scale: float, observe_base: bool = False):
+            space = venv.observation_space
+            if observe_base:
+                k = len(BASE_OBSERVATIONS)
+                space = spaces.Box(
+                    np.concatenate([space.low, np.full(k, -np.inf, dtype=space.dtype)]),
+                    np.concatenate([space.high, np.full(k, np.inf, dtype=space.dtype)]),
+                    dtype=space.dtype,
+                )
+            super().__init__(venv, observation_space=space)
+            self.base, self.scale, self.observe_base = base, float(scale), bool(observe_base)
+            self._base_action: np.ndarray | None = None
             self._state: np.ndarray | None = None
-            self._start = np.ones(venv.num_envs, dtype=bool)
+
+        def _seen(self, obs: np.ndarray, start: np.ndarray | None) -> np.ndarray:
+            """Step the base on ``obs`` (``start``: rows where an episode starts; None: all)."""
+            action, feedforward, self._state = step_base(self.base, obs, self._state, start)
+            self._base_action = action
+            return observation_with_base(obs, action, feedforward) if self.observe_base else obs
 
         def reset(self):
-            self._obs = self.venv.reset()
             self._state = None
-            self._start = np.ones(self.num_envs, dtype=bool)
-            return self._obs
+            return self._seen(self.venv.reset(), None)
 
         def step_async(self, actions: np.ndarray) -> None:
-            base_action, self._state = self.base.predict(
-                self._obs, state=self._state, episode_start=self._start
-            )
+            base_action = self._base_action
             self.venv.step_async(_combine(base_action, np.reshape(actions, base_action.shape), self.scale))
 
         def step_wait(self):
             obs, reward, done, info = self.venv.step_wait()
-            self._obs, self._start = obs, np.asarray(done, dtype=bool).copy()
-            return obs, reward, done, info
+            done = np.asarray(done, dtype=bool)
+            if self.observe_base and done.any():
+                for i in np.flatnonzero(done):  # the base's action there, on its episode's state
+                    terminal = info[i].get("terminal_observation")
+                    if terminal is not None:
+                        a, ff, _ = step_base(self.base, terminal, self._state[i : i + 1], None)
+                        info[i]["terminal_observation"] = observation_with_base(terminal, a, ff)
+            return self._seen(obs, done.copy()), reward, done, info
 
     return _ResidualVecEnv
 
 
-def ResidualVecEnv(venv, base: Any, scale: float):  # noqa: N802 (a class built on demand)
-    """Wrap SB3 vector env ``venv`` so that its action is a correction on ``base``."""
-    return _vec_env_wrapper()(venv, base, scale)
+def ResidualVecEnv(venv, base: Any, scale: float, observe_base: bool = False):  # noqa: N802 (a class built on demand)
+    """Wrap SB3 vector env ``venv`` so that its action is a correction on ``base`` (and, with
+    ``observe_base``, its observation carries the base's action and feedforward)."""
+    return _vec_env_wrapper()(venv, base, scale, observe_base)

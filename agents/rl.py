@@ -18,7 +18,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
-                                        # (drill_env.agents.residual); absent or null: the policy is the controller
+                                        # (drill_env.agents.residual); absent or null: the policy is the controller;
+                                        # observe_base: true adds the base's action and feedforward to its input
     warm_start: {controller: lqi, steps: 100000}  # optional: clone a classical controller into the
                                         # policy before the first rollout (drill_env.agents.warm_start);
                                         # with residual: {policy: ppo, ...} distils a trained policy
@@ -209,6 +210,11 @@ class TrainConfig:
                 "warm_start.controller: a residual policy starts as its base controller already; drop "
                 "one (warm_start.policy distils a trained policy into a residual policy)"
             )
+        if ws is not None and self.residual is not None and self.residual.observe_base:
+            raise ValueError(
+                "residual.observe_base: not available with warm_start (its demonstrations are "
+                "labelled on the rig's observation alone); drop one"
+            )
         if ws is not None and ws.policy is not None and self.residual is None:
             raise ValueError(
                 "warm_start.policy: allowed only with residual (a trained policy is distilled into "
@@ -371,6 +377,10 @@ class SB3Policy:
     def observation_space(self):
         return self.model.observation_space
 
+    @property
+    def action_space(self):
+        return self.model.action_space
+
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         if deterministic and state is None and self._actor is not None:
             action = self._actor(observation)
@@ -482,7 +492,10 @@ def load_policy(
 
     cfg = load_config(config)
     return ResidualPolicy(
-        policy, base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs), cfg.residual.scale
+        policy,
+        base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs),
+        cfg.residual.scale,
+        observe_base=cfg.residual.observe_base,
     )
 
 
@@ -502,12 +515,22 @@ def policy_observation_version(path: str | Path) -> int:
         shape = tuple(data["observation_space"]["_shape"])
     except (zipfile.BadZipFile, KeyError, ValueError, TypeError) as exc:
         raise ValueError(f"policy: {path} is not a stable-baselines3 model ({exc})") from None
+    extra = ""
+    config = path.parent / "config.yaml"
+    if config.is_file() and len(shape) == 1:
+        residual = (yaml.safe_load(config.read_text()) or {}).get("residual")
+        if isinstance(residual, dict) and residual.get("observe_base") is True:
+            from drill_env.agents.residual import BASE_OBSERVATIONS
+
+            shape = (shape[0] - len(BASE_OBSERVATIONS),)
+            extra = f" after removing its {list(BASE_OBSERVATIONS)}"
     for v in OBSERVATION_VERSIONS:
         if shape == (C.n_obs(v),):
             return v
     sizes = {v: C.n_obs(v) for v in OBSERVATION_VERSIONS}
     raise ValueError(
-        f"policy: {path} observes {shape}, not the observation of any env version (entries per version: {sizes})"
+        f"policy: {path} observes {shape}{extra}, not the observation of any env version "
+        f"(entries per version: {sizes})"
     )
 
 
@@ -715,7 +738,8 @@ def make_train_vec_env(cfg: TrainConfig, seed: int):
         return venv
     from drill_env.agents.residual import ResidualVecEnv, base_controller
 
-    return ResidualVecEnv(venv, base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs), cfg.residual.scale)
+    r = cfg.residual
+    return ResidualVecEnv(venv, base_controller(r, cfg.env_id, cfg.env_kwargs), r.scale, r.observe_base)
 
 
 def train(
@@ -777,7 +801,9 @@ def train(
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
         # moment, and the learner updates them in place
         policy: Any = SB3Policy(model, cfg.algo)
-        return policy if base is None else ResidualPolicy(policy, base, cfg.residual.scale)
+        if base is None:
+            return policy
+        return ResidualPolicy(policy, base, cfg.residual.scale, observe_base=cfg.residual.observe_base)
 
     rows: list[dict[str, Any]] = []
     best = {"return": -math.inf, "step": 0}

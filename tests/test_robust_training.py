@@ -18,7 +18,13 @@ from drill_env.agents.base import ControllerSpec
 from drill_env.agents.evaluation import EpisodeSettings, evaluate, make_env
 from drill_env.agents.gains import classical_controller
 from drill_env.agents.registry import build_controller, observation_version, training_config
-from drill_env.agents.residual import ResidualConfig, ResidualPolicy, base_controller
+from drill_env.agents.residual import (
+    BASE_OBSERVATIONS,
+    ResidualConfig,
+    ResidualPolicy,
+    base_controller,
+    step_base,
+)
 from drill_env.agents.rl import TrainConfig, UntrustedPolicyWarning, load_config, make_train_vec_env, train
 from drill_env.cli import app
 from drill_env.envs.config import DomainRandomization
@@ -106,10 +112,23 @@ def test_residual_config_validation():
         ResidualConfig(zero_start=True, initial_log_std=-20.0)
     with pytest.raises(ValueError, match=r"^residual\.zero_start: 'yes' is not true or false$"):
         ResidualConfig(zero_start="yes")
+    with pytest.raises(ValueError, match=r"^residual\.observe_base: 1 is not true or false"):
+        ResidualConfig(observe_base=1)
     cfg = ResidualConfig.from_any(
-        {"base": "lqi", "zero_start": True, "initial_log_std": -2, "critic_burn_in": 300}
+        {
+            "base": "lqi",
+            "zero_start": True,
+            "initial_log_std": -2,
+            "critic_burn_in": 300,
+            "observe_base": True,
+        }
     )
-    assert ResidualConfig.from_any(cfg.to_dict()) == cfg
+    assert ResidualConfig.from_any(cfg.to_dict()) == cfg and cfg.observe_base
+    assert "observe_base" not in ResidualConfig().to_dict()
+    # the distillation labels the rig's observation alone: the two are refused together
+    distilled = load_config(CONFIGS / "ppo_robust_distilled_no_brake.yaml").to_dict()
+    with pytest.raises(ValueError, match=r"^residual\.observe_base: not available with warm_start"):
+        TrainConfig(**{**distilled, "residual": {**distilled["residual"], "observe_base": True}})
     # a burn-in needs an off-policy critic: a PPO config with one is refused when it is loaded
     ppo = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
     with pytest.raises(ValueError, match=r"^residual\.critic_burn_in: allowed only with algo sac"):
@@ -187,29 +206,82 @@ def test_residual_action_is_the_base_controllers_when_the_policy_outputs_zero(ba
     env.close()
 
 
-def test_residual_training_rigs_with_a_zero_correction_run_the_base_controller():
+@pytest.mark.parametrize("observe_base", [False, True])
+def test_residual_training_rigs_with_a_zero_correction_run_the_base_controller(observe_base):
     """The training wrapper applies base + scale x correction, with the base's state reset where
     an episode ends: with zero corrections the rigs follow a plain rig set driven by the base
-    controller, over an episode boundary."""
-    cfg = _tiny_robust_config({"base": "lqi", "scale": 0.2})
+    controller, over an episode boundary. With observe_base every observation, the terminal
+    ones too, carries the action and feedforward share of a base run alone beside it."""
+    residual = {"base": "lqi_angle_ff", "scale": 0.2, "observe_base": observe_base}
+    cfg = _tiny_robust_config(residual)
     cfg_plain = TrainConfig(**{**cfg.to_dict(), "residual": None})
     residual_rigs = make_train_vec_env(cfg, 11)
     plain_rigs = make_train_vec_env(cfg_plain, 11)
+    n_obs = plain_rigs.observation_space.shape[0]
+    k = len(BASE_OBSERVATIONS) if observe_base else 0
+    assert residual_rigs.observation_space.shape == (n_obs + k,)
     base = base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs)
+    twin = base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs)  # for the terminal observations
     obs_r, obs_p = residual_rigs.reset(), plain_rigs.reset()
     state, start = None, np.ones(2, dtype=bool)
-    n_done = 0
+    n_done, ff_seen = 0, 0.0
     for _ in range(420):  # the episodes last 400 steps
-        a, state = base.predict(obs_p, state, start)
-        obs_r, rew_r, done_r, _ = residual_rigs.step(np.zeros((2, 1), dtype=np.float32))
-        obs_p, rew_p, done_p, _ = plain_rigs.step(a)
-        np.testing.assert_array_equal(obs_r, obs_p)
+        a, ff, next_state = step_base(base, obs_p, state, start)
+        np.testing.assert_array_equal(obs_r[:, :n_obs], obs_p)
+        if observe_base:
+            np.testing.assert_array_equal(obs_r[:, n_obs:], np.concatenate([a, ff], axis=1))
+            ff_seen = max(ff_seen, float(np.abs(ff).max()))
+        obs_r, rew_r, done_r, info_r = residual_rigs.step(np.zeros((2, 1), dtype=np.float32))
+        obs_p, rew_p, done_p, info_p = plain_rigs.step(a)
         np.testing.assert_array_equal(rew_r, rew_p)
-        start = done_p
+        for i in np.flatnonzero(done_p):
+            terminal_r, terminal_p = info_r[i]["terminal_observation"], info_p[i]["terminal_observation"]
+            np.testing.assert_array_equal(terminal_r[:n_obs], terminal_p)
+            if observe_base:  # what the base would do there, still in its episode
+                a_end, ff_end, _ = step_base(twin, terminal_p, next_state[i : i + 1], None)
+                np.testing.assert_array_equal(terminal_r[n_obs:], [a_end[0, 0], ff_end[0, 0]])
+        state, start = next_state, done_p
         n_done += int(done_p.sum())
     assert n_done == 2
+    assert not observe_base or ff_seen > 1e-3  # the feedforward entry is not a constant 0
     residual_rigs.close()
     plain_rigs.close()
+
+
+def test_a_residual_policy_that_observes_its_base_sees_what_the_training_rigs_showed(tmp_path):
+    """A tiny observe_base run: the saved policy takes the base's two entries after the rig's
+    observation, the benchmark loads it on the rig's observation version and runs it, and its
+    action is the base's plus the saved network's correction of the extended observation."""
+    cfg = _tiny_robust_config({"base": "lqi_angle_ff", "scale": 0.2, "observe_base": True})
+    agents_dir = tmp_path / "agents"
+    train(cfg, 2, agents_dir / "ppo_robust", tmp_path / "logs", progress_bar=False)
+    assert observation_version("ppo_robust", "brake", agents_dir) == 1
+    settings = EpisodeSettings(duration=3.0, window=1.0, warmup_time=5.0, warmup_jitter=0.0)
+    env = make_env("brake", settings, 1)
+    with pytest.warns(UntrustedPolicyWarning):
+        policy = build_controller("ppo_robust", env, "brake", agents_dir=agents_dir)
+    assert isinstance(policy, ResidualPolicy) and policy.observe_base
+    n_obs = env.observation_space.shape[0]
+    assert policy.policy.observation_space.shape == (n_obs + 2,)
+    assert policy.observation_space.shape == (n_obs,)
+    assert policy.describe()["observes"] == list(BASE_OBSERVATIONS)
+    twin = base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs)
+    obs, _ = env.reset(seed=3, options={"nominal_voltage": 1.0})
+    state = twin_state = None
+    start = np.ones(1, dtype=bool)
+    for _ in range(20):
+        action, state = policy.predict(obs, state, start)
+        a, ff, twin_state = step_base(twin, obs, twin_state, start)
+        seen = np.concatenate([obs, a[0], ff[0]]).astype(np.float32)
+        correction = policy.policy.model.predict(seen, deterministic=True)[0]
+        np.testing.assert_allclose(action, np.clip(a[0] + 0.2 * correction, -1, 1), atol=2e-6)
+        start = np.zeros(1, dtype=bool)
+        obs, *_ = env.step(action)
+    m = evaluate(policy, "brake", 1.0, 0, settings, name="ppo_robust", env=env)
+    assert m.sim_status == 0 and np.isfinite(m.rms_error)
+    # an env whose observation is not the one the policy saw before the base's entries
+    with pytest.raises(ValueError, match=r"(?s)observation_space: .* before its \['base_action'"):
+        policy.check_env(make_env("brake", settings, 0))
 
 
 def _tiny_sac_config(residual) -> TrainConfig:
