@@ -11,7 +11,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@pytest.mark.parametrize("script", ["bench_training.py", "bench_vec_env.py", "bench_env.py"])
+@pytest.mark.parametrize(
+    "script", ["bench_training.py", "bench_vec_env.py", "bench_env.py", "bench_family.py"]
+)
 def test_bench_script_runs_quick(script):
     res = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / script), "--quick"],
