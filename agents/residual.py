@@ -345,9 +345,14 @@ def _vec_env_wrapper():
 
         def _seen(self, obs: np.ndarray, start: np.ndarray | None) -> np.ndarray:
             """Step the base on ``obs`` (``start``: rows where an episode starts; None: all)."""
+            if not self.observe_base:  # the feedforward's share is not needed: not computed
+                self._base_action, self._state = self.base.predict(
+                    obs, state=self._state, episode_start=start
+                )
+                return obs
             action, feedforward, self._state = step_base(self.base, obs, self._state, start)
             self._base_action = action
-            return observation_with_base(obs, action, feedforward) if self.observe_base else obs
+            return observation_with_base(obs, action, feedforward)
 
         def reset(self):
             self._state = None
