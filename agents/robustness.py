@@ -7,6 +7,11 @@ Per preset, regime (the nominal model's, at each voltage) and controller:
 * *mean*: the mean over plants of each plant's mean (every plant weighs the same);
 * *worst*: the worst single run over all plants, voltages and seeds, with where it was.
 
+And per voltage, the worst case over the plants (:func:`worst_by_voltage`): the worst single
+run over every plant and seed at that voltage, the envelope a controller guarantees across the
+family. A robust policy (``<name>_robust``) is set against its nominal-trained counterpart
+(``<name>``) on it (:func:`robust_pairs`, :func:`worst_case_verdict`).
+
 Suppression counts only runs whose plant has an open-loop cycle at that voltage and seed.
 """
 
@@ -27,7 +32,13 @@ __all__ = [
     "robustness_figure",
     "robustness_lines",
     "robustness_rows",
+    "robust_pairs",
+    "worst_by_voltage",
+    "worst_case_lines",
+    "worst_case_verdict",
 ]
+
+ROBUST_SUFFIX = "_robust"
 
 # metric column, heading, unit, whether larger is worse, scale to print
 METRICS: tuple[tuple[str, str, str, bool, float], ...] = (
@@ -144,6 +155,91 @@ def robustness_lines(df, preset: str, plants: Mapping[str, Mapping[str, Any]] | 
                 ]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
+    return lines + worst_case_lines(df, preset)
+
+
+def worst_by_voltage(df, preset: str) -> dict[str, dict[float, tuple[float, str]]]:
+    """controller -> voltage -> (the worst suppression of a single run over every plant and
+    seed at that voltage, the plant of that run); runs without an open-loop cycle, whose
+    suppression is undefined, are left out, and so is a voltage where no plant has a cycle."""
+    ok = df[(df["error"] == "") & (df["preset"] == preset) & (df["controller"] != "open_loop")]
+    ok = ok.dropna(subset=["suppression"])
+    out: dict[str, dict[float, tuple[float, str]]] = {}
+    for c in ordered_controllers(ok["controller"]):
+        r = ok[ok["controller"] == c]
+        worst = r.loc[r.groupby("voltage")["suppression"].idxmin()]
+        out[c] = {
+            float(v): (float(s), str(p))
+            for v, s, p in zip(worst["voltage"], worst["suppression"], worst["plant"], strict=True)
+        }
+    return out
+
+
+def robust_pairs(names) -> list[tuple[str, str]]:
+    """(robust policy, its nominal-trained counterpart) for each ``<name>_robust`` whose
+    ``<name>`` is among ``names``."""
+    names = set(names)
+    return [
+        (c, c.removesuffix(ROBUST_SUFFIX))
+        for c in ordered_controllers(names)
+        if c.endswith(ROBUST_SUFFIX) and c.removesuffix(ROBUST_SUFFIX) in names
+    ]
+
+
+def worst_case_verdict(worst: Mapping[str, Mapping[float, tuple[float, str]]], robust: str, nominal: str):
+    """The robust policy's worst case over the plants against the nominal-trained one's at
+    each voltage both have: ``{"voltages", "at_least", "behind" (voltage -> margin < 0),
+    "smallest" (margin, voltage)}``, margin = robust - nominal."""
+    volts = sorted(set(worst.get(robust, {})) & set(worst.get(nominal, {})))
+    margin = {v: worst[robust][v][0] - worst[nominal][v][0] for v in volts}
+    smallest = min(((m, v) for v, m in margin.items()), default=(math.nan, math.nan))
+    return {
+        "voltages": len(volts),
+        "at_least": sum(m >= 0 for m in margin.values()),
+        "behind": {v: m for v, m in margin.items() if m < 0},
+        "smallest": smallest,
+    }
+
+
+def worst_case_lines(df, preset: str) -> list[str]:
+    """The markdown of the worst case over the plants at each voltage, and each robust
+    policy's worst case against its nominal-trained counterpart's."""
+    worst = worst_by_voltage(df, preset)
+    if not worst:
+        return []
+    volts = sorted({v for w in worst.values() for v in w})
+    lines = [
+        "### worst case over the plants at each voltage",
+        "",
+        "The worst single run's suppression at each voltage over every plant and seed with an "
+        f"open-loop cycle there (figure: `worst_case_{preset}.png`).",
+        "",
+    ]
+    for robust, nominal in robust_pairs(worst):
+        v = worst_case_verdict(worst, robust, nominal)
+        if not v["voltages"]:
+            continue
+        m, at = v["smallest"]
+        text = (
+            f"- `{robust}` against `{nominal}`: its worst case is at least `{nominal}`'s at "
+            f"{v['at_least']} of {v['voltages']} voltages"
+        )
+        if v["behind"]:
+            text += "; behind at " + ", ".join(f"{u:g} V by {-d:.4f}" for u, d in sorted(v["behind"].items()))
+        else:
+            text += f"; smallest margin {m:+.4f} at {at:g} V"
+        lines.append(text + ".")
+    if lines[-1] != "":
+        lines.append("")
+    lines += [
+        "| controller | " + " | ".join(f"{v:g} V" for v in volts) + " |",
+        "|---|" + "---|" * len(volts),
+    ]
+    for c, w in worst.items():
+        lines.append(
+            f"| {c} | " + " | ".join(_cell(w[v][0], 1.0, 3) if v in w else "-" for v in volts) + " |"
+        )
+    lines.append("")
     return lines
 
 

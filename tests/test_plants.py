@@ -14,7 +14,13 @@ from typer.testing import CliRunner
 from drill_env.agents.benchmark import BenchmarkConfig, load_results, run_benchmark
 from drill_env.agents.evaluation import EpisodeSettings, make_env
 from drill_env.agents.plants import NOMINAL, Plant, standard_family
-from drill_env.agents.robustness import robustness_lines, robustness_rows
+from drill_env.agents.robustness import (
+    robust_pairs,
+    robustness_lines,
+    robustness_rows,
+    worst_by_voltage,
+    worst_case_verdict,
+)
 from drill_env.analysis import limit_cycle
 from drill_env.cli import app
 from drill_env.params import RigParams, load_params
@@ -143,6 +149,54 @@ def test_robustness_rows_weigh_plants_equally_and_name_the_worst_run():
     assert "0.500 (a, 1)" in text and "0.0 (every run)" in text
 
 
+def test_the_worst_case_over_the_plants_at_each_voltage_sets_a_robust_policy_against_its_nominal_one():
+    runs = [
+        # voltage 1: ppo's worst is plant a (0.40), ppo_robust's plant b (0.95): ahead by 0.55
+        ("ppo", "nominal", 1.0, 0, 0.99),
+        ("ppo", "a", 1.0, 0, 0.40),
+        ("ppo", "a", 1.0, 1, 0.70),
+        ("ppo_robust", "nominal", 1.0, 0, 0.98),
+        ("ppo_robust", "a", 1.0, 0, 0.97),
+        ("ppo_robust", "b", 1.0, 1, 0.95),
+        # voltage 2: behind by 0.01; a run without a cycle (NaN) is not a worst case
+        ("ppo", "nominal", 2.0, 0, 0.995),
+        ("ppo", "b", 2.0, 0, math.nan),
+        ("ppo_robust", "nominal", 2.0, 0, 0.985),
+        ("ppo_robust", "b", 2.0, 0, math.nan),
+        # the reference, and a controller without a robust counterpart
+        ("open_loop", "a", 1.0, 0, 0.0),
+        ("lqi", "a", 2.0, 0, 0.5),
+        # no cycle anywhere at 3 V: no column
+        ("ppo", "a", 3.0, 0, math.nan),
+        ("ppo_robust", "a", 3.0, 0, math.nan),
+    ]
+    df = _frame([dict(controller=c, plant=p, voltage=v, seed=s, suppression=x) for c, p, v, s, x in runs])
+    worst = worst_by_voltage(df, "brake")
+    assert list(worst) == ["lqi", "ppo", "ppo_robust"]  # the registry's order, no open loop
+    assert worst["ppo"] == {1.0: (0.40, "a"), 2.0: (0.995, "nominal")}
+    assert worst["ppo_robust"] == {1.0: (0.95, "b"), 2.0: (0.985, "nominal")}
+    assert robust_pairs(worst) == [("ppo_robust", "ppo")]
+    v = worst_case_verdict(worst, "ppo_robust", "ppo")
+    assert (v["voltages"], v["at_least"]) == (2, 1)
+    assert v["behind"] == {2.0: pytest.approx(-0.01)}
+    assert v["smallest"] == (pytest.approx(-0.01), 2.0)
+    text = "\n".join(robustness_lines(df, "brake"))
+    assert (
+        "- `ppo_robust` against `ppo`: its worst case is at least `ppo`'s at 1 of 2 voltages; behind at 2 V by 0.0100."
+        in text
+    )
+    assert (
+        "| controller | 1 V | 2 V |" in text
+        and "| ppo | 0.400 | 0.995 |" in text
+        and "| lqi | - | 0.500 |" in text
+    )
+    # ahead everywhere: the smallest margin is named
+    ahead = df[df["voltage"] == 1.0]
+    assert "at 1 of 1 voltages; smallest margin +0.5500 at 1 V." in "\n".join(
+        robustness_lines(ahead, "brake")
+    )
+
+
 def test_open_loop_has_no_suppression_row_it_is_the_reference():
     df = _frame(
         [dict(controller="open_loop", plant=p, voltage=1.0, suppression=0.0) for p in ("nominal", "a")]
@@ -166,6 +220,8 @@ def test_a_benchmark_on_several_plants_reports_robustness(tmp_path):
     assert "| `position_friction_lower` | lower friction modulated once per revolution" in summary
     assert "## brake, plant `km_x1.05`" in summary and "motor constant k_m +5 %" in summary
     assert (tmp_path / "robustness_brake.png").stat().st_size > 20_000
+    assert "### worst case over the plants at each voltage" in summary and "| lqi | " in summary
+    assert (tmp_path / "worst_case_brake.png").stat().st_size > 20_000
     # a fresh run removes the figures of plants it no longer has
     (tmp_path / "suppression_brake_gone.png").write_bytes(b"x")
     run_benchmark(
@@ -182,6 +238,7 @@ def test_a_benchmark_on_several_plants_reports_robustness(tmp_path):
     )
     assert not (tmp_path / "suppression_brake_gone.png").exists()
     assert not (tmp_path / "robustness_brake.png").exists()
+    assert not (tmp_path / "worst_case_brake.png").exists()
 
 
 def test_cli_plants_family_and_its_errors(tmp_path):

@@ -314,3 +314,101 @@ def _regime_spans(preset: str) -> list[tuple[str, float, float]]:
     from drill_env.params import load_params
 
     return list(operating_regimes(load_params(preset)).intervals)
+
+
+RATIO_FLOOR = 1e-3  # [-] amplitude ratios below are drawn at the floor
+
+
+def worst_case_figure(df, preset: str, out: Path) -> Path | None:
+    """``worst_case_<preset>.png``: each controller's worst run over every plant and seed at
+    each voltage (left, as the residual amplitude 1 - suppression on a log axis, so that 0.99
+    and 0.999 are told apart), and each robust policy's worst suppression less its
+    nominal-trained counterpart's (right: above 0, the robust policy's guarantee across the
+    plants is the better one at that voltage). None where no controller has a suppression
+    (the open loop alone, or no cycle on any plant)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from drill_env.agents.robustness import robust_pairs, worst_by_voltage
+
+    worst = worst_by_voltage(df, preset)
+    if not worst:
+        return None
+    pairs = robust_pairs(worst)
+    n_plants = df[(df["preset"] == preset) & (df["error"] == "")]["plant"].nunique()
+    volts = [v for w in worst.values() for v in w]
+    pad = 0.05 * (max(volts) - min(volts)) + 0.05
+    xlim = (min(volts) - pad, max(volts) + pad)
+    fig, axes = plt.subplots(1, 2 if pairs else 1, figsize=(15 if pairs else 9, 5.4), squeeze=False)
+    ax = axes[0][0]
+    for name, lo, hi in _regime_spans(preset):
+        if name in _REGIME_SHADES:
+            ax.axvspan(lo, hi, color=_REGIME_SHADES[name], alpha=0.15, lw=0, zorder=0)
+    for c, w in worst.items():
+        v = np.array(sorted(w))
+        s = np.array([w[x][0] for x in v])
+        style = controller_style(c)
+        ax.plot(
+            v,
+            np.maximum(1.0 - s, RATIO_FLOOR),
+            style.marker + "-",
+            color=style.colour,
+            mfc="none",
+            ms=6,
+            label=c,
+        )
+    ax.set_yscale("log")
+    ax.axhline(1.0, color="gray", lw=0.8)
+    ax.axhline(0.1, color="gray", lw=0.8, ls="--")
+    ax.set_xlim(*xlim)
+    ax.grid(alpha=0.3, which="both")
+    ax.set_xlabel("nominal voltage u [V]")
+    ax.set_ylabel("worst amplitude / open-loop amplitude = 1 - suppression [-] (log)")
+    ax.set_title(f"{preset}: worst run over {n_plants} plants and every seed, at each voltage", fontsize=10)
+    handles, _ = ax.get_legend_handles_labels()
+    handles += [
+        Line2D([], [], color="gray", lw=0.8, label="1: as open loop"),
+        Line2D([], [], color="gray", lw=0.8, ls="--", label="0.1: suppression 0.9"),
+        *_regime_handles(preset),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=6, fontsize=8, frameon=False)
+    if pairs:
+        from drill_env.agents.robustness import worst_case_verdict
+
+        ax = axes[0][1]
+        for robust, nominal in pairs:
+            vs = sorted(set(worst[robust]) & set(worst[nominal]))
+            margin = np.array([worst[robust][v][0] - worst[nominal][v][0] for v in vs])
+            verdict = worst_case_verdict(worst, robust, nominal)
+            style = controller_style(robust)
+            ax.plot(
+                vs,
+                margin,
+                style.marker + "-",
+                color=style.colour,
+                mfc="none",
+                ms=6,
+                label=f"{robust} - {nominal}: >= 0 at {verdict['at_least']} of {verdict['voltages']} voltages",
+            )
+            ax.plot(np.array(vs)[margin < 0], margin[margin < 0], "x", color="tab:red", ms=8, mew=2)
+        ax.axhline(0.0, color="black", lw=1.0)
+        ax.set_yscale("symlog", linthresh=0.01)
+        ax.set_xlim(*xlim)
+        lows = [worst[r][v][0] - worst[n][v][0] for r, n in pairs for v in set(worst[r]) & set(worst[n])]
+        ax.set_ylim(bottom=min([-0.01, *(1.5 * m for m in lows)]))
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("nominal voltage u [V]")
+        ax.set_ylabel("difference of worst suppression [-] (symlog)")
+        ax.set_title("robust policy less its nominal-trained counterpart (worst runs, left)", fontsize=10)
+        handles, _ = ax.get_legend_handles_labels()
+        handles.append(Line2D([], [], color="tab:red", marker="x", ls="none", mew=2, label="behind"))
+        ax.legend(handles=handles, fontsize=8, loc="upper right")
+    legend_rows = -(-(len(worst) + 2) // 6)
+    fig.tight_layout(rect=(0, (0.15 + 0.22 * legend_rows) / fig.get_figheight(), 1, 1))
+    p = out / f"worst_case_{preset}.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from drill_env.agents.benchmark.figures import _figures, _plants_figure
+from drill_env.agents.benchmark.figures import _figures, _plants_figure, worst_case_figure
 from drill_env.agents.benchmark.runs import OPEN_LOOP_FLOOR
 from drill_env.agents.benchmark.store import load_results
 from drill_env.agents.evaluation import IDENTIFIED_SPEED
@@ -22,7 +22,13 @@ REGIME_TITLES = REGIMES  # regime -> the title of its table
 # drawn as small multiples in one figure
 SEPARATE_PLANT_FIGURES = 3
 # the figures write_report makes (removed with the results by ``fresh``)
-REPORT_FIGURES = ("bifurcation_*.png", "suppression_*.png", "robustness_*.png", "timeseries_*.png")
+REPORT_FIGURES = (
+    "bifurcation_*.png",
+    "suppression_*.png",
+    "robustness_*.png",
+    "worst_case_*.png",
+    "timeseries_*.png",
+)
 
 
 def _num(x: float, digits: int = 3) -> str:
@@ -211,6 +217,8 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
             paths.append(_plants_figure(df, preset, out, others))
         if len(names) > 1:
             paths.append(robustness_figure(df, preset, out))
+            worst = worst_case_figure(df, preset, out)
+            paths += [worst] if worst else []
     return paths
 
 
