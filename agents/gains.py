@@ -7,6 +7,7 @@ controllers without the registry, which loads trained policies through :mod:`dri
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -57,9 +58,14 @@ def load_gains(path: str | Path | None = None) -> dict[str, Any]:
 
 
 def classical_controller(
-    kind: str, spec: ControllerSpec, preset: str, gains_file: str | Path | None = None
+    kind: str,
+    spec: ControllerSpec,
+    preset: str,
+    gains_file: str | Path | None = None,
+    options: Mapping[str, Any] | None = None,
 ) -> Controller:
-    """A classical controller with the tuned gains of ``preset``."""
+    """A classical controller with the tuned gains of ``preset``; ``options`` (``lqi_angle_ff``
+    only) set the feedforward's own options over the gains file's."""
     from drill_env.agents.open_loop import OpenLoop
     from drill_env.agents.tuning import TUNED_GAINS, make_controller
 
@@ -82,6 +88,8 @@ def classical_controller(
 
         # options of the feedforward itself (e.g. variable_step), beside the LQI's gains; checked
         # when the file was read
-        options = presets[preset].get(kind, {}).get("options") or {}
+        options = {**(presets[preset].get(kind, {}).get("options") or {}), **(options or {})}
         return LQIAngleFeedforward(spec, **gains, **options)
+    if options:
+        raise ValueError(f"options: {kind!r} takes none, got {dict(options)!r}")
     return make_controller(kind, spec, gains)

@@ -29,6 +29,11 @@ cannot tell the feedforward, a function of what the base has adapted so far, fro
 of the voltage. The saved policy's network then takes ``len(BASE_OBSERVATIONS)`` more inputs
 than the rig has observations (:func:`observation_with_base`).
 
+``base_options`` (``lqi_angle_ff`` only) set the base's feedforward options over those of the
+gains file, e.g. ``{variable_step: true}``, which slows the adaptation where the error it sees
+is noise (:mod:`drill_env.agents.angle_feedforward`); the saved policy's ``config.yaml`` records
+them, and the base is rebuilt with them wherever the policy runs.
+
 The base is built with the tuned gains of
 ``configs/agents/controllers.yaml`` on the nominal model of the training environment (domain
 randomisation changes the plant, never the design), during training by
@@ -79,6 +84,7 @@ class ResidualConfig:
     initial_log_std: float | None = None  # with zero_start: log of the initial exploration spread
     critic_burn_in: int = 0  # [env-steps] SAC: critics only, the actor frozen (0: none)
     observe_base: bool = False  # the correction also sees BASE_OBSERVATIONS
+    base_options: Mapping[str, Any] | None = None  # lqi_angle_ff's options over the gains file's
 
     def __post_init__(self) -> None:
         if self.base not in RESIDUAL_BASES:
@@ -105,6 +111,16 @@ class ResidualConfig:
         n = self.critic_burn_in
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:
             raise ValueError(f"residual.critic_burn_in: {n!r} is not an integer >= 0")
+        if self.base_options is not None:
+            if self.base != "lqi_angle_ff":
+                raise ValueError(
+                    f"residual.base_options: allowed only with base lqi_angle_ff (the feedforward's "
+                    f"options), not {self.base!r}"
+                )
+            from drill_env.agents.angle_feedforward import LQIAngleFeedforward
+
+            opts = LQIAngleFeedforward.check_options(self.base_options, "residual.base_options")
+            object.__setattr__(self, "base_options", opts or None)
 
     @classmethod
     def from_any(cls, value: Any) -> ResidualConfig | None:
@@ -120,6 +136,8 @@ class ResidualConfig:
             out["critic_burn_in"] = self.critic_burn_in
         if self.observe_base:
             out["observe_base"] = True
+        if self.base_options:
+            out["base_options"] = dict(self.base_options)
         return out
 
 
@@ -199,7 +217,7 @@ def base_controller(cfg: ResidualConfig, env_id: str, env_kwargs: Mapping[str, A
         spec = ControllerSpec.from_env(env)
     finally:
         env.close()
-    return classical_controller(cfg.base, spec, ENV_IDS[env_id])
+    return classical_controller(cfg.base, spec, ENV_IDS[env_id], options=cfg.base_options)
 
 
 def step_base(

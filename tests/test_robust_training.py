@@ -25,7 +25,14 @@ from drill_env.agents.residual import (
     base_controller,
     step_base,
 )
-from drill_env.agents.rl import TrainConfig, UntrustedPolicyWarning, load_config, make_train_vec_env, train
+from drill_env.agents.rl import (
+    TrainConfig,
+    UntrustedPolicyWarning,
+    load_config,
+    load_policy,
+    make_train_vec_env,
+    train,
+)
 from drill_env.cli import app
 from drill_env.envs.config import DomainRandomization
 
@@ -129,6 +136,19 @@ def test_residual_config_validation():
     distilled = load_config(CONFIGS / "ppo_robust_distilled_no_brake.yaml").to_dict()
     with pytest.raises(ValueError, match=r"^residual\.observe_base: not available with warm_start"):
         TrainConfig(**{**distilled, "residual": {**distilled["residual"], "observe_base": True}})
+    # the base's own options: the feedforward's only, checked like a gains file's
+    with pytest.raises(ValueError, match=r"^residual\.base_options: allowed only with base lqi_angle_ff"):
+        ResidualConfig(base="lqi", base_options={"variable_step": True})
+    with pytest.raises(
+        ValueError, match=r"^residual\.base_options: expected a mapping of \['adaptation_time'"
+    ):
+        ResidualConfig(base="lqi_angle_ff", base_options={"step": 2})
+    with pytest.raises(ValueError, match=r"^residual\.base_options\.significance: "):
+        ResidualConfig(base="lqi_angle_ff", base_options={"variable_step": True, "significance": -1.0})
+    cfg = ResidualConfig(base="lqi_angle_ff", base_options={"variable_step": True})
+    assert cfg.to_dict()["base_options"] == {"variable_step": True}
+    assert ResidualConfig.from_any(cfg.to_dict()) == cfg
+    assert "base_options" not in ResidualConfig(base="lqi_angle_ff", base_options={}).to_dict()
     # a burn-in needs an off-policy critic: a PPO config with one is refused when it is loaded
     ppo = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
     with pytest.raises(ValueError, match=r"^residual\.critic_burn_in: allowed only with algo sac"):
@@ -204,6 +224,46 @@ def test_residual_action_is_the_base_controllers_when_the_policy_outputs_zero(ba
         start = np.zeros(1, dtype=bool)
         obs, *_ = env.step(a_res)
     env.close()
+
+
+def test_a_residual_base_with_options_is_that_feedforward_in_training_and_in_the_saved_policy(tmp_path):
+    """``base_options`` reach the base wherever it is built: the training rigs' base (from the
+    config) and the base of the policy loaded from the saved ``config.yaml`` are both
+    ``lqi_angle_ff`` with the variable step, and act as one built directly with it (and not as
+    the gains file's own, which differs once the adaptation starts)."""
+    from drill_env.agents.angle_feedforward import LQIAngleFeedforward
+    from drill_env.agents.gains import load_gains
+
+    residual = {"base": "lqi_angle_ff", "scale": 0.2, "base_options": {"variable_step": True}}
+    cfg = _tiny_robust_config(residual)
+    base = base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs)
+    assert base.describe()["variable_step"] is True
+    summary = train(cfg, 2, tmp_path / "ppo_robust", tmp_path / "logs", progress_bar=False)
+    assert np.isfinite(summary["best_eval_return"])
+    saved = yaml.safe_load((tmp_path / "ppo_robust" / "config.yaml").read_text())
+    assert saved["residual"]["base_options"] == {"variable_step": True}
+    with pytest.warns(UntrustedPolicyWarning):
+        policy = load_policy(tmp_path / "ppo_robust" / "policy.zip")
+    assert policy.describe()["residual_on"]["variable_step"] is True
+    env = gym.make("DrillString-v1", warmup_time=10.0, warmup_jitter=0.0)
+    spec = ControllerSpec.from_env(env)
+    gains = dict(load_gains(None)["presets"]["brake"]["lqi"]["gains"])
+    direct = LQIAngleFeedforward(spec, **gains, variable_step=True)
+    plain = classical_controller("lqi_angle_ff", spec, "brake")
+    obs, _ = env.reset(seed=3, options={"regime": "limit_cycle"})
+    s_l = s_d = s_p = None
+    start = np.ones(1, dtype=bool)
+    differs = 0.0
+    for _ in range(1500):  # past the feedforward's hold: it adapts
+        a_l, s_l = policy.base.predict(obs, s_l, start)
+        a_d, s_d = direct.predict(obs, s_d, start)
+        a_p, s_p = plain.predict(obs, s_p, start)
+        np.testing.assert_array_equal(a_l, a_d)
+        differs = max(differs, float(np.abs(a_l - a_p).max()))
+        start = np.zeros(1, dtype=bool)
+        obs, *_ = env.step(a_l)
+    env.close()
+    assert differs > 1e-4
 
 
 @pytest.mark.parametrize("observe_base", [False, True])
