@@ -397,14 +397,18 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
         ax.axhline(0.0, color="black", lw=1.0)
         ax.set_yscale("symlog", linthresh=0.01)
         ax.set_xlim(*xlim)
-        lows = [worst[r][v][0] - worst[n][v][0] for r, n in pairs for v in set(worst[r]) & set(worst[n])]
-        ax.set_ylim(bottom=min([-0.01, *(1.5 * m for m in lows)]))
-        ax.grid(alpha=0.3)
+        margins = [worst[r][v][0] - worst[n][v][0] for r, n in pairs for v in set(worst[r]) & set(worst[n])]
+        ax.set_ylim(min([-0.01, *(1.5 * m for m in margins)]), max([0.01, *(1.5 * m for m in margins)]))
+        from matplotlib.ticker import SymmetricalLogLocator
+
+        ax.yaxis.set_minor_locator(SymmetricalLogLocator(base=10, linthresh=0.01, subs=range(2, 10)))
+        ax.grid(alpha=0.3, which="both")
         ax.set_xlabel("nominal voltage u [V]")
         ax.set_ylabel("difference of worst suppression [-] (symlog)")
         ax.set_title("robust policy less its nominal-trained counterpart (worst runs, left)", fontsize=10)
         handles, _ = ax.get_legend_handles_labels()
-        handles.append(Line2D([], [], color="tab:red", marker="x", ls="none", mew=2, label="behind"))
+        if any(m < 0 for m in margins):
+            handles.append(Line2D([], [], color="tab:red", marker="x", ls="none", mew=2, label="behind"))
         ax.legend(handles=handles, fontsize=8, loc="upper right")
     legend_rows = -(-(len(worst) + 2) // 6)
     fig.tight_layout(rect=(0, (0.15 + 0.22 * legend_rows) / fig.get_figheight(), 1, 1))
