@@ -20,6 +20,7 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
                                         # (drill_env.agents.residual); absent or null: the policy is the controller;
                                         # observe_base: true adds the base's action and feedforward to its input
+                                        # base_options: {variable_step: true} sets lqi_angle_ff's own options
     warm_start: {controller: lqi, steps: 100000}  # optional: clone a classical controller into the
                                         # policy before the first rollout (drill_env.agents.warm_start);
                                         # with residual: {policy: ppo, ...} distils a trained policy

@@ -379,6 +379,7 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
         from drill_env.agents.robustness import worst_case_verdict
 
         ax = axes[0][1]
+        margins: list[float] = []
         for robust, nominal in pairs:
             vs = sorted(set(worst[robust]) & set(worst[nominal]))
             margin = np.array([worst[robust][v][0] - worst[nominal][v][0] for v in vs])
@@ -394,10 +395,10 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
                 label=f"{robust} - {nominal}: >= 0 at {verdict['at_least']} of {verdict['voltages']} voltages",
             )
             ax.plot(np.array(vs)[margin < 0], margin[margin < 0], "x", color="tab:red", ms=8, mew=2)
+            margins += margin.tolist()
         ax.axhline(0.0, color="black", lw=1.0)
         ax.set_yscale("symlog", linthresh=0.01)
         ax.set_xlim(*xlim)
-        margins = [worst[r][v][0] - worst[n][v][0] for r, n in pairs for v in set(worst[r]) & set(worst[n])]
         ax.set_ylim(min([-0.01, *(1.5 * m for m in margins)]), max([0.01, *(1.5 * m for m in margins)]))
         from matplotlib.ticker import SymmetricalLogLocator
 
