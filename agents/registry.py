@@ -2,10 +2,10 @@
 from their committed policies.
 
 * ``open_loop``, ``pi_upper``, ``pi_lower``, ``torque_feedback``, ``lqi``: built on an
-  environment's :class:`~drill_env.agents.base.ControllerSpec` with the gains that
+  environment's :class:`~drill_env.agents.controllers.base.ControllerSpec` with the gains that
   ``drill-env tune`` wrote to ``configs/agents/controllers.yaml`` for the preset;
 * ``lqi_angle_ff``: that LQI plus adaptive feedforward on harmonics of the lower disk's
-  measured angle (:mod:`drill_env.agents.angle_feedforward`), for friction locked to the bit's angle;
+  measured angle (:mod:`drill_env.agents.controllers.angle_feedforward`), for friction locked to the bit's angle;
 * ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
   ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v1``, the braked rig)
   and ``results/agents/<algo>_no_brake/policy.zip`` (on ``DrillStringNoBrake-v1``); a
@@ -15,11 +15,11 @@ from their committed policies.
   there;
 * ``ppo_robust``: PPO trained with domain randomisation over the standard plant family, kept
   beside the nominal ones as ``results/agents/ppo_robust[_<preset>]/policy.zip``; the
-  committed ones are residual policies on ``lqi_angle_ff`` (:mod:`drill_env.agents.residual`;
+  committed ones are residual policies on ``lqi_angle_ff`` (:mod:`drill_env.agents.learning.residual`;
   a policy's ``config.yaml`` says which it is): with the brake trained from the base
   (``configs/agents/ppo_residual.yaml``), without it started as the nominal ``ppo`` plus the
   base's angle-locked feedforward (``configs/agents/ppo_robust_distilled_no_brake.yaml``,
-  :mod:`drill_env.agents.warm_start`);
+  :mod:`drill_env.agents.learning.warm_start`);
 * ``sac_robust``: SAC trained with the same randomisation, kept as
   ``results/agents/sac_robust[_<preset>]/policy.zip``: residual policies on ``lqi_angle_ff``
   that start as their base (zero start, the critics trained before the actor moves;
@@ -34,8 +34,8 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
-from drill_env.agents.base import ControllerSpec
-from drill_env.agents.gains import classical_controller, gains_path, load_gains
+from drill_env.agents.controllers.base import ControllerSpec
+from drill_env.agents.controllers.gains import classical_controller, gains_path, load_gains
 
 __all__ = [
     "CLASSICAL",
@@ -196,7 +196,7 @@ def build_controller(
     if name in CLASSICAL:
         return classical_controller(name, ControllerSpec.from_env(env), preset, gains_file)
     if name in LEARNED:
-        from drill_env.agents.rl import load_policy
+        from drill_env.agents.learning.rl import load_policy
 
         policy = load_policy(policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name)
         policy.check_env(env)
@@ -215,19 +215,19 @@ def observation_version(name: str, preset: str, agents_dir: str | Path | None = 
         return max(OBSERVATION_VERSIONS)
     if name not in LEARNED:
         raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")
-    from drill_env.agents.rl import policy_observation_version
+    from drill_env.agents.learning.rl import policy_observation_version
 
     return policy_observation_version(policy_path(name, preset, agents_dir))
 
 
 def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any:
     """The trained policy ``name`` of a distillation (``warm_start.policy``, one of
-    :data:`drill_env.agents.warm_start.WARM_START_POLICIES`) as the benchmark loads it for the
+    :data:`drill_env.agents.learning.warm_start.WARM_START_POLICIES`) as the benchmark loads it for the
     preset of ``env_id`` from the default agents folder (:func:`build_controller`: a missing
     file is an error naming it), checked against the spaces of the training environment."""
     import gymnasium as gym
 
-    from drill_env.agents.warm_start import WARM_START_POLICIES
+    from drill_env.agents.learning.warm_start import WARM_START_POLICIES
     from drill_env.envs import ENV_IDS
 
     if name not in WARM_START_POLICIES:

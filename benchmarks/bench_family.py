@@ -3,7 +3,7 @@ nominal plant alone, timed in the same run.
 
 Targets (on 2 cores): the quick family grid, ``drill-env benchmark --quick --plants family``
 (every controller, both rigs, the quick voltages, seed 0, the 18 plants of
-``agents/plants.py``), under 3 minutes; the full family grid, ``drill-env benchmark --plants
+``agents/evaluation/plants.py``), under 3 minutes; the full family grid, ``drill-env benchmark --plants
 family --seeds 3`` (every controller, the full voltage grid, 3 seeds), under 30 minutes.
 
 Each case is ``drill-env benchmark`` as a user runs it, in a subprocess: a fresh output

@@ -53,7 +53,7 @@ def _model(cfg, seed: int = 0):
     import torch
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from drill_env.agents.rl import _algo_class, algo_kwargs, ignore_observations, make_train_vec_env
+    from drill_env.agents.learning.rl import _algo_class, algo_kwargs, ignore_observations, make_train_vec_env
 
     torch.set_num_threads(cfg.torch_threads)
     venv = make_train_vec_env(cfg, seed)
@@ -71,7 +71,7 @@ def _model(cfg, seed: int = 0):
 def throughput(config: Path, steps: int, **overrides) -> float:
     """Env-steps per second of ``learn`` over ``steps`` steps (after a short warm-up that
     compiles the env and fills SAC's ``learning_starts``)."""
-    from drill_env.agents.rl import load_config
+    from drill_env.agents.learning.rl import load_config
 
     cfg = load_config(config, **overrides)
     model = _model(cfg)
@@ -88,7 +88,7 @@ def quick_suppression(model, algo: str, preset: str, folder: Path) -> tuple[dict
     """Mean suppression and RMS speed error per regime of ``model`` in the quick benchmark."""
     import pandas as pd
 
-    from drill_env.agents.benchmark import BenchmarkConfig, run_benchmark
+    from drill_env.agents.evaluation.benchmark import BenchmarkConfig, run_benchmark
 
     # a folder per check: the benchmark caches controllers per process by their folder
     agents = folder / f"agents_{model.num_timesteps}"
@@ -117,7 +117,7 @@ def time_to_policy(config: Path, preset: str, folder: Path, check_every: int, bu
     reaches 0.99 in every regime with a cycle."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from drill_env.agents.rl import load_config
+    from drill_env.agents.learning.rl import load_config
 
     cfg = load_config(config)
     model = _model(cfg)
@@ -152,7 +152,7 @@ def time_to_policy(config: Path, preset: str, folder: Path, check_every: int, bu
             return not check()  # False stops the training
 
     if cfg.warm_start is not None:  # counted in the training time, checked like any policy
-        from drill_env.agents.warm_start import warm_start
+        from drill_env.agents.learning.warm_start import warm_start
 
         state["t0"] = time.perf_counter()
         warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, 0)

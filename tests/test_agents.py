@@ -11,29 +11,18 @@ import numpy as np
 import pytest
 
 import drill_env  # noqa: F401  (registers the environments)
-from drill_env.agents.base import Controller, ControllerSpec
-from drill_env.agents.evaluation import (
-    EpisodeSettings,
-    env_id_of,
-    evaluate,
-    make_env,
-    run_episode,
-    suppression,
+from drill_env.agents.controllers.base import Controller, ControllerSpec
+from drill_env.agents.controllers.linear_model import (
+    design_point,
+    equilibrium_observation,
+    linearise,
+    sampled_rig,
 )
-from drill_env.agents.linear_model import design_point, equilibrium_observation, linearise, sampled_rig
-from drill_env.agents.lqi import LQI
-from drill_env.agents.open_loop import OpenLoop
-from drill_env.agents.pi import LowerSpeedPI, UpperSpeedPI
-from drill_env.agents.registry import (
-    CLASSICAL,
-    CONTROLLERS,
-    build_controller,
-    default_agents_dir,
-    load_gains,
-    observation_version,
-)
-from drill_env.agents.torque_feedback import TorqueFeedback
-from drill_env.agents.tuning import (
+from drill_env.agents.controllers.lqi import LQI
+from drill_env.agents.controllers.open_loop import OpenLoop
+from drill_env.agents.controllers.pi import LowerSpeedPI, UpperSpeedPI
+from drill_env.agents.controllers.torque_feedback import TorqueFeedback
+from drill_env.agents.controllers.tuning import (
     TUNED_GAINS,
     closed_loop,
     controller_matrices,
@@ -41,6 +30,22 @@ from drill_env.agents.tuning import (
     evaluate_design,
     make_controller,
     tune,
+)
+from drill_env.agents.evaluation.episodes import (
+    EpisodeSettings,
+    env_id_of,
+    evaluate,
+    make_env,
+    run_episode,
+    suppression,
+)
+from drill_env.agents.registry import (
+    CLASSICAL,
+    CONTROLLERS,
+    build_controller,
+    default_agents_dir,
+    load_gains,
+    observation_version,
 )
 from drill_env.analysis import critical_friction_slope
 from drill_env.friction import lower_friction_curve
@@ -285,7 +290,7 @@ def test_committed_gains_are_reproduced_by_the_procedure(spec_brake):
 
 @pytest.mark.slow
 def test_all_committed_gains_are_reproduced():
-    from drill_env.agents.tuning import tune_all
+    from drill_env.agents.controllers.tuning import tune_all
 
     fresh = tune_all()
     committed = load_gains()
@@ -378,7 +383,7 @@ def test_a_missing_no_brake_policy_is_an_error_not_the_braked_rigs(tmp_path):
 
 @pytest.mark.parametrize("name", ["ppo", "sac", "ppo_no_brake", "sac_no_brake", "v0/ppo", "v0/sac"])
 def test_the_numpy_forward_pass_is_sb3s_deterministic_predict(name):
-    from drill_env.agents.rl import load_policy
+    from drill_env.agents.learning.rl import load_policy
 
     policy = load_policy(Path(__file__).resolve().parents[1] / "results" / "agents" / name / "policy.zip")
     assert policy._actor is not None  # the committed policies take the fast path
@@ -407,7 +412,9 @@ class _NoTopLevelAgents:
 def test_a_policy_saved_under_the_former_package_name_loads_under_the_present_one(monkeypatch):
     import sys
 
-    from drill_env.agents.rl import LinearSchedule, load_config, load_policy, renamed_objects
+    from stable_baselines3.common.utils import LinearSchedule
+
+    from drill_env.agents.learning.rl import load_config, load_policy, renamed_objects
 
     # the braked ppo_robust as committed before its retraining (results/agents/ppo_robust until
     # the lqi_angle_ff change): it pickled its learning-rate schedule as agents.rl.LinearSchedule
@@ -418,27 +425,44 @@ def test_a_policy_saved_under_the_former_package_name_loads_under_the_present_on
     policy = load_policy(folder / "policy.zip", trusted=True)  # a file of this repository
     model = getattr(policy, "policy", policy).model  # a residual policy's learned part
     assert {m for m in sys.modules if m == "agents" or m.startswith("agents.")} == modules
-    # the schedules are those of the training config, under drill_env.agents.rl
+    # the schedules are those of the training config, under drill_env.agents.learning.rl
     hp = load_config(folder / "config.yaml").hyperparameters
     assert hp["learning_rate"] == "lin_3.0e-4"
-    assert isinstance(model.learning_rate, LinearSchedule) and model.learning_rate.value == 3.0e-4
+    assert isinstance(model.learning_rate, LinearSchedule) and model.learning_rate.start == 3.0e-4
+    assert (model.learning_rate.end, model.learning_rate.end_fraction) == (0.0, 1.0)
     for progress in (1.0, 0.25):
         assert model.lr_schedule(progress) == pytest.approx(3.0e-4 * progress, rel=1e-12)
         assert model.clip_range(progress) == hp["clip_range"]
 
 
-def test_renamed_objects_maps_the_former_package_name_only(tmp_path):
+class _FormerLinearSchedule:
+    """The project's own schedule before stable-baselines3's replaced it (state: ``value``)."""
+
+    def __init__(self, value):
+        self.value = value
+
+
+@pytest.mark.parametrize(
+    "former_module", ["agents.rl", "drill_env.agents.rl", "drill_env.agents.learning.rl"]
+)
+def test_renamed_objects_maps_former_module_paths_only(tmp_path, former_module):
     import base64
     import json
     import pickle
     import zipfile
 
-    from drill_env.agents.rl import LinearSchedule, renamed_objects
+    from stable_baselines3.common.utils import LinearSchedule
 
-    # protocol 0 names a class as text ("c<module>\n<name>\n"): the old name written in
-    current = pickle.dumps(LinearSchedule(0.5), protocol=0)
-    assert b"drill_env.agents.rl\nLinearSchedule" in current
-    former = current.replace(b"drill_env.agents.rl\n", b"agents.rl\n")
+    from drill_env.agents.learning.rl import linear_schedule, renamed_objects
+
+    # protocol 0 names a class as text ("c<module>\n<name>\n"): the former path written in
+    former = pickle.dumps(_FormerLinearSchedule(0.5), protocol=0)
+    assert b"test_agents\n_FormerLinearSchedule" in former
+    former = former.replace(
+        b"test_agents\n_FormerLinearSchedule", f"{former_module}\nLinearSchedule".encode()
+    )
+    current = pickle.dumps(linear_schedule(0.5), protocol=0)
+    assert b"stable_baselines3.common.utils\nLinearSchedule" in current
     data = {
         "clip_range": {":type:": "<class 'x'>", ":serialized:": base64.b64encode(former).decode()},
         "learning_rate": {":serialized:": base64.b64encode(current).decode()},
@@ -449,10 +473,33 @@ def test_renamed_objects_maps_the_former_package_name_only(tmp_path):
         zf.writestr("data", json.dumps(data))
     objects = renamed_objects(path)
     assert list(objects) == ["clip_range"]
-    assert isinstance(objects["clip_range"], LinearSchedule) and objects["clip_range"](0.5) == 0.25
+    schedule = objects["clip_range"]
+    assert type(schedule) is LinearSchedule and (schedule.start, schedule.end, schedule.end_fraction) == (
+        0.5,
+        0,
+        1,
+    )
+    for progress in (1.0, 0.5, 0.1, 0.0):
+        assert schedule(progress) == pytest.approx(0.5 * progress, rel=1e-15, abs=0)
     # not a model: nothing to rename, stable-baselines3 names what is wrong
     (tmp_path / "bad.zip").write_bytes(b"not a zip")
     assert renamed_objects(tmp_path / "bad.zip") == {}
+
+
+@pytest.mark.parametrize("name", ["ppo", "ppo_robust", "ppo_no_brake", "ppo_robust_no_brake"])
+def test_committed_policies_saved_before_the_split_load_with_their_schedules(name):
+    from stable_baselines3.common.utils import LinearSchedule
+
+    from drill_env.agents.learning.rl import load_config, load_policy, renamed_objects
+
+    folder = Path(__file__).resolve().parents[1] / "results" / "agents" / name
+    assert set(renamed_objects(folder / "policy.zip")) == {"learning_rate", "lr_schedule"}
+    policy = load_policy(folder / "policy.zip")
+    model = getattr(policy, "policy", policy).model
+    hp = load_config(folder / "config.yaml").hyperparameters
+    start = float(str(hp["learning_rate"]).removeprefix("lin_"))
+    assert isinstance(model.learning_rate, LinearSchedule) and model.learning_rate.start == start
+    assert model.lr_schedule(0.25) == pytest.approx(0.25 * start, rel=1e-12)
 
 
 def test_a_policy_the_numpy_pass_does_not_cover_runs_through_sb3():
@@ -460,7 +507,7 @@ def test_a_policy_the_numpy_pass_does_not_cover_runs_through_sb3():
     import torch
     from stable_baselines3 import PPO
 
-    from drill_env.agents.rl import SB3Policy
+    from drill_env.agents.learning.rl import SB3Policy
 
     env = gym.make("DrillString-v1")
     model = PPO("MlpPolicy", env, policy_kwargs={"activation_fn": torch.nn.ELU}, n_steps=64, device="cpu")

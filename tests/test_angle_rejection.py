@@ -1,4 +1,4 @@
-"""Rejection of friction locked to the lower disk's angle (drill_env.agents.angle_feedforward), and
+"""Rejection of friction locked to the lower disk's angle (drill_env.agents.controllers.angle_feedforward), and
 designing on a given rig model (``drill-env tune/train --params``)."""
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from drill_env.agents.angle_feedforward import (
+from drill_env.agents.commands.tune import tune_on_model
+from drill_env.agents.controllers.angle_feedforward import (
     LQIAngleFeedforward,
     design,
     feedforward_closed_loop,
@@ -20,15 +21,14 @@ from drill_env.agents.angle_feedforward import (
     step_scale,
     voltage_to_lower_speed,
 )
-from drill_env.agents.base import ControllerSpec
-from drill_env.agents.commands.tune import tune_on_model
-from drill_env.agents.evaluation import EpisodeSettings, evaluate, make_env
-from drill_env.agents.gains import load_gains
-from drill_env.agents.linear_model import design_point, equilibrium_observation, sampled_rig
-from drill_env.agents.lqi import LQI
-from drill_env.agents.open_loop import OpenLoop
+from drill_env.agents.controllers.base import ControllerSpec
+from drill_env.agents.controllers.gains import load_gains
+from drill_env.agents.controllers.linear_model import design_point, equilibrium_observation, sampled_rig
+from drill_env.agents.controllers.lqi import LQI
+from drill_env.agents.controllers.open_loop import OpenLoop
+from drill_env.agents.controllers.tuning import design_points
+from drill_env.agents.evaluation.episodes import EpisodeSettings, evaluate, make_env
 from drill_env.agents.registry import CLASSICAL, build_controller
-from drill_env.agents.tuning import design_points
 from drill_env.cli import app
 from drill_env.envs.task import nominal_params
 from drill_env.params import load_params
@@ -155,7 +155,7 @@ def test_step_scale_follows_the_harmonic_against_its_noise():
 
 
 def test_gains_file_sets_the_options(tmp_path):
-    from drill_env.agents.gains import classical_controller, gains_path
+    from drill_env.agents.controllers.gains import classical_controller, gains_path
 
     data = yaml.safe_load(gains_path().read_text())
     data["presets"]["brake"]["lqi_angle_ff"] = {"options": {"variable_step": True, "significance": 3.0}}
@@ -185,7 +185,7 @@ def test_gains_file_sets_the_options(tmp_path):
 )
 def test_benchmark_refuses_bad_feedforward_options_before_any_run(tmp_path, options, message):
     """A bad option in a --gains file is a one-line error naming it (exit 2), before the runs."""
-    from drill_env.agents.gains import gains_path
+    from drill_env.agents.controllers.gains import gains_path
 
     data = yaml.safe_load(gains_path().read_text())
     data["presets"]["brake"]["lqi_angle_ff"] = {"options": options}
@@ -435,7 +435,7 @@ def test_cli_tune_params_writes_gains_designed_on_the_model(tmp_path):
 
 @pytest.mark.slow
 def test_cli_train_params_trains_on_the_model(tmp_path, monkeypatch):
-    from drill_env.agents.rl import load_config
+    from drill_env.agents.learning.rl import load_config
 
     cfg = load_config(ROOT / "configs" / "agents" / "ppo.yaml").to_dict()
     cfg.update(total_timesteps=128, n_envs=2)

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from drill_env.agents.benchmark import (
+from drill_env.agents.evaluation.benchmark import (
     COLUMNS,
     OPEN_LOOP_FLOOR,
     BenchmarkConfig,
@@ -21,7 +21,7 @@ from drill_env.agents.benchmark import (
     load_results,
     run_benchmark,
 )
-from drill_env.agents.evaluation import EpisodeSettings
+from drill_env.agents.evaluation.episodes import EpisodeSettings
 from drill_env.cli import app
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -176,7 +176,7 @@ def test_process_pool_matches_sequential(tmp_path, sequential):
 
 def test_ray_backend_on_a_local_instance(tmp_path, sequential):
     ray = pytest.importorskip("ray")
-    from drill_env.agents.plants import standard_family
+    from drill_env.agents.evaluation.plants import standard_family
 
     lag = next(p for p in standard_family() if p.name == "motor_lag")
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)

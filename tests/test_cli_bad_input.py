@@ -80,8 +80,8 @@ def _benchmark_folder(d: Path, csv_text: str, config_text: str) -> str:
 
 def _benchmark_settings() -> str:
     """The settings record of the benchmark BENCH describes, as a resumable folder holds it."""
-    from drill_env.agents.benchmark import BenchmarkConfig
-    from drill_env.agents.evaluation import EpisodeSettings
+    from drill_env.agents.evaluation.benchmark import BenchmarkConfig
+    from drill_env.agents.evaluation.episodes import EpisodeSettings
 
     cfg = BenchmarkConfig(
         presets=("brake",),
@@ -94,7 +94,7 @@ def _benchmark_settings() -> str:
 
 
 def _benchmark_csv() -> str:
-    from drill_env.agents.benchmark import COLUMNS
+    from drill_env.agents.evaluation.benchmark import COLUMNS
 
     return ",".join(COLUMNS) + "\n"
 
@@ -385,8 +385,13 @@ def test_bifurcation_outside_the_validated_range_says_so(tmp_path):
 
 
 def test_a_row_cut_by_an_interrupted_run_is_run_again(tmp_path):
-    from drill_env.agents.benchmark import BenchmarkConfig, check_resumable, load_results, run_benchmark
-    from drill_env.agents.evaluation import EpisodeSettings
+    from drill_env.agents.evaluation.benchmark import (
+        BenchmarkConfig,
+        check_resumable,
+        load_results,
+        run_benchmark,
+    )
+    from drill_env.agents.evaluation.episodes import EpisodeSettings
 
     cfg = BenchmarkConfig(
         presets=("brake",),

@@ -86,7 +86,7 @@ def _legend_texts(ax) -> list[str]:
 
 
 def test_the_limits_are_those_of_the_rest_of_the_package():
-    from drill_env.agents.evaluation import IDENTIFIED_SPEED
+    from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED
     from drill_env.envs.task import VOLTAGE_LIMIT
 
     assert AMPLIFIER_LIMIT_V == VOLTAGE_LIMIT
@@ -230,8 +230,8 @@ def _frame(preset: str, voltages, controllers=("open_loop", "lqi", "pi_lower")) 
 
 
 def test_benchmark_markers_sit_at_their_runs_voltage_and_off_scale_runs_are_noted(brake):
-    from drill_env.agents.benchmark import _MARKERS, draw_bifurcation_figure
-    from drill_env.agents.robustness import COLORS
+    from drill_env.agents.evaluation.benchmark import _MARKERS, draw_bifurcation_figure
+    from drill_env.agents.evaluation.robustness import COLORS
 
     volts = (0.3, 0.55, 1.0, 2.0, 5.0)
     df = _frame("brake", volts)
@@ -267,7 +267,7 @@ def test_benchmark_markers_sit_at_their_runs_voltage_and_off_scale_runs_are_note
 
 
 def test_suppression_markers_sit_at_their_voltage_and_floored_values_are_readable():
-    from drill_env.agents.benchmark import FLOOR_BAND, Y_FLOOR, _draw_suppression
+    from drill_env.agents.evaluation.benchmark import FLOOR_BAND, Y_FLOOR, _draw_suppression
 
     volts = (0.55, 0.7, 1.0, 2.0, 5.0)
     df = _frame("no_brake", volts)
@@ -288,8 +288,8 @@ def test_suppression_markers_sit_at_their_voltage_and_floored_values_are_readabl
 
 
 def test_robustness_and_plant_figures_run_on_a_small_frame(tmp_path):
-    from drill_env.agents.benchmark import _plants_figure
-    from drill_env.agents.robustness import robustness_figure
+    from drill_env.agents.evaluation.benchmark import _plants_figure
+    from drill_env.agents.evaluation.robustness import robustness_figure
 
     a = _frame("brake", (0.5, 1.0, 2.0))
     b = a.assign(plant="km_x1.05", rms_error=a["rms_error"] * 2)

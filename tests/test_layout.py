@@ -107,7 +107,7 @@ def test_the_module_list_has_both_packages_once():
     assert {
         "drill_env.cli",
         "drill_env.agents",
-        "drill_env.agents.rl",
+        "drill_env.agents.learning.rl",
         "drill_env.agents.commands.train",
     } <= set(mods)
     assert not any(m == "agents" or m.startswith("agents.") for m in mods)
@@ -117,7 +117,9 @@ def test_the_module_list_has_both_packages_once():
 def test_the_core_does_not_import_the_controllers():
     graph = _graph()
     # the controllers' imports of each other and of the core are edges under their import names
-    assert {"drill_env.agents.base", "drill_env.params"} <= graph["drill_env.agents.gains"]
+    assert {"drill_env.agents.controllers.base", "drill_env.params"} <= graph[
+        "drill_env.agents.controllers.gains"
+    ]
     offenders = {m: sorted(d for d in deps if _is_controllers(d)) for m, deps in graph.items()}
     assert {m: d for m, d in offenders.items() if not _is_controllers(m) and d} == {}
 
@@ -189,9 +191,9 @@ def test_controller_commands_come_from_the_agents_package():
 
 
 def test_every_controller_has_its_own_style():
-    from drill_env.agents.benchmark import _MARKERS
+    from drill_env.agents.evaluation.benchmark import _MARKERS
+    from drill_env.agents.evaluation.robustness import COLORS
     from drill_env.agents.registry import CONTROLLERS, controller_style
-    from drill_env.agents.robustness import COLORS
 
     assert set(COLORS) == set(_MARKERS) == set(CONTROLLERS)
     styles = [controller_style(c) for c in CONTROLLERS]

@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 
 import drill_env
 from drill_env import _cache
-from drill_env.agents.benchmark import BenchmarkConfig, load_results, run_benchmark
-from drill_env.agents.evaluation import EpisodeSettings
+from drill_env.agents.evaluation.benchmark import BenchmarkConfig, load_results, run_benchmark
+from drill_env.agents.evaluation.episodes import EpisodeSettings
 from drill_env.cli import app
 from drill_env.outputs import (
     LOCK_NAME,

@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from drill_env.agents.benchmark import BenchmarkConfig, load_results, run_benchmark
-from drill_env.agents.evaluation import EpisodeSettings, make_env
-from drill_env.agents.plants import NOMINAL, Plant, standard_family
-from drill_env.agents.robustness import (
+from drill_env.agents.evaluation.benchmark import BenchmarkConfig, load_results, run_benchmark
+from drill_env.agents.evaluation.episodes import EpisodeSettings, make_env
+from drill_env.agents.evaluation.plants import NOMINAL, Plant, standard_family
+from drill_env.agents.evaluation.robustness import (
     robust_pairs,
     robustness_lines,
     robustness_rows,
@@ -57,7 +57,7 @@ def test_the_family_is_what_its_documentation_lists():
     }
     assert FAMILY["delay_10ms"].sensors == {"delay_samples": 10}
     assert FAMILY["angle_noise_3mrad"].sensors == {"angle_noise_std": 3e-3}
-    import drill_env.agents.plants as doc
+    import drill_env.agents.evaluation.plants as doc
 
     for name in names[1:]:  # every plant is described in the module docstring
         stem = name.rsplit("_x", 1)[0]
@@ -269,7 +269,7 @@ def test_a_plant_name_must_be_usable_as_a_file_name():
 
 
 def test_time_series_show_each_controller_on_the_nominal_and_the_paper_friction_plant(tmp_path):
-    from drill_env.agents.timeseries import run_trace, timeseries_figures
+    from drill_env.agents.evaluation.timeseries import run_trace, timeseries_figures
 
     paper = FAMILY["position_friction_lower"]
     episode = EpisodeSettings(duration=20.0, window=5.0, warmup_time=20.0, warmup_jitter=1.0)

@@ -13,13 +13,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from drill_env.agents.registry import build_controller, default_agents_dir, policy_path
-from drill_env.agents.rl import (
+from drill_env.agents.learning.rl import (
     COMMITTED_POLICY_DIR,
     UntrustedPolicyWarning,
     load_policy,
     untrusted_policy_note,
 )
+from drill_env.agents.registry import build_controller, default_agents_dir, policy_path
 from drill_env.envs.vector import DrillStringVectorEnv
 
 

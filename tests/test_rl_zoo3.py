@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 import drill_env  # noqa: F401  (registers the environments)
-from drill_env.agents.rl import load_config
+from drill_env.agents.learning.rl import load_config
 from drill_env.envs import ENV_IDS, ENV_VERSIONS
 
 # Looked up, not imported: importing rl_zoo3 replaces gymnasium's TimeLimit for the whole

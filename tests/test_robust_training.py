@@ -14,18 +14,17 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from drill_env.agents.base import ControllerSpec
-from drill_env.agents.evaluation import EpisodeSettings, evaluate, make_env
-from drill_env.agents.gains import classical_controller
-from drill_env.agents.registry import build_controller, observation_version, training_config
-from drill_env.agents.residual import (
+from drill_env.agents.controllers.base import ControllerSpec
+from drill_env.agents.controllers.gains import classical_controller
+from drill_env.agents.evaluation.episodes import EpisodeSettings, evaluate, make_env
+from drill_env.agents.learning.residual import (
     BASE_OBSERVATIONS,
     ResidualConfig,
     ResidualPolicy,
     base_controller,
     step_base,
 )
-from drill_env.agents.rl import (
+from drill_env.agents.learning.rl import (
     TrainConfig,
     UntrustedPolicyWarning,
     load_config,
@@ -33,6 +32,7 @@ from drill_env.agents.rl import (
     make_train_vec_env,
     train,
 )
+from drill_env.agents.registry import build_controller, observation_version, training_config
 from drill_env.cli import app
 from drill_env.envs.config import DomainRandomization
 
@@ -231,8 +231,8 @@ def test_a_residual_base_with_options_is_that_feedforward_in_training_and_in_the
     config) and the base of the policy loaded from the saved ``config.yaml`` are both
     ``lqi_angle_ff`` with the variable step, and act as one built directly with it (and not as
     the gains file's own, which differs once the adaptation starts)."""
-    from drill_env.agents.angle_feedforward import LQIAngleFeedforward
-    from drill_env.agents.gains import load_gains
+    from drill_env.agents.controllers.angle_feedforward import LQIAngleFeedforward
+    from drill_env.agents.controllers.gains import load_gains
 
     residual = {"base": "lqi_angle_ff", "scale": 0.2, "base_options": {"variable_step": True}}
     cfg = _tiny_robust_config(residual)
@@ -362,7 +362,7 @@ def test_a_zero_start_sac_residual_is_its_base_until_the_burn_in_ends(tmp_path):
     import torch
     from stable_baselines3 import SAC
 
-    from drill_env.agents.residual import critic_burn_in_callback, start_from_base
+    from drill_env.agents.learning.residual import critic_burn_in_callback, start_from_base
 
     residual = ResidualConfig(base="lqi", zero_start=True, initial_log_std=-2.5, critic_burn_in=10_000)
     # through `train`: a run shorter than the burn-in leaves the policy at its start
@@ -398,7 +398,7 @@ def test_committed_robust_policies_were_trained_over_the_family(name, preset):
     parameter factors within the training ranges, the shipped effects and noise), load as what
     their config says, and are learned: the kept (evaluation-best) policy is a later one than
     the start and beat it."""
-    from drill_env.agents.plants import standard_family
+    from drill_env.agents.evaluation.plants import standard_family
 
     shipped = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())["env_kwargs"]["domain_randomization"]
     for config in ("ppo_residual", "ppo_residual_no_brake", "sac_residual", "sac_residual_no_brake"):
@@ -456,8 +456,8 @@ def test_committed_robust_policies_were_trained_over_the_family(name, preset):
 def test_committed_policies_that_ignore_the_encoder_angles_do(name, preset):
     """A committed policy whose config ignores the encoder angles acts the same whatever the
     angles: its correction is no forcing at the rotation frequency."""
+    from drill_env.agents.learning.rl import load_policy, observation_names
     from drill_env.agents.registry import policy_path
-    from drill_env.agents.rl import load_policy, observation_names
 
     path = policy_path(name, preset)
     cfg = load_config(path.parent / "config.yaml")
@@ -488,10 +488,10 @@ def test_committed_sac_robust_suppresses_where_its_correction_once_sustained_a_c
     an oscillation its base does not have (suppression 0.575-0.712 with the brake, 0.786
     without; the base 0.987 and 0.992). The committed policies, trained with the plants inside
     their ranges, suppress the cycle there as the base does (the benchmark's run, seed 0)."""
-    from drill_env.agents.open_loop import OpenLoop
-    from drill_env.agents.plants import standard_family
+    from drill_env.agents.controllers.open_loop import OpenLoop
+    from drill_env.agents.evaluation.plants import standard_family
 
-    # the benchmark's run (agents/timeseries.py builds the same two envs), on this plant only
+    # the benchmark's run (agents/evaluation/timeseries.py builds the same two envs), on this plant only
     family = {p.name: p for p in standard_family()}
     settings = EpisodeSettings()
     version = observation_version("sac_robust", preset)
@@ -519,9 +519,9 @@ def test_committed_robust_policies_are_at_least_the_nominal_ones_on_the_worst_ca
     nominal-trained counterpart's and above 0.8. The run that sets `ppo_robust`'s smallest
     margin is re-run with the committed policy and reproduces the CSV: the results are this
     policy's, not an earlier one's."""
-    from drill_env.agents.benchmark.store import load_results
-    from drill_env.agents.plants import standard_family
-    from drill_env.agents.robustness import worst_by_voltage, worst_case_verdict
+    from drill_env.agents.evaluation.benchmark.store import load_results
+    from drill_env.agents.evaluation.plants import standard_family
+    from drill_env.agents.evaluation.robustness import worst_by_voltage, worst_case_verdict
 
     folder = ROOT / "results" / "robust_rl" / "five_seeds"
     df = load_results(folder / "benchmark.csv")

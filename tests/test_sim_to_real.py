@@ -13,8 +13,8 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from drill_env.agents.evaluation import EpisodeSettings
-from drill_env.agents.sim_to_real import SimToRealConfig, quick_config, run_sim_to_real
+from drill_env.agents.evaluation.episodes import EpisodeSettings
+from drill_env.agents.evaluation.sim_to_real import SimToRealConfig, quick_config, run_sim_to_real
 from drill_env.cli import app
 from drill_env.discrepancy.synth import SynthConfig
 from drill_env.params import load_params
@@ -79,7 +79,7 @@ def test_reduced_pipeline_end_to_end(tmp_path: Path):
     assert model.effects.lower_position_amp_1 == pytest.approx(0.12, rel=0.05)
 
     # the corrected design was tuned on that model and written for benchmark --gains
-    from drill_env.agents.gains import load_gains
+    from drill_env.agents.controllers.gains import load_gains
 
     gains = load_gains(out / "gains_corrected.yaml")
     assert gains["design_model"]["params"] == "discrepancy/model.yaml"
@@ -140,8 +140,8 @@ def test_config_validation_names_the_field():
 def test_summary_reports_before_and_after_from_the_rows():
     """The before → after cells are the rows' means per design (never swapped), the worst case
     their minimum, and a change within 0.02 is called no material change."""
-    from drill_env.agents.evaluation import METRIC_COLUMNS
-    from drill_env.agents.sim_to_real import SimToRealResult, summary_markdown
+    from drill_env.agents.evaluation.episodes import METRIC_COLUMNS
+    from drill_env.agents.evaluation.sim_to_real import SimToRealResult, summary_markdown
 
     cfg = dataclasses.replace(quick_config(controllers=("lqi",), voltages=(0.85, 1.25)), seeds=(0, 1))
     supp = {("nominal", 0.85): (0.20, 0.30), ("corrected", 0.85): (0.60, 0.70), ("nominal", 1.25): (0.9, 0.9)}

@@ -11,9 +11,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from drill_env.agents.evaluation import EpisodeSettings, evaluate, make_env
-from drill_env.agents.registry import default_agents_dir, policy_path
-from drill_env.agents.rl import (
+from drill_env.agents.evaluation.episodes import EpisodeSettings, evaluate, make_env
+from drill_env.agents.learning.rl import (
     SB3Policy,
     TrainConfig,
     algo_kwargs,
@@ -24,6 +23,7 @@ from drill_env.agents.rl import (
     policy_observation_version,
     train,
 )
+from drill_env.agents.registry import default_agents_dir, policy_path
 from drill_env.cli import app
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -235,7 +235,7 @@ def test_activation_by_name_builds_that_network_and_the_numpy_actor_runs_it():
     import torch
     from stable_baselines3 import PPO
 
-    from drill_env.agents.rl import SB3Policy
+    from drill_env.agents.learning.rl import SB3Policy
 
     hp = algo_kwargs({"policy_kwargs": {"net_arch": [16, 16], "activation_fn": "ReLU"}})
     assert hp["policy_kwargs"]["activation_fn"] is torch.nn.ReLU

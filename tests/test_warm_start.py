@@ -1,4 +1,4 @@
-"""Warm start of a policy by behaviour cloning of a classical controller (agents/warm_start.py)."""
+"""Warm start of a policy by behaviour cloning of a classical controller (agents/learning/warm_start.py)."""
 
 from __future__ import annotations
 
@@ -7,14 +7,14 @@ import pytest
 from gymnasium import spaces
 from test_train import CONFIGS, ROOT, small_config
 
-from drill_env.agents.registry import teacher_policy
-from drill_env.agents.rl import TrainConfig, load_config, load_policy, train
-from drill_env.agents.warm_start import (
+from drill_env.agents.learning.rl import TrainConfig, load_config, load_policy, train
+from drill_env.agents.learning.warm_start import (
     WarmStartConfig,
     collect_demonstrations,
     nominal_controller,
     warm_start,
 )
+from drill_env.agents.registry import teacher_policy
 
 ANGLES = ["lower_angle_sin", "lower_angle_cos", "upper_angle_sin", "upper_angle_cos"]
 
@@ -128,7 +128,7 @@ def test_the_clone_acts_like_the_controller_on_rigs_it_was_not_fitted_on(algo, o
 def _model(cfg):
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from drill_env.agents.rl import _algo_class, algo_kwargs, make_train_vec_env
+    from drill_env.agents.learning.rl import _algo_class, algo_kwargs, make_train_vec_env
 
     venv = VecNormalize(make_train_vec_env(cfg, 0), norm_obs=False, norm_reward=True)
     return _algo_class(cfg.algo)(
@@ -218,8 +218,8 @@ DISTILLED = {
 
 
 def test_distillation_config_names_the_field():
+    from drill_env.agents.learning.warm_start import WARM_START_POLICIES
     from drill_env.agents.registry import LEARNED
-    from drill_env.agents.warm_start import WARM_START_POLICIES
 
     assert set(WARM_START_POLICIES) <= set(LEARNED)
     with pytest.raises(ValueError, match=r"^warm_start: give controller .* or policy .*, not both$"):
@@ -300,9 +300,9 @@ def _lqi_feedback_and_feedforward(base, obs, state):
 def test_the_distillation_label_makes_the_residual_voltage_the_teachers_plus_the_feedforward(env_id):
     import gymnasium as gym
 
+    from drill_env.agents.learning.residual import _combine, base_controller
+    from drill_env.agents.learning.warm_start import ResidualLabels
     from drill_env.agents.registry import build_controller
-    from drill_env.agents.residual import _combine, base_controller
-    from drill_env.agents.warm_start import ResidualLabels
     from drill_env.envs import ENV_IDS
     from drill_env.envs.sb3 import sb3_vec_env
 
@@ -351,8 +351,8 @@ def test_the_distillation_label_makes_the_residual_voltage_the_teachers_plus_the
 
 
 def test_a_tiny_distillation_moves_the_residual_policy_to_the_teacher(one_torch_thread):
-    from drill_env.agents.residual import ResidualPolicy
-    from drill_env.agents.rl import SB3Policy, ignore_observations
+    from drill_env.agents.learning.residual import ResidualPolicy
+    from drill_env.agents.learning.rl import SB3Policy, ignore_observations
 
     cfg = load_config(CONFIGS / "ppo_robust_distilled.yaml").to_dict()
     cfg.update(n_envs=4)
@@ -406,8 +406,8 @@ def _distance_to_the_target(policy, labels, cfg, seed, n, steps, drive):
 
 
 def _labeller(cfg):
-    from drill_env.agents.residual import base_controller
-    from drill_env.agents.warm_start import ResidualLabels
+    from drill_env.agents.learning.residual import base_controller
+    from drill_env.agents.learning.warm_start import ResidualLabels
 
     return ResidualLabels(
         teacher_policy("ppo", cfg.env_id, cfg.env_kwargs),

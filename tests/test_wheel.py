@@ -217,7 +217,7 @@ def test_the_installed_wheel_runs_the_benchmark_from_any_folder(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", AGENTS_DIR_ENV)}
     env["PYTHONWARNINGS"] = "always::UserWarning"  # every UntrustedPolicyWarning reaches stderr
     where = subprocess.run(
-        [str(python), "-c", "from pathlib import Path; import drill_env.agents.gains as g, drill_env.agents.commands.train as t; "
+        [str(python), "-c", "from pathlib import Path; import drill_env.agents.controllers.gains as g, drill_env.agents.commands.train as t; "
          "print(g.__file__, g.gains_path(), t.resolve_config(Path('ppo')))"],
         cwd=work, env=env, check=True, capture_output=True, text=True,
     ).stdout.split()  # fmt: skip

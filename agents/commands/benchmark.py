@@ -78,7 +78,7 @@ def register(app: typer.Typer) -> None:
             "--plants",
             help="`family`: run on the standard family of plants as well (the nominal rig, each "
             "identified parameter perturbed, each library effect, 10 ms delay, 3 mrad angle noise; "
-            "see agents/plants.py); summary.md and robustness_<preset>.png then show each "
+            "see agents/evaluation/plants.py); summary.md and robustness_<preset>.png then show each "
             "controller's nominal, mean and worst case across them.",
         ),
         gains: Path | None = typer.Option(
@@ -117,14 +117,14 @@ def register(app: typer.Typer) -> None:
             TimeRemainingColumn,
         )
 
-        from drill_env.agents.benchmark import (
+        from drill_env.agents.evaluation.benchmark import (
             BACKENDS,
             FULL_SEEDS,
             QUICK_SEEDS,
             BenchmarkConfig,
             run_benchmark,
         )
-        from drill_env.agents.evaluation import EpisodeSettings
+        from drill_env.agents.evaluation.episodes import EpisodeSettings
         from drill_env.agents.registry import CONTROLLERS
 
         if backend not in BACKENDS:
@@ -137,7 +137,7 @@ def register(app: typer.Typer) -> None:
             _fail(f"--seeds must be >= 1, got {seeds!r}")
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
-        from drill_env.agents.plants import FAMILY, NOMINAL, Plant, standard_family
+        from drill_env.agents.evaluation.plants import FAMILY, NOMINAL, Plant, standard_family
         from drill_env.params import ParameterError
 
         if plants is not None and plants.strip() != FAMILY:
@@ -212,7 +212,7 @@ def register(app: typer.Typer) -> None:
 
         check_output_folder(out, "--out")
         if not fresh:
-            from drill_env.agents.benchmark import check_resumable
+            from drill_env.agents.evaluation.benchmark import check_resumable
 
             try:
                 check_resumable(cfg, out)  # a damaged folder is named before anything runs
@@ -286,8 +286,8 @@ def register(app: typer.Typer) -> None:
         typer.echo(summary)
         typer.echo(f"wrote {csv_path}, {out / 'summary.md'} and the figures in {out}")
         if timeseries if timeseries is not None else quick:
-            from drill_env.agents.plants import standard_family
-            from drill_env.agents.timeseries import timeseries_figures
+            from drill_env.agents.evaluation.plants import standard_family
+            from drill_env.agents.evaluation.timeseries import timeseries_figures
 
             paper = next(q for q in standard_family() if q.name == "position_friction_lower")
             for p in cfg.presets:

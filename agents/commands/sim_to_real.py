@@ -38,7 +38,12 @@ def sim_to_real(
     """
     import dataclasses
 
-    from drill_env.agents.sim_to_real import SimToRealConfig, parse_voltages, quick_config, run_sim_to_real
+    from drill_env.agents.evaluation.sim_to_real import (
+        SimToRealConfig,
+        parse_voltages,
+        quick_config,
+        run_sim_to_real,
+    )
     from drill_env.outputs import check_output_folder
 
     try:

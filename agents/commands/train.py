@@ -88,7 +88,7 @@ def register(app: typer.Typer) -> None:
         converged by the plateau criterion), OUT/eval.csv, OUT/progress.csv and
         OUT/learning_curve.png; the run's progress.csv and TensorBoard events go to RUN_DIR.
         """
-        from drill_env.agents.rl import ALGOS
+        from drill_env.agents.learning.rl import ALGOS
 
         if algo not in ALGOS:
             _fail(f"--algo must be one of {list(ALGOS)}, got {algo!r}")
@@ -96,8 +96,8 @@ def register(app: typer.Typer) -> None:
             _fail(f"--seed must be >= 0, got {seed!r}")
         if total_timesteps is not None and total_timesteps < 1:
             _fail(f"--total-timesteps must be >= 1, got {total_timesteps!r}")
-        from drill_env.agents.rl import load_config
-        from drill_env.agents.rl import train as run_training
+        from drill_env.agents.learning.rl import load_config
+        from drill_env.agents.learning.rl import train as run_training
 
         try:
             config = resolve_config(config)

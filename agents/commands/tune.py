@@ -25,10 +25,10 @@ def tune_on_model(
     kinds: Sequence[str] | None = None,
     progress: Callable[[str, str], None] | None = None,
 ) -> dict[str, Any]:
-    """:func:`drill_env.agents.tuning.tune_all` for one preset, designed on the rig ``model`` (a
+    """:func:`drill_env.agents.controllers.tuning.tune_all` for one preset, designed on the rig ``model`` (a
     ``RigParams`` read from ``source``) instead of the preset's parameters."""
-    from drill_env.agents.base import ControllerSpec
-    from drill_env.agents.tuning import TUNED_GAINS, tune, tune_all
+    from drill_env.agents.controllers.base import ControllerSpec
+    from drill_env.agents.controllers.tuning import TUNED_GAINS, tune, tune_all
 
     data = tune_all(presets=(), control_dt=control_dt)
     data["design_model"] = {"preset": preset, "params": source, "name": model.name}
@@ -65,7 +65,7 @@ def register(app: typer.Typer) -> None:
             "linearised design model.",
         ),
     ) -> None:
-        """Tune PI (upper, lower), torque feedback and LQI by the procedure of drill_env.agents.tuning.
+        """Tune PI (upper, lower), torque feedback and LQI by the procedure of drill_env.agents.controllers.tuning.
 
         Worst-case closed-loop decay rate over 12 slip equilibria spanning the envelope,
         with a 0.05 V bound on the voltage noise from encoder quantisation; writes the
@@ -73,12 +73,12 @@ def register(app: typer.Typer) -> None:
         """
         import yaml
 
-        from drill_env.agents.tuning import tune_all
+        from drill_env.agents.controllers.tuning import tune_all
         from drill_env.params import available_presets
 
         model = None
         if params is not None:
-            from drill_env.agents.plants import Plant
+            from drill_env.agents.evaluation.plants import Plant
             from drill_env.params import load_params
 
             if params.suffix not in (".yaml", ".yml") or not params.is_file():
@@ -132,7 +132,7 @@ def register(app: typer.Typer) -> None:
         except (OutputFolderError, OSError) as exc:
             _fail(f"--out: {exc}")
         header = (
-            "# Tuned gains of the classical controllers, written by `drill-env tune` (agents/tuning.py).\n"
+            "# Tuned gains of the classical controllers, written by `drill-env tune` (agents/controllers/tuning.py).\n"
             "# Regenerate, never edit by hand: decay rates [1/s], noise [V], gains in SI units.\n"
         )
         atomic_write_text(out, header + yaml.safe_dump(data, sort_keys=False, width=100))

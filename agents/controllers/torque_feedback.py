@@ -21,9 +21,9 @@ theta_l)`` (observation ``twist``), so the controller is::
 
 with ``z_imp`` [N m s/rad] the impedance the top drive presents to the string (Z-Torque's
 tuning target; for this lumped string sqrt(k_theta J_l) = 0.050 N m s/rad), and the PI's
-back-calculation anti-windup of :mod:`drill_env.agents.pi`. ``T_slow`` starts at the string torque
+back-calculation anti-windup of :mod:`drill_env.agents.controllers.pi`. ``T_slow`` starts at the string torque
 of the nominal equilibrium, which equals the lower-disk friction at the target speed
-(eq. 20). The gains are tuned by :mod:`drill_env.agents.tuning`.
+(eq. 20). The gains are tuned by :mod:`drill_env.agents.controllers.tuning`.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.agents.base import Controller, ControllerSpec
-from drill_env.agents.pi import _gain
+from drill_env.agents.controllers.base import Controller, ControllerSpec
+from drill_env.agents.controllers.pi import _gain
 from drill_env.friction import lower_friction_curve
 
 __all__ = ["TorqueFeedback"]
@@ -44,12 +44,12 @@ class TorqueFeedback(Controller):
     """SoftTorque / Z-Torque-style torque feedback around an upper-speed PI.
 
     Args:
-        spec: the environment's :class:`~drill_env.agents.base.ControllerSpec`.
+        spec: the environment's :class:`~drill_env.agents.controllers.base.ControllerSpec`.
         kp: proportional gain of the top-drive speed PI [V s/rad], >= 0.
         ki: integral gain of the speed PI [V/rad], >= 0.
         z_imp: impedance of the top drive seen by the string [N m s/rad], > 0.
         tau_hp: time constant of the torque low-pass whose complement is the high-pass [s], > 0.
-        anti_windup, tracking_time: as for :class:`~drill_env.agents.pi.SpeedPI`.
+        anti_windup, tracking_time: as for :class:`~drill_env.agents.controllers.pi.SpeedPI`.
     """
 
     name = "torque_feedback"

@@ -5,7 +5,7 @@ and on a plant it was not designed for.
 one run (voltage, seed, the benchmark's episode settings) on each plant side by side, the
 lower- and upper-disk speeds with the lower disk's stuck phases shaded, the open-loop run on
 the same plant and seed in grey, and the applied voltage below. Runs go through
-:func:`drill_env.agents.evaluation.run_episode`, the path every benchmark run takes.
+:func:`drill_env.agents.evaluation.episodes.run_episode`, the path every benchmark run takes.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.agents.evaluation import EpisodeSettings, make_env, run_episode
-from drill_env.agents.plants import Plant
+from drill_env.agents.evaluation.episodes import EpisodeSettings, make_env, run_episode
+from drill_env.agents.evaluation.plants import Plant
 from drill_env.agents.registry import controller_style
 
 __all__ = ["run_trace", "timeseries_figures"]

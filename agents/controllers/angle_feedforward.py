@@ -27,8 +27,8 @@ with ``e = lower_speed_mean - w*`` (the lower encoder counts over the period; it
 periodic part is what the feedforward should remove) and ``G_h`` the *nominal closed-loop*
 frequency response, at ``z = exp(j h w* dt)``, from a voltage added to the LQI's output to
 the measured lower speed: the nominal rig linearised at the slip equilibrium of w*, sampled
-with its zero-order hold and encoder chain (:func:`drill_env.agents.linear_model.sampled_rig`), closed
-by the LQI's own update (probed by :func:`drill_env.agents.tuning.controller_matrices`). ``G_h``
+with its zero-order hold and encoder chain (:func:`drill_env.agents.controllers.linear_model.sampled_rig`), closed
+by the LQI's own update (probed by :func:`drill_env.agents.controllers.tuning.controller_matrices`). ``G_h``
 carries the string's phase at the rotation frequency: the correction is pushed through the
 string with the phase that cancels, not the one that would feed the mode. This is adaptive
 feedforward cancellation (Bodson, Sacks & Khosla, *Harmonic generation in adaptive
@@ -61,7 +61,7 @@ is large and acts on the torsional mode as well; averaging then needs a slower
 adaptation, and it passes more of the encoder's quantisation noise. :func:`design`
 therefore picks, per operating point and harmonic, the shortest of 10, 20, 40, 80 s for
 which the exact linear loop keeps at least half of min(the LQI's decay rate, 1 / adaptation
-time) and the lower-disk speed's noise from quantisation (as :mod:`drill_env.agents.tuning` bounds
+time) and the lower-disk speed's noise from quantisation (as :mod:`drill_env.agents.controllers.tuning` bounds
 the voltage's) grows by at most 30 %, and leaves a harmonic out where none does or where it
 would not turn half a revolution per adaptation time (``h w* T < pi``, a drift rather than a
 harmonic: with half a turn the regressor ``exp(-j h theta_l)`` changes sign, so a constant
@@ -69,7 +69,7 @@ error, which the LQI's integral removes, is not learnt as a harmonic). Half a tu
 one: at the lowest speeds a turn per adaptation time forced 40 s where 20 s is as stable, and
 the braked rig's lower position friction at 0.3 V was still half uncancelled after 90 s
 (suppression 0.55 against 0.91 with half a turn, README). The nominal loop is then stable at
-every design point of the envelope (:func:`drill_env.agents.tuning.design_points`) of both
+every design point of the envelope (:func:`drill_env.agents.controllers.tuning.design_points`) of both
 rigs; with the brake at 0.7-1.5 V the first
 harmonic adapts in 10 s (the second in 10 s up to 1 V, 40 s at 1.25 V, not at 1.5 V),
 decay rate 0.025-0.12 1/s against the LQI's 0.10-0.15 (``tests/test_angle_rejection.py``,
@@ -134,10 +134,16 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
-from drill_env.agents.base import ControllerSpec
-from drill_env.agents.linear_model import SampledRig, decay_rate, design_point, measurement_noise, sampled_rig
-from drill_env.agents.lqi import LQI
-from drill_env.agents.pi import _gain
+from drill_env.agents.controllers.base import ControllerSpec
+from drill_env.agents.controllers.linear_model import (
+    SampledRig,
+    decay_rate,
+    design_point,
+    measurement_noise,
+    sampled_rig,
+)
+from drill_env.agents.controllers.lqi import LQI
+from drill_env.agents.controllers.pi import _gain
 from drill_env.params import RigParams
 
 __all__ = [
@@ -169,7 +175,7 @@ def _loop(rig: SampledRig, lqi: LQI) -> tuple[np.ndarray, np.ndarray, np.ndarray
     from the equilibrium. The LQI is affine in the observation with gains scheduled on w*:
     its linear part, probed at the equilibrium of its own (nominal) model at the rig's speed,
     holds on any rig turning at that speed."""
-    from drill_env.agents.tuning import closed_loop, controller_matrices
+    from drill_env.agents.controllers.tuning import closed_loop, controller_matrices
 
     own = design_point(lqi.spec.params, speed=rig.speed)
     A, Bn, _, _ = closed_loop(rig, controller_matrices(lqi, own))
@@ -279,8 +285,8 @@ def design(
     Harmonic by harmonic, the shortest of ``adaptation_time * 2**k`` (k = 0..3) for which the
     exact linear loop (rig + LQI + the harmonics chosen so far + this one) keeps a decay rate
     of at least half of min(the LQI's, 1 / adaptation time) and raises the lower-disk speed's
-    noise from encoder quantisation (:func:`drill_env.agents.linear_model.measurement_noise`, through
-    a discrete Lyapunov equation as in :mod:`drill_env.agents.tuning`) by at most ``NOISE_RATIO``,
+    noise from encoder quantisation (:func:`drill_env.agents.controllers.linear_model.measurement_noise`, through
+    a discrete Lyapunov equation as in :mod:`drill_env.agents.controllers.tuning`) by at most ``NOISE_RATIO``,
     among those in which the harmonic turns at least half a revolution (``h w* T >= pi``,
     :data:`MIN_TURNS`); none: the harmonic is not adapted there. (Where |G_h| is small, a fast
     adaptation needs a large gain 1/G_h that acts on the torsional mode and passes the noise
@@ -345,7 +351,7 @@ class LQIAngleFeedforward(LQI):
     angle (see the module docstring).
 
     Args:
-        spec: the environment's :class:`~drill_env.agents.base.ControllerSpec`.
+        spec: the environment's :class:`~drill_env.agents.controllers.base.ControllerSpec`.
         adaptation_time: time constant of the averaged adaptation [s], > 0 (the shortest
             one :func:`design` tries at each operating point).
         hold_decays: the adaptation starts after this many time constants of the LQI's
@@ -355,7 +361,7 @@ class LQIAngleFeedforward(LQI):
             stands above its noise (module docstring, *Variable step*); off by default.
         averaging_times: T_d of the variable step, in the harmonic's adaptation times, > 0.
         significance: c of the variable step, > 0.
-        **lqi_gains: the LQI's gains (:class:`~drill_env.agents.lqi.LQI`).
+        **lqi_gains: the LQI's gains (:class:`~drill_env.agents.controllers.lqi.LQI`).
     """
 
     name = "lqi_angle_ff"

@@ -29,7 +29,7 @@ current observation only, the controller may keep state.
 
 Distillation into a residual policy
 -----------------------------------
-A residual config (:mod:`drill_env.agents.residual`) starts as its base controller already,
+A residual config (:mod:`drill_env.agents.learning.residual`) starts as its base controller already,
 so ``warm_start.controller`` is refused there; ``warm_start: {policy: ppo, ...}`` instead
 starts it as a *trained* policy (the teacher: a learned controller of the benchmark,
 :data:`WARM_START_POLICIES`, loaded as the benchmark loads it for the training env's preset,
@@ -39,7 +39,7 @@ labelling each observation is
     label = clip((a_teacher + a_ff - a_base) / scale, -1, 1)
 
 with ``a_base`` the base's action and ``a_ff`` the share of its feedforward in it
-(:func:`drill_env.agents.residual.step_base`; for ``lqi_angle_ff`` the angle-locked
+(:func:`drill_env.agents.learning.residual.step_base`; for ``lqi_angle_ff`` the angle-locked
 harmonics, 0 for a base without feedforward): the residual action ``base + scale * label``
 is the teacher's voltage plus the feedforward wherever the clip is inactive, and the label
 is ``(a_teacher - a_base_feedback) / scale`` wherever the base is off the voltage limit. The
@@ -60,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.agents._config import config_section
+from drill_env.agents.learning._config import config_section
 
 __all__ = [
     "WARM_START_CONTROLLERS",
@@ -262,8 +262,8 @@ def nominal_controller(kind: str, env_id: str, env_kwargs: Mapping[str, Any]) ->
     training environment (``env_kwargs`` without its domain randomisation)."""
     import gymnasium as gym
 
-    from drill_env.agents.base import ControllerSpec
-    from drill_env.agents.gains import classical_controller
+    from drill_env.agents.controllers.base import ControllerSpec
+    from drill_env.agents.controllers.gains import classical_controller
     from drill_env.envs import ENV_IDS
 
     kwargs = {k: v for k, v in env_kwargs.items() if k != "domain_randomization"}
@@ -288,7 +288,7 @@ class ResidualLabels:
         self.target: np.ndarray | None = None
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        from drill_env.agents.residual import correction_towards, step_base
+        from drill_env.agents.learning.residual import correction_towards, step_base
 
         teacher_state, base_state = (None, None) if state is None else state
         obs = np.asarray(observation, dtype=np.float32)
@@ -313,13 +313,13 @@ def warm_start(
 ) -> dict:
     """Clone ``cfg.controller`` into ``model``'s policy, or distil ``cfg.policy`` into the
     correction of a residual policy on ``residual`` (a
-    :class:`~drill_env.agents.residual.ResidualConfig`; see the module docstring), on
+    :class:`~drill_env.agents.learning.residual.ResidualConfig`; see the module docstring), on
     ``model.n_envs`` rigs seeded apart from the training rigs; ``teacher`` is the loaded
     ``cfg.policy`` (:func:`drill_env.agents.registry.teacher_policy`: the registry sits above
     this module). Returns what it did: the teacher, steps, wall time, losses."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from drill_env.agents.residual import _combine, base_controller
+    from drill_env.agents.learning.residual import _combine, base_controller
     from drill_env.envs.sb3 import sb3_vec_env
 
     t0 = time.perf_counter()

@@ -22,7 +22,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from drill_env.agents.plants import NOMINAL
+from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.registry import CONTROLLERS, controller_style
 
 __all__ = [

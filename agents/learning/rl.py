@@ -18,11 +18,11 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping:
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
-                                        # (drill_env.agents.residual); absent or null: the policy is the controller;
+                                        # (drill_env.agents.learning.residual); absent or null: the policy is the controller;
                                         # observe_base: true adds the base's action and feedforward to its input
                                         # base_options: {variable_step: true} sets lqi_angle_ff's own options
     warm_start: {controller: lqi, steps: 100000}  # optional: clone a classical controller into the
-                                        # policy before the first rollout (drill_env.agents.warm_start);
+                                        # policy before the first rollout (drill_env.agents.learning.warm_start);
                                         # with residual: {policy: ppo, ...} distils a trained policy
     ignored_observations: [lower_angle_sin, ...]  # optional: entries the policy network takes
                                         # no weights from (zeroed and frozen; the value still sees them)
@@ -34,7 +34,7 @@ of any effect of :class:`drill_env.params.ModelEffects`); it is validated when t
 read, each bad entry named with its field (``env_kwargs.domain_randomization.effects.<name>``).
 
 Learning curve: every ``every_steps`` environment steps the deterministic policy is run
-by :func:`drill_env.agents.evaluation.run_episode` (the one evaluation path) on a fixed set of
+by :func:`drill_env.agents.evaluation.episodes.run_episode` (the one evaluation path) on a fixed set of
 episodes of the training environment: ``episodes_per_regime`` operating points drawn in
 each regime (equilibrium, limit cycle, stick-slip) from seeds ``seed, seed + 1, ...``.
 Their mean return is the learning curve (``eval.csv``, TensorBoard ``eval/mean_return``);
@@ -76,8 +76,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from drill_env.agents._config import config_section
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
+from drill_env.agents.learning._config import config_section
 from drill_env.envs import ENV_IDS
 from drill_env.envs.task import REGIMES
 from drill_env.params import load_yaml
@@ -148,8 +148,8 @@ class TrainConfig:
     hyperparameters: Mapping[str, Any] = field(default_factory=dict)
     evaluation: EvalConfig = field(default_factory=EvalConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
-    residual: Any = None  # drill_env.agents.residual.ResidualConfig, or None
-    warm_start: Any = None  # drill_env.agents.warm_start.WarmStartConfig, or None
+    residual: Any = None  # drill_env.agents.learning.residual.ResidualConfig, or None
+    warm_start: Any = None  # drill_env.agents.learning.warm_start.WarmStartConfig, or None
     ignored_observations: tuple[str, ...] = ()  # entries the policy network gets no weights from
 
     def __post_init__(self) -> None:
@@ -199,10 +199,10 @@ class TrainConfig:
             raise ValueError(
                 f"convergence.min_evaluations: expected an integer >= 2, got {c.min_evaluations!r}"
             )
-        from drill_env.agents.residual import ResidualConfig
+        from drill_env.agents.learning.residual import ResidualConfig
 
         object.__setattr__(self, "residual", ResidualConfig.from_any(self.residual))
-        from drill_env.agents.warm_start import WarmStartConfig
+        from drill_env.agents.learning.warm_start import WarmStartConfig
 
         object.__setattr__(self, "warm_start", WarmStartConfig.from_any(self.warm_start))
         ws = self.warm_start
@@ -421,31 +421,78 @@ def untrusted_policy_note(path: str | Path) -> str | None:
     )
 
 
-# The import name of this package before it became ``drill_env.agents``; a model saved then
-# names the objects of this package it pickled (a learning rate or clip range ``lin_<value>``,
-# a LinearSchedule) by it, a name other distributions also install.
+# Module paths a saved model may name that have moved since: the package's import name
+# before it became ``drill_env.agents`` (a name other distributions also install), and the
+# modules of ``drill_env.agents`` before it was split into controllers / learning /
+# evaluation. A model pickles the objects of this package it holds (a learning-rate or
+# clip-range schedule) by their module path at the time it was saved.
 FORMER_PACKAGE = "agents"
+MOVED_MODULES = {
+    **{
+        f"drill_env.agents.{m}": f"drill_env.agents.controllers.{m}"
+        for m in (
+            "base",
+            "open_loop",
+            "pi",
+            "torque_feedback",
+            "lqi",
+            "angle_feedforward",
+            "linear_model",
+            "tuning",
+            "gains",
+        )
+    },
+    **{f"drill_env.agents.{m}": f"drill_env.agents.learning.{m}" for m in ("rl", "residual", "warm_start")},
+    "drill_env.agents.evaluation": "drill_env.agents.evaluation.episodes",
+}
+# The project's own linear schedule, before stable-baselines3's replaced it: pickled with its
+# start value as ``value``.
+_FORMER_SCHEDULE = {"drill_env.agents.rl", "drill_env.agents.learning.rl"}
+
+
+def _present_module(module: str) -> str:
+    if module == FORMER_PACKAGE or module.startswith(FORMER_PACKAGE + "."):
+        module = "drill_env.agents" + module[len(FORMER_PACKAGE) :]
+    return MOVED_MODULES.get(module, module)
+
+
+class _FormerLinearSchedule:
+    """Unpickles the project's former ``LinearSchedule`` (state ``{"value": v}``) as
+    stable-baselines3's ``LinearSchedule(v, 0, 1)``, the same function of the progress."""
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        from stable_baselines3.common.utils import LinearSchedule as SB3LinearSchedule
+
+        schedule = SB3LinearSchedule(float(state["value"]), 0.0, 1.0)
+        self.__class__ = SB3LinearSchedule  # type: ignore[assignment]
+        self.__dict__.update(schedule.__dict__)
 
 
 class _FormerNameUnpickler(pickle.Unpickler):
     def find_class(self, module: str, name: str) -> Any:
-        if module == FORMER_PACKAGE or module.startswith(FORMER_PACKAGE + "."):
-            module = __package__ + module[len(FORMER_PACKAGE) :]
+        module = _present_module(module)
+        if name == "LinearSchedule" and (module in _FORMER_SCHEDULE or module in MOVED_MODULES.values()):
+            return _FormerLinearSchedule
         return super().find_class(module, name)
 
 
 def _names_former_package(pickled: bytes) -> bool:
-    return any(
-        isinstance(arg, str) and (arg == FORMER_PACKAGE or arg.startswith(FORMER_PACKAGE + "."))
-        for _, arg, _ in pickletools.genops(pickled)
-    )
+    former = set(MOVED_MODULES) | _FORMER_SCHEDULE
+    for _, arg, _ in pickletools.genops(pickled):
+        # a module path is a string of its own (protocol >= 2) or the first word of GLOBAL's
+        module = arg.split(" ")[0] if isinstance(arg, str) else None
+        if module and (_present_module(module) != module or module in former):
+            return True
+    return False
 
 
 def renamed_objects(path: str | Path) -> dict[str, Any]:
-    """The objects of the model saved in ``path`` that name this package by its former import
-    name ``agents``, unpickled under its present one: stable-baselines3's ``custom_objects``
-    for loading a model saved before the rename without importing whatever top-level
-    ``agents`` is installed. Empty for a model saved since, or a file that is no model."""
+    """The objects of the model saved in ``path`` that name a module of this package by a
+    former path (the import name ``agents`` before the rename, a module before the split
+    into controllers / learning / evaluation, the former own ``LinearSchedule``), unpickled
+    under the present ones: stable-baselines3's ``custom_objects`` for loading such a model
+    without importing whatever top-level ``agents`` is installed. Empty for a model saved
+    since, or a file that is no model."""
     try:
         with zipfile.ZipFile(path) as zf:
             data = json.loads(zf.read("data"))
@@ -489,7 +536,7 @@ def load_policy(
     residual = yaml.safe_load(config.read_text()).get("residual") if config.is_file() else None
     if residual is None:
         return policy
-    from drill_env.agents.residual import ResidualPolicy, base_controller
+    from drill_env.agents.learning.residual import ResidualPolicy, base_controller
 
     cfg = load_config(config)
     return ResidualPolicy(
@@ -521,7 +568,7 @@ def policy_observation_version(path: str | Path) -> int:
     if config.is_file() and len(shape) == 1:
         residual = (yaml.safe_load(config.read_text()) or {}).get("residual")
         if isinstance(residual, dict) and residual.get("observe_base") is True:
-            from drill_env.agents.residual import BASE_OBSERVATIONS
+            from drill_env.agents.learning.residual import BASE_OBSERVATIONS
 
             shape = (shape[0] - len(BASE_OBSERVATIONS),)
             extra = f" after removing its {list(BASE_OBSERVATIONS)}"
@@ -565,7 +612,7 @@ def evaluation_episodes(cfg: EvalConfig) -> list[tuple[int, dict[str, Any]]]:
 
 def evaluate_on_episodes(env: Any, controller: Any, episodes: list[tuple[int, dict[str, Any]]]) -> np.ndarray:
     """Returns of ``controller`` on each fixed evaluation episode (the env's own length)."""
-    from drill_env.agents.evaluation import run_episode
+    from drill_env.agents.evaluation.episodes import run_episode
 
     n_steps = env.spec.max_episode_steps if env.spec is not None and env.spec.max_episode_steps else 400
     out = []
@@ -623,9 +670,9 @@ def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
     """Open-loop and LQI returns on the evaluation episodes (context for the curve)."""
     import gymnasium as gym
 
-    from drill_env.agents.base import ControllerSpec
-    from drill_env.agents.gains import classical_controller
-    from drill_env.agents.open_loop import OpenLoop
+    from drill_env.agents.controllers.base import ControllerSpec
+    from drill_env.agents.controllers.gains import classical_controller
+    from drill_env.agents.controllers.open_loop import OpenLoop
 
     env = gym.make(cfg.env_id, **cfg.env_kwargs)
     spec = ControllerSpec.from_env(env)
@@ -645,18 +692,12 @@ SCHEDULED = ("learning_rate", "clip_range")
 ACTIVATIONS = ("Tanh", "ReLU")
 
 
-class LinearSchedule:
-    """``value * progress_remaining``: from ``value`` at the start of training to 0 at its
-    end (rl-zoo3's ``lin_<value>``). A class, not a lambda, so that saved models pickle it."""
+def linear_schedule(value: float):
+    """rl-zoo3's ``lin_<value>``: from ``value`` at the start of training to 0 at its end
+    (stable-baselines3's ``LinearSchedule``, which saved models pickle by name)."""
+    from stable_baselines3.common.utils import LinearSchedule
 
-    def __init__(self, value: float):
-        self.value = float(value)
-
-    def __call__(self, progress_remaining: float) -> float:
-        return progress_remaining * self.value
-
-    def __repr__(self) -> str:
-        return f"lin_{self.value:g}"
+    return LinearSchedule(float(value), 0.0, 1.0)
 
 
 def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
@@ -678,7 +719,7 @@ def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
                 ) from None
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"hyperparameters.{key}: {v!r} must decay from a finite value > 0")
-            hp[key] = LinearSchedule(value)
+            hp[key] = linear_schedule(value)
     pk = hp.get("policy_kwargs")
     if isinstance(pk, Mapping) and isinstance(pk.get("activation_fn"), str):
         name = pk["activation_fn"]
@@ -737,7 +778,7 @@ def make_train_vec_env(cfg: TrainConfig, seed: int):
         venv = make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs))
     if cfg.residual is None:
         return venv
-    from drill_env.agents.residual import ResidualVecEnv, base_controller
+    from drill_env.agents.learning.residual import ResidualVecEnv, base_controller
 
     r = cfg.residual
     return ResidualVecEnv(venv, base_controller(r, cfg.env_id, cfg.env_kwargs), r.scale, r.observe_base)
@@ -785,7 +826,7 @@ def train(
     base = None
     callbacks: list[Any] = []
     if cfg.residual is not None:
-        from drill_env.agents.residual import (
+        from drill_env.agents.learning.residual import (
             ResidualPolicy,
             base_controller,
             critic_burn_in_callback,
@@ -852,7 +893,7 @@ def train(
 
     warm = None
     if cfg.warm_start is not None:  # part of the training's wall time
-        from drill_env.agents.warm_start import warm_start
+        from drill_env.agents.learning.warm_start import warm_start
 
         warm = warm_start(
             model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed, residual=cfg.residual, teacher=teacher

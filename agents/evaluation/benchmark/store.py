@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.agents.benchmark.grid import BenchmarkConfig
-from drill_env.agents.evaluation import IDENTIFIED_SPEED, METRIC_COLUMNS
-from drill_env.agents.plants import NOMINAL
+from drill_env.agents.evaluation.benchmark.grid import BenchmarkConfig
+from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED, METRIC_COLUMNS
+from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.registry import CONTROLLERS
 from drill_env.outputs import atomic_file
 from drill_env.params import PRESETS

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.agents.base import Controller, ControllerSpec
+from drill_env.agents.controllers.base import Controller, ControllerSpec
 
 __all__ = ["SpeedPI", "UpperSpeedPI", "LowerSpeedPI"]
 
@@ -47,7 +47,7 @@ class SpeedPI(Controller):
     """PI control of one disk's speed (see the module docstring).
 
     Args:
-        spec: the environment's :class:`~drill_env.agents.base.ControllerSpec`.
+        spec: the environment's :class:`~drill_env.agents.controllers.base.ControllerSpec`.
         kp: proportional gain [V s/rad], >= 0.
         ki: integral gain [V/rad], >= 0.
         disk: ``"upper"`` or ``"lower"``.

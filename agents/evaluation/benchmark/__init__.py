@@ -1,6 +1,6 @@
 """The controller benchmark: every controller over a grid of operating points and seeds.
 
-Each run is one call of :func:`drill_env.agents.evaluation.evaluate` (the one evaluation path) with a
+Each run is one call of :func:`drill_env.agents.evaluation.episodes.evaluate` (the one evaluation path) with a
 key (controller, preset, voltage, seed); all controllers see the same initial states and
 sensor noise at the same key. Runs execute
 
@@ -21,26 +21,26 @@ At the end the CSV is rewritten in grid order and the report is made from it:
 ``bifurcation_<preset>.png`` (the bifurcation diagram of the analysis with each
 controller's steady min/max of x3) and ``suppression_<preset>.png``.
 
-The package, by what it does: :mod:`~drill_env.agents.benchmark.grid` (the grid and its runs),
-:mod:`~drill_env.agents.benchmark.runs` (one run, in whichever process), :mod:`~drill_env.agents.benchmark.store`
-(the results file and resuming), :mod:`~drill_env.agents.benchmark.backends` (the three ways to run
-a grid), :mod:`~drill_env.agents.benchmark.report` (``summary.md``) and
-:mod:`~drill_env.agents.benchmark.figures`. Everything is importable from ``drill_env.agents.benchmark``.
+The package, by what it does: :mod:`~drill_env.agents.evaluation.benchmark.grid` (the grid and its runs),
+:mod:`~drill_env.agents.evaluation.benchmark.runs` (one run, in whichever process), :mod:`~drill_env.agents.evaluation.benchmark.store`
+(the results file and resuming), :mod:`~drill_env.agents.evaluation.benchmark.backends` (the three ways to run
+a grid), :mod:`~drill_env.agents.evaluation.benchmark.report` (``summary.md``) and
+:mod:`~drill_env.agents.evaluation.benchmark.figures`. Everything is importable from ``drill_env.agents.evaluation.benchmark``.
 """
 
 from __future__ import annotations
 
-from drill_env.agents.benchmark.backends import BACKENDS, run_benchmark
-from drill_env.agents.benchmark.figures import _MARKERS as _MARKERS
-from drill_env.agents.benchmark.figures import (
+from drill_env.agents.evaluation.benchmark.backends import BACKENDS, run_benchmark
+from drill_env.agents.evaluation.benchmark.figures import _MARKERS as _MARKERS
+from drill_env.agents.evaluation.benchmark.figures import (
     FLOOR_BAND,
     Y_FLOOR,
     bifurcation_figure,
     draw_bifurcation_figure,
 )
-from drill_env.agents.benchmark.figures import _draw_suppression as _draw_suppression
-from drill_env.agents.benchmark.figures import _plants_figure as _plants_figure
-from drill_env.agents.benchmark.grid import (
+from drill_env.agents.evaluation.benchmark.figures import _draw_suppression as _draw_suppression
+from drill_env.agents.evaluation.benchmark.figures import _plants_figure as _plants_figure
+from drill_env.agents.evaluation.benchmark.grid import (
     FULL_GRID,
     FULL_SEEDS,
     QUICK_GRID,
@@ -48,16 +48,16 @@ from drill_env.agents.benchmark.grid import (
     BenchmarkConfig,
     Job,
 )
-from drill_env.agents.benchmark.report import (
+from drill_env.agents.evaluation.benchmark.report import (
     REGIME_TITLES,
     REPORT_FIGURES,
     SEPARATE_PLANT_FIGURES,
     summary_tables,
     write_report,
 )
-from drill_env.agents.benchmark.runs import OPEN_LOOP_FLOOR, run_job
-from drill_env.agents.benchmark.store import COLUMNS, KEY, check_resumable, load_results
-from drill_env.agents.plants import NOMINAL, Plant
+from drill_env.agents.evaluation.benchmark.runs import OPEN_LOOP_FLOOR, run_job
+from drill_env.agents.evaluation.benchmark.store import COLUMNS, KEY, check_resumable, load_results
+from drill_env.agents.evaluation.plants import NOMINAL, Plant
 
 __all__ = [
     "BACKENDS",

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.agents.evaluation import EpisodeSettings
-from drill_env.agents.plants import NOMINAL, Plant
+from drill_env.agents.evaluation.episodes import EpisodeSettings
+from drill_env.agents.evaluation.plants import NOMINAL, Plant
 from drill_env.agents.registry import CONTROLLERS
 from drill_env.params import PRESETS
 

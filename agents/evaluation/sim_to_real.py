@@ -11,14 +11,14 @@ stands for the real rig; every step sees only what a user of the real rig would 
    the nominal model and writes ``model.yaml``: the recalibrated parameters and the named
    effect (the *corrected model*).
 3. *Redesign*: the classical controllers are tuned on the corrected model by the procedure
-   of :mod:`drill_env.agents.tuning` (what ``drill-env tune --params model.yaml`` does); the LQI's
+   of :mod:`drill_env.agents.controllers.tuning` (what ``drill-env tune --params model.yaml`` does); the LQI's
    gain schedule and the angle-locked feedforward's phase correction
-   (:mod:`drill_env.agents.angle_feedforward`) are computed on it as well. The linearised design
+   (:mod:`drill_env.agents.controllers.angle_feedforward`) are computed on it as well. The linearised design
    model has the corrected parameters, not the effect: a once-per-revolution friction is
    not a parameter of a linear model. What knowing the effect buys is the choice of
    structure, the feedforward locked to the lower disk's angle.
 4. *Score*: every controller, designed on the nominal model (*before*) and on the corrected
-   model (*after*), runs on the truth plant through :func:`drill_env.agents.evaluation.evaluate`, the
+   model (*after*), runs on the truth plant through :func:`drill_env.agents.evaluation.episodes.evaluate`, the
    benchmark's one evaluation path, at the same voltages and seeds; the suppression is
    relative to the open-loop run on the truth plant at the same voltage and seed (as the
    benchmark's ``--plant``), with the benchmark's floor for "no cycle".
@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.agents.evaluation import METRIC_COLUMNS, EpisodeSettings
+from drill_env.agents.evaluation.episodes import METRIC_COLUMNS, EpisodeSettings
 
 __all__ = [
     "CONTROLLERS",
@@ -58,7 +58,7 @@ __all__ = [
 # the designs compared: on the preset's model, and on the discrepancy's corrected model
 DESIGNS = ("nominal", "corrected")
 # the classical controllers that are designed on a model (PI of the upper speed cannot damp
-# the torsional mode for any gain, the lower-speed PI makes the cycles larger: drill_env.agents.tuning)
+# the torsional mode for any gain, the lower-speed PI makes the cycles larger: drill_env.agents.controllers.tuning)
 CONTROLLERS = ("torque_feedback", "lqi", "lqi_angle_ff")
 VOLTAGES = (0.7, 0.85, 1.0, 1.25, 1.5)  # [V] where the rig turns near the torsional resonance
 COLUMNS = ("design",) + METRIC_COLUMNS + ("plant",)
@@ -96,8 +96,8 @@ class SimToRealConfig:
     seeds: tuple[int, ...] = (0, 1)
     episode: EpisodeSettings = field(default_factory=EpisodeSettings)
     timeseries_voltage: float = 1.0  # [V]
-    design_points: int = 12  # of drill_env.agents.tuning's design set (its default)
-    tuning_grid: int = 7  # values per gain in drill_env.agents.tuning's grid search (its default)
+    design_points: int = 12  # of drill_env.agents.controllers.tuning's design set (its default)
+    tuning_grid: int = 7  # values per gain in drill_env.agents.controllers.tuning's grid search (its default)
 
     def __post_init__(self) -> None:
         from drill_env.discrepancy.synth import HIDDEN_EFFECTS, IDENTIFIED, SynthConfig
@@ -201,15 +201,15 @@ def _truth_overrides(preset: str, errors: Mapping[str, float]) -> dict[str, floa
 
 def tuned_kinds(controllers: Sequence[str]) -> tuple[str, ...]:
     """The tuned controllers whose gains ``controllers`` use (``lqi_angle_ff``: the LQI's)."""
-    from drill_env.agents.gains import BUILT_ON
+    from drill_env.agents.controllers.gains import BUILT_ON
 
     return tuple(dict.fromkeys(BUILT_ON.get(c, c) for c in controllers))
 
 
 def _tuned_gains(model, source: str, cfg: SimToRealConfig, control_dt: float, progress) -> dict[str, Any]:
-    """The gains file of ``drill-env tune --params``: :func:`drill_env.agents.tuning.tune` on ``model``."""
-    from drill_env.agents.base import ControllerSpec
-    from drill_env.agents.tuning import design_points, tune, tune_all
+    """The gains file of ``drill-env tune --params``: :func:`drill_env.agents.controllers.tuning.tune` on ``model``."""
+    from drill_env.agents.controllers.base import ControllerSpec
+    from drill_env.agents.controllers.tuning import design_points, tune, tune_all
 
     data = tune_all(presets=(), control_dt=control_dt)
     data["design_model"] = {"preset": cfg.preset, "params": source, "name": model.name}
@@ -227,10 +227,10 @@ def _tuned_gains(model, source: str, cfg: SimToRealConfig, control_dt: float, pr
 def _open_loop_run(env, preset: str, voltage: float, seed: int, episode: EpisodeSettings) -> dict[str, Any]:
     """The open-loop run on the truth plant; its amplitude is the reference of the suppression,
     as the benchmark's ``--plant`` (0 below the benchmark's floor: no cycle, suppression NaN)."""
-    from drill_env.agents.base import ControllerSpec
-    from drill_env.agents.benchmark import OPEN_LOOP_FLOOR
-    from drill_env.agents.evaluation import evaluate, suppression
-    from drill_env.agents.open_loop import OpenLoop
+    from drill_env.agents.controllers.base import ControllerSpec
+    from drill_env.agents.controllers.open_loop import OpenLoop
+    from drill_env.agents.evaluation.benchmark import OPEN_LOOP_FLOOR
+    from drill_env.agents.evaluation.episodes import evaluate, suppression
 
     m = evaluate(
         OpenLoop(ControllerSpec.from_env(env)),
@@ -272,9 +272,9 @@ def run_sim_to_real(
 def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]) -> SimToRealResult:
     import yaml
 
-    from drill_env.agents.base import ControllerSpec
-    from drill_env.agents.evaluation import evaluate, make_env, run_episode
-    from drill_env.agents.gains import classical_controller, gains_path, load_gains
+    from drill_env.agents.controllers.base import ControllerSpec
+    from drill_env.agents.controllers.gains import classical_controller, gains_path, load_gains
+    from drill_env.agents.evaluation.episodes import evaluate, make_env, run_episode
     from drill_env.agents.registry import observation_version
     from drill_env.discrepancy.synth import make_dataset, write_synthetic
     from drill_env.discrepancy.workflow import run_discrepancy
@@ -325,7 +325,7 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     tuned = _tuned_gains(corrected, "discrepancy/model.yaml", cfg, control_dt, say)
     header = (
         "# Gains of the classical controllers tuned on the corrected model discrepancy/model.yaml,\n"
-        "# written by `drill-env sim-to-real` (agents/tuning.py; as `drill-env tune --params`).\n"
+        "# written by `drill-env sim-to-real` (agents/controllers/tuning.py; as `drill-env tune --params`).\n"
     )
     gains_file = out / "gains_corrected.yaml"
     atomic_write_text(gains_file, header + yaml.safe_dump(tuned, sort_keys=False, width=100))
@@ -421,7 +421,7 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
 
 
 def _open_loop(spec):
-    from drill_env.agents.open_loop import OpenLoop
+    from drill_env.agents.controllers.open_loop import OpenLoop
 
     return OpenLoop(spec)
 
@@ -441,7 +441,7 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from drill_env.agents.robustness import COLORS
+    from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
     fig, axes = plt.subplots(len(ctrls), 1, figsize=(9, 2.6 * len(ctrls) + 0.6), sharex=True, squeeze=False)
@@ -483,7 +483,7 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from drill_env.agents.robustness import COLORS
+    from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
     fig, axes = plt.subplots(2, len(ctrls), figsize=(3.6 * len(ctrls), 6), sharex=True, squeeze=False)
@@ -545,7 +545,7 @@ def summary_markdown(res: SimToRealResult) -> str:
         "# Sim-to-real: from measured data to a better controller",
         "",
         "Regenerate with `drill-env sim-to-real --out results/sim_to_real` (written by "
-        "`agents/sim_to_real.py`; never edited by hand).",
+        "`agents/evaluation/sim_to_real.py`; never edited by hand).",
         "",
         "## The truth plant",
         "",
@@ -601,7 +601,7 @@ def summary_markdown(res: SimToRealResult) -> str:
         "## What changed in the design",
         "",
         "The classical controllers were tuned on the corrected model (`discrepancy/model.yaml`) by the "
-        "procedure of `agents/tuning.py`, as `drill-env tune --params` does (`gains_corrected.yaml`); "
+        "procedure of `agents/controllers/tuning.py`, as `drill-env tune --params` does (`gains_corrected.yaml`); "
         "the LQI's gain schedule and the angle-locked feedforward's phase correction are computed on "
         "that model too. The linearised design model has the recalibrated parameters but not the "
         "effect: a friction that varies with the lower disk's angle is no parameter of a linear model.",
@@ -632,9 +632,9 @@ def summary_markdown(res: SimToRealResult) -> str:
 
 def _phase_errors(ctrls, design_of, truth, rows, cfg: SimToRealConfig) -> dict[str, dict[float, float]]:
     """Per design and voltage, the angle of G_true / G_design for the first harmonic [deg]
-    (:func:`drill_env.agents.angle_feedforward.phase_error`, the truth without its effect): the
+    (:func:`drill_env.agents.controllers.angle_feedforward.phase_error`, the truth without its effect): the
     feedforward's adaptation converges while it lies within +-90 deg."""
-    from drill_env.agents.angle_feedforward import phase_error
+    from drill_env.agents.controllers.angle_feedforward import phase_error
     from drill_env.envs.task import nominal_params
 
     if "lqi_angle_ff" not in cfg.controllers:

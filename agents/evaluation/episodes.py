@@ -51,7 +51,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from drill_env.agents.base import PolicyPredictor
+from drill_env.agents.controllers.base import PolicyPredictor
 from drill_env.envs import ENV_IDS, ENV_VERSIONS
 from drill_env.envs.task import VOLTAGE_LIMIT
 from drill_env.metrics import stick_slip_metrics

@@ -7,21 +7,21 @@ Every classical controller is tuned the same way, never by hand for the test gri
    speed at the rig's 5 V limit: the whole operating envelope, including the points
    where the friction slope d_l is below the critical slope (the Hopf region and beyond).
 2. *Closed loop.* At each design point the sampled rig of
-   :func:`drill_env.agents.linear_model.sampled_rig` (zero-order hold at the control period, the
+   :func:`drill_env.agents.controllers.linear_model.sampled_rig` (zero-order hold at the control period, the
    speed filter, the step-mean encoder speeds, the last voltage) is closed with the
    controller's own update, linearised by probing the controller's code at the
    equilibrium (:func:`controller_matrices`): what is analysed is what runs.
 3. *Criterion.* Maximise the worst-case decay rate over the design set,
    ``alpha = min_i -ln(rho_i) / dt`` (rho_i: spectral radius of the closed loop at point
    i) [1/s], subject to a voltage noise of at most ``max_noise_v`` (0.05 V, 1 % of the
-   range) caused by the encoder quantisation (:data:`~drill_env.agents.linear_model.MEASUREMENT_NOISE`,
+   range) caused by the encoder quantisation (:data:`~drill_env.agents.controllers.linear_model.MEASUREMENT_NOISE`,
    propagated through the closed loop by a discrete Lyapunov equation) at every point.
 4. *Search.* A log-spaced grid over the gains (7 values each) followed by Nelder-Mead
    from the best grid point, in log-gains; deterministic.
 5. *Design model.* The torque feedback and the LQI are tuned on the linearised rig over
    the whole envelope. The upper-speed PI, "what a real top drive does", is tuned as a
    drive's speed loop is commissioned: on the top drive alone
-   (:func:`~drill_env.agents.linear_model.sampled_drive`: the string cut, its torque a load
+   (:func:`~drill_env.agents.controllers.linear_model.sampled_drive`: the string cut, its torque a load
    disturbance), which makes it as stiff as the noise bound allows. Its decay rate on
    the rig over the envelope is recorded; it is negative for every PI gain (the
    stiffer, the worse: a stiff drive reflects the torsional wave).
@@ -57,8 +57,8 @@ import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 from scipy.optimize import minimize
 
-from drill_env.agents.base import Controller, ControllerSpec
-from drill_env.agents.linear_model import (
+from drill_env.agents.controllers.base import Controller, ControllerSpec
+from drill_env.agents.controllers.linear_model import (
     MEASURED,
     SampledRig,
     decay_rate,
@@ -108,9 +108,9 @@ FIXED_GAINS: dict[str, dict[str, float]] = {
 
 def make_controller(kind: str, spec: ControllerSpec, gains: dict[str, float]) -> Controller:
     """A classical controller by name with the given gains."""
-    from drill_env.agents.lqi import LQI
-    from drill_env.agents.pi import LowerSpeedPI, UpperSpeedPI
-    from drill_env.agents.torque_feedback import TorqueFeedback
+    from drill_env.agents.controllers.lqi import LQI
+    from drill_env.agents.controllers.pi import LowerSpeedPI, UpperSpeedPI
+    from drill_env.agents.controllers.torque_feedback import TorqueFeedback
 
     classes = {
         "pi_upper": UpperSpeedPI,
@@ -135,7 +135,7 @@ def design_points(params: RigParams, n: int = 12, u_max: float = VOLTAGE_LIMIT) 
 def controller_matrices(ctrl: Controller, eq: Equilibrium) -> tuple[np.ndarray, ...]:
     """(Ac, Bc, Cc, Dc) of the controller's update linearised at the equilibrium ``eq``:
     ``c(k+1) = Ac c + Bc y``, ``u = Cc c + Dc y`` in deviations, ``y`` the measured entries
-    :data:`~drill_env.agents.linear_model.MEASURED`.
+    :data:`~drill_env.agents.controllers.linear_model.MEASURED`.
 
     Found by probing :meth:`Controller.control` with central differences (exact for the
     affine update away from the voltage limit, which is lifted for the probe). State

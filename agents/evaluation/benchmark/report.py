@@ -8,12 +8,17 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from drill_env.agents.benchmark.figures import _figures, _plants_figure, worst_case_figure
-from drill_env.agents.benchmark.runs import OPEN_LOOP_FLOOR
-from drill_env.agents.benchmark.store import load_results
-from drill_env.agents.evaluation import IDENTIFIED_SPEED
-from drill_env.agents.plants import NOMINAL
-from drill_env.agents.robustness import REGIMES, ordered_controllers, robustness_figure, robustness_lines
+from drill_env.agents.evaluation.benchmark.figures import _figures, _plants_figure, worst_case_figure
+from drill_env.agents.evaluation.benchmark.runs import OPEN_LOOP_FLOOR
+from drill_env.agents.evaluation.benchmark.store import load_results
+from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED
+from drill_env.agents.evaluation.plants import NOMINAL
+from drill_env.agents.evaluation.robustness import (
+    REGIMES,
+    ordered_controllers,
+    robustness_figure,
+    robustness_lines,
+)
 from drill_env.outputs import atomic_write_text
 from drill_env.params import PRESETS
 
@@ -81,7 +86,7 @@ def summary_tables(
         "",
         "Every controller at every operating point (nominal voltage u) and seed, switched on at a",
         "random phase of the open-loop behaviour after an open-loop warm-up; metrics of the lower-disk",
-        "speed x3 over the last window of the episode, from the true state (see `agents/evaluation.py`).",
+        "speed x3 over the last window of the episode, from the true state (see `agents/evaluation/episodes.py`).",
         "Suppression = 1 - amplitude / open-loop amplitude predicted by the bifurcation analysis",
         "(1: cycle removed, 0: as open loop, < 0: worse); it is defined only where the analysis",
         "predicts a cycle. Means over the runs of a regime, worst case in brackets; peak |u| is the",

@@ -8,9 +8,9 @@ import math
 import time
 from typing import Any
 
-from drill_env.agents.benchmark.grid import BenchmarkConfig, Job
-from drill_env.agents.benchmark.store import COLUMNS
-from drill_env.agents.plants import NOMINAL
+from drill_env.agents.evaluation.benchmark.grid import BenchmarkConfig, Job
+from drill_env.agents.evaluation.benchmark.store import COLUMNS
+from drill_env.agents.evaluation.plants import NOMINAL
 
 # [rad/s] below this open-loop amplitude a plant has no cycle to suppress (suppression NaN):
 # the closed loops leave a steady amplitude of 0.005-0.05 rad/s from encoder quantisation on
@@ -31,7 +31,7 @@ def _worker_init() -> None:
 def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
     """Evaluate one job; environments and controllers are cached per process. An exception
     becomes a row with NaN metrics and the message in ``error``."""
-    from drill_env.agents.evaluation import evaluate, make_env
+    from drill_env.agents.evaluation.episodes import evaluate, make_env
     from drill_env.agents.registry import build_controller, observation_version
 
     t0 = time.perf_counter()
@@ -87,9 +87,9 @@ def _plant_open_loop(job: Job, cfg: BenchmarkConfig, env: Any) -> float:
     """The open-loop amplitude on ``job``'s plant at its voltage and seed (cached per process):
     the reference of the suppression where the bifurcation analysis (nominal model) does not
     apply. 0 below :data:`OPEN_LOOP_FLOOR` (no cycle: suppression NaN)."""
-    from drill_env.agents.base import ControllerSpec
-    from drill_env.agents.evaluation import evaluate
-    from drill_env.agents.open_loop import OpenLoop
+    from drill_env.agents.controllers.base import ControllerSpec
+    from drill_env.agents.controllers.open_loop import OpenLoop
+    from drill_env.agents.evaluation.episodes import evaluate
 
     key = (
         job.preset,

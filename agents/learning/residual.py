@@ -31,7 +31,7 @@ than the rig has observations (:func:`observation_with_base`).
 
 ``base_options`` (``lqi_angle_ff`` only) set the base's feedforward options over those of the
 gains file, e.g. ``{variable_step: true}``, which slows the adaptation where the error it sees
-is noise (:mod:`drill_env.agents.angle_feedforward`); the saved policy's ``config.yaml`` records
+is noise (:mod:`drill_env.agents.controllers.angle_feedforward`); the saved policy's ``config.yaml`` records
 them, and the base is rebuilt with them wherever the policy runs.
 
 The base is built with the tuned gains of
@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.agents._config import config_section
+from drill_env.agents.learning._config import config_section
 
 __all__ = [
     "BASE_OBSERVATIONS",
@@ -117,7 +117,7 @@ class ResidualConfig:
                     f"residual.base_options: allowed only with base lqi_angle_ff (the feedforward's "
                     f"options), not {self.base!r}"
                 )
-            from drill_env.agents.angle_feedforward import LQIAngleFeedforward
+            from drill_env.agents.controllers.angle_feedforward import LQIAngleFeedforward
 
             opts = LQIAngleFeedforward.check_options(self.base_options, "residual.base_options")
             object.__setattr__(self, "base_options", opts or None)
@@ -207,8 +207,8 @@ def base_controller(cfg: ResidualConfig, env_id: str, env_kwargs: Mapping[str, A
     environment (``env_kwargs`` without its domain randomisation)."""
     import gymnasium as gym
 
-    from drill_env.agents.base import ControllerSpec
-    from drill_env.agents.gains import classical_controller
+    from drill_env.agents.controllers.base import ControllerSpec
+    from drill_env.agents.controllers.gains import classical_controller
     from drill_env.envs import ENV_IDS
 
     kwargs = {k: v for k, v in env_kwargs.items() if k != "domain_randomization"}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drill_env.agents.base import Controller, ControllerSpec
+from drill_env.agents.controllers.base import Controller, ControllerSpec
 
 __all__ = ["OpenLoop"]
 

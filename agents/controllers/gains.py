@@ -1,8 +1,8 @@
 """The classical controllers with the gains ``drill-env tune`` wrote for a preset
 (``configs/agents/controllers.yaml``); ``lqi_angle_ff`` uses the LQI's. The list of
 controllers is :data:`drill_env.agents.registry.CLASSICAL`; this module builds them, apart from
-:mod:`drill_env.agents.registry` so that training (:mod:`drill_env.agents.rl`) can build its reference
-controllers without the registry, which loads trained policies through :mod:`drill_env.agents.rl`."""
+:mod:`drill_env.agents.registry` so that training (:mod:`drill_env.agents.learning.rl`) can build its reference
+controllers without the registry, which loads trained policies through :mod:`drill_env.agents.learning.rl`."""
 
 from __future__ import annotations
 
@@ -12,14 +12,14 @@ from pathlib import Path
 from typing import Any
 
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
-from drill_env.agents.base import Controller, ControllerSpec
+from drill_env.agents.controllers.base import Controller, ControllerSpec
 from drill_env.params import load_yaml
 
 __all__ = ["BUILT_ON", "classical_controller", "gains_path", "load_gains"]
 
 # Controllers built on another's tuned gains: the LQI with angle-locked adaptive feedforward
 # is the tuned LQI plus an adaptation designed per operating point on the nominal model
-# (drill_env.agents.angle_feedforward), with nothing tuned of its own.
+# (drill_env.agents.controllers.angle_feedforward), with nothing tuned of its own.
 BUILT_ON = {"lqi_angle_ff": "lqi"}
 
 
@@ -44,7 +44,7 @@ def _load_gains_cached(path: str) -> dict[str, Any]:
     for preset, entries in presets.items():  # the feedforward's options, before any run needs them
         ff = entries.get("lqi_angle_ff") if isinstance(entries, dict) else None
         if isinstance(ff, dict) and ff.get("options") is not None:
-            from drill_env.agents.angle_feedforward import LQIAngleFeedforward
+            from drill_env.agents.controllers.angle_feedforward import LQIAngleFeedforward
 
             LQIAngleFeedforward.check_options(
                 ff["options"], f"gains: {path}: presets.{preset}.lqi_angle_ff.options"
@@ -53,7 +53,7 @@ def _load_gains_cached(path: str) -> dict[str, Any]:
 
 
 def load_gains(path: str | Path | None = None) -> dict[str, Any]:
-    """The tuned gains file (see :func:`drill_env.agents.tuning.tune_all`)."""
+    """The tuned gains file (see :func:`drill_env.agents.controllers.tuning.tune_all`)."""
     return _load_gains_cached(str(Path(path) if path is not None else gains_path()))
 
 
@@ -66,8 +66,8 @@ def classical_controller(
 ) -> Controller:
     """A classical controller with the tuned gains of ``preset``; ``options`` (``lqi_angle_ff``
     only) set the feedforward's own options over the gains file's."""
-    from drill_env.agents.open_loop import OpenLoop
-    from drill_env.agents.tuning import TUNED_GAINS, make_controller
+    from drill_env.agents.controllers.open_loop import OpenLoop
+    from drill_env.agents.controllers.tuning import TUNED_GAINS, make_controller
 
     if kind == "open_loop":
         return OpenLoop(spec)
@@ -84,7 +84,7 @@ def classical_controller(
         )
     gains = dict(presets[preset][tuned]["gains"])
     if kind == "lqi_angle_ff":
-        from drill_env.agents.angle_feedforward import LQIAngleFeedforward
+        from drill_env.agents.controllers.angle_feedforward import LQIAngleFeedforward
 
         # options of the feedforward itself (e.g. variable_step), beside the LQI's gains; checked
         # when the file was read

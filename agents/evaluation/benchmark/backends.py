@@ -9,10 +9,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from drill_env.agents.benchmark.grid import BenchmarkConfig, Job
-from drill_env.agents.benchmark.report import REPORT_FIGURES, write_report
-from drill_env.agents.benchmark.runs import _run_chunk, _worker_init, run_job
-from drill_env.agents.benchmark.store import (
+from drill_env.agents.evaluation.benchmark.grid import BenchmarkConfig, Job
+from drill_env.agents.evaluation.benchmark.report import REPORT_FIGURES, write_report
+from drill_env.agents.evaluation.benchmark.runs import _run_chunk, _worker_init, run_job
+from drill_env.agents.evaluation.benchmark.store import (
     _done_keys,
     _drop_partial_row,
     _rewrite_sorted,
@@ -166,8 +166,8 @@ def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
                     else str(path)
                 )
                 try:
-                    from drill_env.agents.evaluation import env_id_of
-                    from drill_env.agents.rl import policy_observation_version
+                    from drill_env.agents.evaluation.episodes import env_id_of
+                    from drill_env.agents.learning.rl import policy_observation_version
 
                     shown += f" on {env_id_of(p, policy_observation_version(path))}"
                 except ValueError:

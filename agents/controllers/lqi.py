@@ -4,7 +4,7 @@ twist and speeds.
 The rig's full state (x1, x2, x3) is measured: the twist by the two encoders, the speeds
 by the filtered encoder differences (observations ``twist``, ``upper_speed``,
 ``lower_speed``). At each episode's target speed w* the nominal model is linearised about
-its slip equilibrium (:mod:`drill_env.agents.linear_model`), sampled with a zero-order hold at the
+its slip equilibrium (:mod:`drill_env.agents.controllers.linear_model`), sampled with a zero-order hold at the
 control period, and extended by the integral of the lower-disk speed error
 ``zeta(k+1) = zeta(k) + dt (v_l - w*)`` (``v_l``: the lower encoder speed over the period,
 so zeta is exactly the lag of the lower disk's angle behind w* t). The discrete LQR gain
@@ -25,10 +25,10 @@ divided by the square of its largest acceptable value,
 * twist: ``w_s / omega_l`` with ``omega_l = sqrt(k_theta / J_l)``, the twist a lower-disk
   speed swing of w_s makes at the torsional frequency;
 * integral: ``w_s * integral_time``;
-* voltage: ``voltage_scale`` [V], the one weight tuned by :mod:`drill_env.agents.tuning`.
+* voltage: ``voltage_scale`` [V], the one weight tuned by :mod:`drill_env.agents.controllers.tuning`.
 
 Anti-windup: back-calculation on zeta with tracking time ``Tt = max(K_x3 / K_zeta, dt)``,
-as in :mod:`drill_env.agents.pi`.
+as in :mod:`drill_env.agents.controllers.pi`.
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ from typing import Any
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
-from drill_env.agents.base import Controller, ControllerSpec
-from drill_env.agents.linear_model import design_point, linearise
-from drill_env.agents.pi import _gain
+from drill_env.agents.controllers.base import Controller, ControllerSpec
+from drill_env.agents.controllers.linear_model import design_point, linearise
+from drill_env.agents.controllers.pi import _gain
 from drill_env.params import RigParams
 
 __all__ = ["LQI", "lqi_gain"]
@@ -87,7 +87,7 @@ class LQI(Controller):
     """Gain-scheduled discrete LQI (see the module docstring).
 
     Args:
-        spec: the environment's :class:`~drill_env.agents.base.ControllerSpec`.
+        spec: the environment's :class:`~drill_env.agents.controllers.base.ControllerSpec`.
         voltage_scale: Bryson scale of the voltage [V], > 0 (larger: more aggressive).
         speed_rel, speed_min: Bryson scale of the speeds, ``max(speed_rel w*, speed_min)``.
         integral_time: Bryson scale of the integral, in seconds of the speed scale, > 0.

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from drill_env.agents.evaluation import EpisodeSettings
-from drill_env.agents.plants import NOMINAL
+from drill_env.agents.evaluation.episodes import EpisodeSettings
+from drill_env.agents.evaluation.plants import NOMINAL
+from drill_env.agents.evaluation.robustness import REGIMES, ordered_controllers
 from drill_env.agents.registry import CONTROLLERS, controller_style
-from drill_env.agents.robustness import REGIMES, ordered_controllers
 
 Y_FLOOR = -2.0  # suppression below this is drawn at the floor with its value written
 # Each controller's marker in every figure, from the registry (drill_env.agents.registry.STYLES).
@@ -332,7 +332,7 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from drill_env.agents.robustness import robust_pairs, worst_by_voltage
+    from drill_env.agents.evaluation.robustness import robust_pairs, worst_by_voltage
 
     worst = worst_by_voltage(df, preset)
     if not worst:
@@ -376,7 +376,7 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     ]
     fig.legend(handles=handles, loc="lower center", ncol=6, fontsize=8, frameon=False)
     if pairs:
-        from drill_env.agents.robustness import worst_case_verdict
+        from drill_env.agents.evaluation.robustness import worst_case_verdict
 
         ax = axes[0][1]
         margins: list[float] = []
