@@ -252,3 +252,101 @@ def test_activation_by_name_builds_that_network_and_the_numpy_actor_runs_it():
     env.close()
     with pytest.raises(ValueError, match="hyperparameters.policy_kwargs.activation_fn"):
         TrainConfig(algo="ppo", hyperparameters={"policy_kwargs": {"activation_fn": "GELU"}})
+
+
+def test_max_wall_time_stops_the_training_and_keeps_the_best_policy(tmp_path, monkeypatch):
+    # a budget far below what total_timesteps would take: the run stops at the budget with a
+    # last evaluation, says so, and its steps and wall time are in the summary
+    cfg = small_config("ppo", 10_000_000)
+    clock = {"t": 0.0}
+
+    def fake_clock() -> float:  # every call advances 1 s: the budget is reached after a few steps
+        clock["t"] += 1.0
+        return clock["t"]
+
+    import drill_env.agents.learning.rl as rl
+
+    monkeypatch.setattr(rl.time, "perf_counter", fake_clock)
+    summary = train(cfg, 0, tmp_path / "out", tmp_path / "run", progress_bar=False, max_wall_time_s=40.0)
+    assert summary["stopped_by"] == "max_wall_time" and summary["max_wall_time_s"] == 40.0
+    assert 0 < summary["env_steps"] == summary["total_timesteps"] < 10_000
+    assert summary["wall_time_s"] >= 40.0
+    on_disk = json.loads((tmp_path / "out" / "training_summary.json").read_text())
+    assert on_disk["stopped_by"] == "max_wall_time" and on_disk["env_steps"] == summary["env_steps"]
+    # the last evaluation is at the step the run stopped, and the kept policy is the best one
+    evals = np.genfromtxt(tmp_path / "out" / "eval.csv", delimiter=",", names=True)
+    assert int(np.atleast_1d(evals["timesteps"])[-1]) == summary["total_timesteps"]
+    assert (tmp_path / "out" / "policy.zip").is_file()
+    assert summary["best_eval_return"] == pytest.approx(np.max(np.atleast_1d(evals["mean_return"])))
+    # without a budget the same run is ended by total_timesteps
+    small = train(small_config("ppo", 128), 0, tmp_path / "o2", tmp_path / "r2", progress_bar=False)
+    assert small["stopped_by"] == "total_timesteps" and small["max_wall_time_s"] is None
+
+
+@pytest.mark.parametrize("bad", ["0", "-5", "nan", "inf", "x"])
+def test_cli_max_wall_time_must_be_a_positive_number(bad):
+    res = CliRunner().invoke(
+        app, ["train", "--algo", "ppo", "--config", str(CONFIGS / "ppo.yaml"), "--max-wall-time", bad]
+    )
+    assert res.exit_code == 2, res.output
+    assert "--max-wall-time" in res.output and "Traceback" not in res.output
+    for bad_api in (0, -1.0, float("nan"), float("inf"), "10"):
+        with pytest.raises(ValueError, match="max_wall_time_s"):
+            train(small_config("ppo", 64), 0, "unused", "unused", max_wall_time_s=bad_api)
+
+
+def test_time_limit_truncations_are_bootstrapped_by_ppo_and_sac():
+    # The SB3 adapter marks a time-limit end as TimeLimit.truncated with its terminal
+    # observation. PPO must add gamma * V(terminal observation) to the last reward of a
+    # truncated episode; SAC's replay buffer must store it as a timeout (done, not terminal).
+    import torch
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from drill_env import sb3_vec_env
+
+    steps = 16  # episode length: two episodes in the rollout below
+
+    class Raw(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.rewards, self.dones, self.terminal = [], [], {}
+
+        def _on_step(self) -> bool:
+            # called before SB3 bootstraps rewards in place: these are the env's own
+            self.rewards.append(np.array(self.locals["rewards"], dtype=np.float64))
+            self.dones.append(np.array(self.locals["dones"]))
+            for i, info in enumerate(self.locals["infos"]):
+                if info.get("TimeLimit.truncated"):
+                    # the value function of the moment (the update after the rollout changes it)
+                    obs = self.model.policy.obs_to_tensor(info["terminal_observation"])[0]
+                    with torch.no_grad():
+                        value = self.model.policy.predict_values(obs)[0].item()
+                    self.terminal[(len(self.rewards) - 1, i)] = value
+            return True
+
+    venv = sb3_vec_env("DrillString-v1", 2, seed=0, max_episode_steps=steps)
+    ppo = PPO(
+        "MlpPolicy", venv, n_steps=2 * steps, batch_size=32, n_epochs=1, gamma=0.9, seed=0, device="cpu"
+    )
+    raw = Raw()
+    ppo.learn(total_timesteps=2 * 2 * steps, callback=raw)
+    assert len(raw.terminal) == 4  # both rigs truncated twice, never terminated
+    buf = ppo.rollout_buffer
+    # the buffer holds the rollout collected last; learn() ran exactly one rollout
+    for (t, i), value in raw.terminal.items():
+        expected = raw.rewards[t][i] + 0.9 * value
+        assert buf.rewards[t, i] == pytest.approx(expected, rel=1e-5)
+        assert abs(value) > 1e-6 and buf.rewards[t, i] != pytest.approx(raw.rewards[t][i], rel=1e-5)
+    others = [(t, i) for t in range(2 * steps) for i in range(2) if (t, i) not in raw.terminal]
+    assert all(buf.rewards[t, i] == pytest.approx(raw.rewards[t][i], rel=1e-6) for t, i in others)
+
+    venv = sb3_vec_env("DrillString-v1", 2, seed=0, max_episode_steps=steps)
+    sac = SAC("MlpPolicy", venv, learning_starts=10_000, buffer_size=1000, seed=0, device="cpu")
+    sac.learn(total_timesteps=2 * 2 * steps)
+    rb = sac.replay_buffer
+    ends = np.argwhere(rb.dones[: rb.pos] > 0)
+    assert len(ends) == 4 and np.all(rb.timeouts[: rb.pos][rb.dones[: rb.pos] > 0] == 1)
+    # what SAC's target uses: done * (1 - timeout) = 0 — the critic bootstraps through them
+    samples = rb._get_samples(np.arange(rb.pos))
+    assert float(samples.dones.sum()) == 0.0

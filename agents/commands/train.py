@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -73,6 +74,13 @@ def register(app: typer.Typer) -> None:
             "that runs into sibling folders keep their logs apart and one TensorBoard shows them all).",
         ),
         total_timesteps: int | None = typer.Option(None, help="Override the config's total_timesteps."),
+        max_wall_time: float | None = typer.Option(
+            None,
+            "--max-wall-time",
+            help="Stop training after this many wall-clock seconds (> 0; warm start and "
+            "evaluations included), with one last evaluation; the evaluation-best policy is kept "
+            "as always. Default: train for total_timesteps.",
+        ),
         params: Path | None = typer.Option(
             None,
             "--params",
@@ -96,6 +104,8 @@ def register(app: typer.Typer) -> None:
             _fail(f"--seed must be >= 0, got {seed!r}")
         if total_timesteps is not None and total_timesteps < 1:
             _fail(f"--total-timesteps must be >= 1, got {total_timesteps!r}")
+        if max_wall_time is not None and not (math.isfinite(max_wall_time) and max_wall_time > 0):
+            _fail(f"--max-wall-time must be a positive number of seconds, got {max_wall_time!r}")
         from drill_env.agents.learning.rl import load_config
         from drill_env.agents.learning.rl import train as run_training
 
@@ -157,11 +167,19 @@ def register(app: typer.Typer) -> None:
             _fail(str(exc))
         with held:
             summary = run_training(
-                cfg, seed, out, run_dir, progress_bar=progress, on_eval=on_eval, teacher=teacher
+                cfg,
+                seed,
+                out,
+                run_dir,
+                progress_bar=progress,
+                on_eval=on_eval,
+                teacher=teacher,
+                max_wall_time_s=max_wall_time,
             )
         verdict = "converged" if summary["converged"] else "NOT converged"
         typer.echo(
-            f"{algo}: {summary['total_timesteps']} steps in {summary['wall_time_s']:.0f} s; "
+            f"{algo}: {summary['total_timesteps']} steps in {summary['wall_time_s']:.0f} s"
+            f"{' (stopped at the wall-time budget)' if summary['stopped_by'] == 'max_wall_time' else ''}; "
             f"final eval return {summary['final_eval_return']:.2f}, best {summary['best_eval_return']:.2f} "
             f"at {summary['best_at_timesteps']} steps; {verdict} ({summary['convergence']['reason']})"
         )

@@ -793,12 +793,17 @@ def train(
     progress_bar: bool = True,
     on_eval: Callable[[int, float], None] | None = None,
     teacher: Any = None,
+    max_wall_time_s: float | None = None,
 ) -> dict[str, Any]:
     """Train ``cfg.algo`` on ``cfg.env_id`` with ``seed``; write the run (CSV, TensorBoard,
     checkpoints) to ``run_dir`` and the policy, config, summary and learning curve to
     ``out_dir``. Returns the summary. A config that distils a trained policy
     (``warm_start.policy``) takes it loaded as ``teacher``
-    (:func:`drill_env.agents.registry.teacher_policy`)."""
+    (:func:`drill_env.agents.registry.teacher_policy`).
+
+    ``max_wall_time_s``: stop once this many wall-clock seconds have passed since the start
+    (warm start and evaluations included), after one last evaluation; the summary's
+    ``stopped_by`` says which limit ended the training."""
     import gymnasium as gym
     import stable_baselines3
     import torch
@@ -808,6 +813,10 @@ def train(
 
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed: expected an integer >= 0, got {seed!r}")
+    if max_wall_time_s is not None and not (
+        isinstance(max_wall_time_s, (int, float)) and math.isfinite(max_wall_time_s) and max_wall_time_s > 0
+    ):
+        raise ValueError(f"max_wall_time_s: expected a positive number of seconds, got {max_wall_time_s!r}")
     out_dir, run_dir = Path(out_dir), Path(run_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -889,8 +898,12 @@ def train(
             if self.num_timesteps >= self.next_eval:
                 run_eval(self.num_timesteps)
                 self.next_eval += cfg.evaluation.every_steps
+            if max_wall_time_s is not None and time.perf_counter() - t_start >= max_wall_time_s:
+                stopped_by[0] = "max_wall_time"
+                return False  # SB3 ends learn(); the last evaluation follows
             return True
 
+    stopped_by = ["total_timesteps"]
     warm = None
     if cfg.warm_start is not None:  # part of the training's wall time
         from drill_env.agents.learning.warm_start import warm_start
@@ -923,7 +936,10 @@ def train(
         "env_id": cfg.env_id,
         "seed": seed,
         "total_timesteps": int(model.num_timesteps),
+        "env_steps": int(model.num_timesteps),
         "wall_time_s": round(wall, 1),
+        "max_wall_time_s": max_wall_time_s,
+        "stopped_by": stopped_by[0],
         "evaluation_wall_time_s": round(eval_time[0], 1),
         "warm_start": warm,
         "n_evaluations": len(rows),
