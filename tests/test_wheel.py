@@ -150,7 +150,13 @@ def _check_controllers_inside_the_package(names: list[str]) -> None:
     installed = {n.removeprefix("drill_env/agents/") for n in names if n.startswith("drill_env/agents/")}
     sources = {p.relative_to(ROOT / "agents").as_posix() for p in (ROOT / "agents").rglob("*.py")}
     assert installed == sources
-    assert {"__init__.py", "rl.py", "commands/train.py", "benchmark/__init__.py"} <= installed
+    assert {
+        "__init__.py",
+        "learning/rl.py",
+        "commands/train.py",
+        "evaluation/benchmark/__init__.py",
+        "controllers/lqi.py",
+    } <= installed
 
 
 @needs_hatchling
@@ -162,7 +168,7 @@ def test_the_wheel_has_the_controllers_as_drill_env_agents_and_no_top_level_agen
     with tarfile.open(sdist) as tf:
         members = tf.getnames()
         (top,) = {m.split("/")[0] for m in members}
-        assert f"{top}/agents/rl.py" in members and f"{top}/drill_env/agents" not in members
+        assert f"{top}/agents/learning/rl.py" in members and f"{top}/drill_env/agents" not in members
         tf.extractall(tmp_path / "unpacked", filter="data")
     wheel = _build(tmp_path / "unpacked" / top, "wheel", tmp_path / "wheel2")
     assert sorted(_wheel_files(wheel)) == sorted(names)
