@@ -10,6 +10,7 @@ are written to ``_generated/`` by the extensions of ``_ext/``; the tutorials of
 from __future__ import annotations
 
 import os
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -48,6 +49,7 @@ exclude_patterns = [
     "_build",
     "_generated",  # included by the pages that show them, never pages of their own
     "tutorials_src/README.txt",
+    "tutorials_src/runs",  # what the tutorials write while they run
     "tutorials/*.ipynb",
     "tutorials/*.py",
     "tutorials/*.codeobj.json",
@@ -71,17 +73,27 @@ autodoc_default_options = {"show-inheritance": False}
 autodoc_mock_imports: list[str] = []
 napoleon_google_docstring = True
 napoleon_numpy_docstring = True
+# simulate() lists its keyword-only settings under "Options:"
+napoleon_custom_sections = [("Options", "params_style")]
 autosummary_generate = False
 
 
-def _markdown_docstrings(app, what, name, obj, options, lines):  # noqa: ANN001, ANN201
-    """The env class's docstring is Markdown (Gymnasium's sections and tables) and is shown,
-    rendered, on the environment page; autodoc (which reads reStructuredText) links there."""
+# |u| in a docstring is an absolute value, not a reStructuredText substitution.
+ABSOLUTE_VALUE = re.compile(r"(?<![\\`|])\|([A-Za-z_][\w.]*)\|(?![`|])")
+
+
+def _docstrings(app, what, name, obj, options, lines):  # noqa: ANN001, ANN201
+    """Docstrings are written for readers of the code, in reStructuredText with two habits
+    autodoc is told about: the env class's docstring is Markdown (Gymnasium's sections and
+    tables), shown rendered on the environment page, so autodoc links there; and ``|u|``
+    means an absolute value."""
     if name == "drill_env.envs.drill_string.DrillStringEnv":
         lines[:] = [
             "The Gymnasium environment of the rig: see :doc:`/reference/environment` for its",
             "spaces, rewards, episodes and arguments.",
         ]
+        return
+    lines[:] = [ABSOLUTE_VALUE.sub(r"\\|\1\\|", line) for line in lines]
 
 
 # -- sphinx-gallery: the tutorials are plain scripts, run at every build ------------
@@ -119,4 +131,4 @@ warnings.filterwarnings("ignore", category=DeprecationWarning)
 
 
 def setup(app):  # noqa: ANN001, ANN201
-    app.connect("autodoc-process-docstring", _markdown_docstrings)
+    app.connect("autodoc-process-docstring", _docstrings)
