@@ -33,7 +33,7 @@ cfg = dataclasses.replace(
     cfg,
     hyperparameters={**cfg.hyperparameters, "n_steps": 256, "batch_size": 1024, "n_epochs": 2},
     evaluation=dataclasses.replace(cfg.evaluation, every_steps=4096, episodes_per_regime=1),
-    warm_start=dataclasses.replace(cfg.warm_start, steps=4000, rounds=1, epochs=5),
+    warm_start=dataclasses.replace(cfg.warm_start, steps=12000, rounds=2, epochs=15),
 )
 out = Path("runs/tutorials/train")
 summary = train(cfg, seed=0, out_dir=out, run_dir=out / "logs", progress_bar=False)

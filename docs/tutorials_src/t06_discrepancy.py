@@ -48,7 +48,8 @@ print("fitted:", {k: round(v, 4) for k, v in result["parameters"].items()})
 # %%
 # Against the truth it was made from:
 answer = json.loads((out / "answer.json").read_text())
-print("truth:", answer["effect"], {k: round(v, 4) for k, v in answer["parameters"].items()})
+truth = {k: round(answer["parameters"][k], 4) for k in answer["model_effects"]}
+print("truth:", answer["effect"], truth)
 
 # %%
 # ``model.yaml`` is the corrected model: the preset with the recalibrated values and the

@@ -12,14 +12,20 @@ full example is in ``results/sim_to_real/``.
 
 # %%
 # The quick configuration: short recordings, a coarse tuning, one voltage (1 V) and one
-# seed.
+# seed; the closed-loop episodes are lengthened to 50 s so that the angle-locked
+# feedforward has time to adapt (its adaptation time is 10 s or more).
+import dataclasses
 from pathlib import Path
 
 import pandas as pd
 
+from drill_env.agents.evaluation.episodes import EpisodeSettings
 from drill_env.agents.evaluation.sim_to_real import quick_config, run_sim_to_real
 
 cfg = quick_config(controllers=("lqi", "lqi_angle_ff"))
+cfg = dataclasses.replace(
+    cfg, episode=EpisodeSettings(duration=50.0, window=15.0, warmup_time=20.0, warmup_jitter=1.0)
+)
 res = run_sim_to_real(Path("runs/tutorials/sim_to_real"), cfg, progress=print)
 
 # %%
