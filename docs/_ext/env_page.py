@@ -44,10 +44,31 @@ def ids_table() -> str:
     return "\n".join(lines) + "\n"
 
 
+def render_frame(path: Path) -> None:
+    """One ``rgb_array`` frame of ``DrillString-v1``: 5 s open loop at 2 V (stick-slip)."""
+    import gymnasium
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    env = gymnasium.make("DrillString-v1", render_mode="rgb_array")
+    obs, _ = env.reset(seed=0, options={"nominal_voltage": 2.0})
+    for _ in range(100):
+        obs, *_ = env.step(np.array([obs[7]], dtype=np.float32))  # the nominal voltage / 5 V
+    plt.imsave(path, env.render())
+    env.close()
+
+
 def write_env_page(app) -> None:  # noqa: ANN001 (Sphinx application)
     from drill_env.envs.drill_string import DrillStringEnv
 
+    frame = Path(app.srcdir) / "_generated" / "env_frame.png"
+    frame.parent.mkdir(parents=True, exist_ok=True)
+    if not frame.is_file():
+        render_frame(frame)
     body = [
+        "![DrillString-v1 rendered (rgb_array): the two disks and the string, with the speeds of the"
+        " last seconds; 5 s open loop at 2 V](../_generated/env_frame.png)",
+        "",
         "| | |",
         "|---|---|",
         "| Action space | `Box(-1.0, 1.0, (1,), float32)` (the voltage / 5 V) |",

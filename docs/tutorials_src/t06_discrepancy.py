@@ -48,7 +48,7 @@ print("fitted:", {k: round(v, 4) for k, v in result["parameters"].items()})
 # %%
 # Against the truth it was made from:
 answer = json.loads((out / "answer.json").read_text())
-truth = {k: round(answer["parameters"][k], 4) for k in answer["model_effects"]}
+truth = {k: round(v, 4) for k, v in answer["model_effects"].items()}
 print("truth:", answer["effect"], truth)
 
 # %%
