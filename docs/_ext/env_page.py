@@ -31,16 +31,21 @@ def ids_table() -> str:
     from drill_env.envs import ENV_IDS, ENV_VERSIONS
 
     lines = [
-        "| id | rig preset | observation | steps per episode | vector env |",
-        "|---|---|---|---|---|",
+        "| id | rig preset | observation | steps per episode |",
+        "|---|---|---|---|",
     ]
     for env_id, preset in ENV_IDS.items():
         spec = gymnasium.spec(env_id)
         size = 8 if ENV_VERSIONS[env_id] == 0 else 13
         lines.append(
             f"| `{env_id}` | `{preset}` | v{ENV_VERSIONS[env_id]}, `Box(({size},), float32)` | "
-            f'{spec.max_episode_steps} | `gymnasium.make_vec("{env_id}", num_envs=N)` |'
+            f"{spec.max_episode_steps} |"
         )
+    lines += [
+        "",
+        "Every id has a native vector version, `gymnasium.make_vec(id, num_envs=N)`, that steps all",
+        "rigs in one compiled call ({py:class}`drill_env.envs.vector.DrillStringVectorEnv`).",
+    ]
     return "\n".join(lines) + "\n"
 
 

@@ -12,6 +12,7 @@ one (that one trains for 1 M steps, about a minute of wall time plus the warm st
 # %%
 # Read the shipped config and shrink it: fewer rigs, a short warm start, a few thousand
 # PPO steps, an evaluation every 4 096 steps on 3 episodes (one per regime).
+import dataclasses
 import json
 from pathlib import Path
 
@@ -27,8 +28,6 @@ print(cfg.algo, cfg.env_id, "warm start:", cfg.warm_start is not None)
 
 # %%
 # The config is a frozen dataclass; ``dataclasses.replace`` changes the budgets.
-import dataclasses  # noqa: E402
-
 cfg = dataclasses.replace(
     cfg,
     hyperparameters={**cfg.hyperparameters, "n_steps": 256, "batch_size": 1024, "n_epochs": 2},

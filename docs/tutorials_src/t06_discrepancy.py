@@ -16,6 +16,7 @@ explains it.
 import json
 from pathlib import Path
 
+import drill_env
 from drill_env.discrepancy import SynthConfig, make_dataset, run_discrepancy, write_synthetic
 
 out = Path("runs/tutorials/discrepancy")
@@ -54,7 +55,5 @@ print("truth:", answer["effect"], truth)
 # %%
 # ``model.yaml`` is the corrected model: the preset with the recalibrated values and the
 # named effect, which ``drill_env.simulate`` and ``drill_env.load_params`` accept.
-import drill_env  # noqa: E402
-
 corrected = drill_env.load_params(out / "analysis" / "model.yaml")
 print(corrected.effects)

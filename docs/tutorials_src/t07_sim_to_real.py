@@ -17,6 +17,7 @@ full example is in ``results/sim_to_real/``.
 import dataclasses
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import pandas as pd
 
 from drill_env.agents.evaluation.episodes import EpisodeSettings
@@ -40,10 +41,20 @@ print(df[[c for c in cols if c in df.columns]].round(3).to_string(index=False))
 # changes little (the friction that undoes the LQI is no parameter of a linear model);
 # what the data contribute is the effect's name, which says which structure to run: the
 # angle-locked feedforward of ``lqi_angle_ff`` rejects friction locked to the bit's angle.
-from matplotlib import image as mpimg  # noqa: E402
-from matplotlib import pyplot as plt  # noqa: E402
-
-fig, ax = plt.subplots(figsize=(8, 4))
-ax.imshow(mpimg.imread(Path("runs/tutorials/sim_to_real") / "timeseries_1V.png"))
-ax.set_axis_off()
+designs = df[df.design != "-"]
+fig, ax = plt.subplots(figsize=(6, 3.2))
+for offset, (design, colour) in enumerate([("nominal", "tab:gray"), ("corrected", "tab:green")]):
+    rows = designs[designs.design == design]
+    ax.bar(
+        [i + 0.38 * offset for i in range(len(rows))],
+        rows.suppression,
+        width=0.36,
+        color=colour,
+        label=f"designed on the {design} model",
+    )
+ax.set_xticks([i + 0.19 for i in range(len(rows))], rows.controller)
+ax.axhline(0, color="k", lw=0.8)
+ax.set_ylabel("suppression at 1 V [-]")
+ax.set_ylim(min(0.0, designs.suppression.min() - 0.1), 1.05)
+ax.legend(loc="upper left", fontsize=8)
 fig.tight_layout()
