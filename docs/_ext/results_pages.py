@@ -5,8 +5,8 @@ are read, this writes Markdown copies of the result files the pages include into
 ``_generated/results/`` (excluded from the site's own pages, included by the pages of
 ``results/``):
 
-* every ``results/**/*.md`` report (``summary.md``, ``confusion.md``, ...), its headings one
-  level down so that it sits under the including page's title, its figures pointed at the
+* every ``results/**/*.md`` report (``summary.md``, ``confusion.md``, ...), its headings two
+  levels down so that it sits under the including page's section, its figures pointed at the
   committed PNG files and its links to files that are no pages shown as file names;
 * each section of ``results/README.md`` (``## benchmark/`` -> ``readme_benchmark.md``): the
   command that regenerates that folder and what it writes.
@@ -83,7 +83,7 @@ def write_results_pages(app) -> None:  # noqa: ANN001 (Sphinx application)
             continue
         rel = md.relative_to(results)
         name = "_".join(rel.with_suffix("").parts) + ".md"
-        written[name] = rewrite(md.read_text(encoding="utf-8"), md, page_dir)
+        written[name] = rewrite(md.read_text(encoding="utf-8"), md, page_dir, shift=2)
     for folder, body in readme_sections((results / "README.md").read_text(encoding="utf-8")).items():
         written[f"readme_{folder}.md"] = rewrite(body, results / "README.md", page_dir, shift=2)
     for name, text in written.items():
