@@ -105,6 +105,7 @@ sphinx_gallery_conf = {
     "within_subsection_order": "FileNameSortKey",
     "download_all_examples": False,
     "show_memory": False,
+    "write_computation_times": False,  # its pages load scripts from a CDN; the build log has the times
     "show_signature": False,
     "remove_config_comments": True,
     "abort_on_example_error": False,  # report every failing tutorial, then fail (-W)
