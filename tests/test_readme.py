@@ -1,23 +1,88 @@
-"""The README's Python code runs as printed.
+"""The README's and the documentation's code blocks run as printed.
 
-Every ```python block of README.md is run in a fresh interpreter from the repository root.
-The only change: training budgets (``.learn(N)``) are cut to a few hundred steps, so that a
-block that trains shows that it runs, not how well it learns.
+Every ```python and ```bash block of README.md and of the documentation's Markdown sources
+(``docs/**/*.md``) is run from the repository root, unless the line before it is
+``<!-- excerpt -->`` (a fragment, or a command that regenerates a committed result and says
+how long it takes). A block after ``<!-- slow -->`` runs only with ``-m slow``; the others
+run in the default run and must be quick. What a block writes goes under ``runs/``
+(ignored by git). ```yaml blocks are parsed.
+
+Python blocks run in a fresh interpreter; the only change: training budgets
+(``.learn(N)``) are cut to a few hundred steps, so that a block that trains shows that it
+runs, not how well it learns. Bash blocks run line by line with ``drill-env`` from this
+interpreter's installation. The README's two fresh-machine commands (make a virtual
+environment and install; run the tests) are the first lines of ``.ci/run``, which runs
+them as printed; here they are checked to be there, not run inside the tests they start.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
-BLOCKS = re.findall(r"^```python\n(.*?)^```", (ROOT / "README.md").read_text(), flags=re.S | re.M)
+DOCS = ROOT / "docs"
+BLOCK = re.compile(r"^(?:(<!--\s*(\w+)\s*-->)\n)?```(\w*)[^\n]*\n(.*?)^```", flags=re.S | re.M)
 LEARN = re.compile(r"\.learn\(\s*[\d_]+\s*\)")
+MARKERS = ("excerpt", "slow")
+# Lines of a bash block that set up a machine or run the test suite itself: .ci/run runs them.
+CI_LINE = re.compile(r"^(python3 -m venv |\.venv/bin/python -m pytest$|make (setup|test))")
+
+
+@dataclass(frozen=True)
+class Block:
+    source: Path
+    line: int
+    language: str
+    marker: str | None
+    code: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.source.relative_to(ROOT).as_posix()}:{self.line}"
+
+
+def _sources() -> list[Path]:
+    files = [ROOT / "README.md"]
+    for md in sorted(DOCS.rglob("*.md")):
+        rel = md.relative_to(DOCS)
+        if rel.parts[0] in ("_build", "_generated", "tutorials") or "runs" in rel.parts:
+            continue
+        files.append(md)
+    return files
+
+
+def blocks_of(path: Path) -> list[Block]:
+    text = path.read_text(encoding="utf-8")
+    found = []
+    for m in BLOCK.finditer(text):
+        marker = m.group(2)
+        if marker is not None and marker not in MARKERS:
+            raise ValueError(f"{path}: unknown marker <!-- {marker} --> (allowed: {MARKERS})")
+        line = text.count("\n", 0, m.start(3)) + 1
+        found.append(Block(path, line, m.group(3), marker, m.group(4)))
+    return found
+
+
+BLOCKS = [b for p in _sources() for b in blocks_of(p)]
+RUNNABLE = [b for b in BLOCKS if b.language in ("python", "bash") and b.marker != "excerpt"]
+README_BLOCKS = [b for b in BLOCKS if b.source.name == "README.md" and b.source.parent == ROOT]
+
+
+def _params(language: str):
+    return [
+        pytest.param(b, id=b.name, marks=[pytest.mark.slow] if b.marker == "slow" else [])
+        for b in RUNNABLE
+        if b.language == language
+    ]
 
 
 def _needs(code: str) -> list[str]:
@@ -26,17 +91,88 @@ def _needs(code: str) -> list[str]:
     return [m for m in optional if re.search(rf"^\s*(from|import) {m}\b", code, flags=re.M)]
 
 
-def test_the_readme_has_python_blocks():
-    assert len(BLOCKS) >= 4
-    assert all("import" in b for b in BLOCKS)
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    env.setdefault("MPLBACKEND", "Agg")
+    return env
 
 
-@pytest.mark.parametrize("index", range(len(BLOCKS)))
-def test_readme_block_runs_as_printed(index):
-    code = BLOCKS[index]
-    for module in _needs(code):
+def bash_commands(code: str) -> list[str]:
+    """The commands of a bash block: continuation lines joined, comments and blank lines dropped."""
+    commands, current = [], ""
+    for raw in code.splitlines():
+        line = raw.rstrip()
+        if current:
+            line = current + " " + line.lstrip()
+            current = ""
+        if line.endswith("\\"):
+            current = line[:-1].rstrip()
+            continue
+        if line.strip() and not line.lstrip().startswith("#"):
+            commands.append(line.strip())
+    return commands
+
+
+def test_the_readme_and_docs_have_runnable_blocks():
+    assert len([b for b in README_BLOCKS if b.language == "python"]) >= 3
+    assert all("import" in b.code for b in README_BLOCKS if b.language == "python")
+    assert len(RUNNABLE) >= 8
+    assert any(b.source.parent != ROOT for b in RUNNABLE), "no documentation page has a block that runs"
+
+
+def test_blocks_are_parsed_with_their_markers(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("text\n\n<!-- excerpt -->\n```bash\nrm -rf /\n```\n\n```python\nimport x\n```\n")
+    found = blocks_of(page)
+    assert [(b.language, b.marker, b.line) for b in found] == [("bash", "excerpt", 4), ("python", None, 8)]
+    assert bash_commands("a \\\n  --b c\n# note\n\nd") == ["a --b c", "d"]
+
+
+def test_every_command_block_is_run_or_marked():
+    """A shell or Python block in another language spelling would escape these tests."""
+    loose = [b.name for b in BLOCKS if b.language in ("sh", "shell", "console", "py", "python3")]
+    assert not loose, f"blocks neither run nor marked (write ```bash or ```python): {loose}"
+
+
+def test_the_fresh_machine_commands_are_what_ci_runs():
+    ci = (ROOT / ".ci" / "run").read_text()
+    ci_lines = [line.strip() for line in ci.splitlines()]
+    fresh = [
+        c for b in README_BLOCKS if b.language == "bash" for c in bash_commands(b.code) if CI_LINE.match(c)
+    ]
+    assert len(fresh) == 2, fresh
+    for command in fresh:
+        assert command in ci_lines, f".ci/run does not run the README's {command!r}"
+    assert "-c constraints.txt" in fresh[0]
+
+
+@pytest.mark.parametrize("block", _params("python"))
+def test_python_block_runs_as_printed(block):
+    for module in _needs(block.code):
         if importlib.util.find_spec(module) is None:
             pytest.skip(f"needs the optional {module}")
-    code = LEARN.sub(".learn(256)", code)
-    res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert res.returncode == 0, f"README block {index + 1}:\n{code}\n{res.stderr[-3000:]}"
+    code = LEARN.sub(".learn(256)", block.code)
+    res = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=1200
+    )
+    assert res.returncode == 0, f"{block.name}:\n{code}\n{res.stderr[-3000:]}"
+
+
+@pytest.mark.parametrize("block", _params("bash"))
+def test_bash_block_runs_as_printed(block):
+    commands = [c for c in bash_commands(block.code) if not CI_LINE.match(c)]
+    if not commands:
+        pytest.skip("the fresh-machine commands: .ci/run runs them")
+    for command in commands:
+        assert "runs/" in command or "--out" not in command, f"{block.name}: writes outside runs/: {command}"
+        res = subprocess.run(
+            ["bash", "-e", "-c", command], cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=3600
+        )
+        assert res.returncode == 0, f"{block.name}: {command}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
+
+
+@pytest.mark.parametrize("block", [b for b in BLOCKS if b.language == "yaml"], ids=lambda b: b.name)
+def test_yaml_block_parses(block):
+    yaml.safe_load(block.code)
