@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 import drill_env
 from drill_env.cli import app
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.decide import DecisionRule
 from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
+from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.study import expected_verdict
 from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse

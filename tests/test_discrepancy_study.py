@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.decide import DecisionRule
+from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.study import (
     CONDITIONS,
     PAIRS,

@@ -36,7 +36,7 @@ Choices the data leave open, documented here and in the README:
   standard deviation at least ``identified_ratio`` (3) times; the others stay nominal
   and are reported as not identified.
 * **Moved.** Which identified parameters moved is chosen by forward selection on the
-  training runs (:func:`drill_env.discrepancy.decide.first_calibration`): add the one
+  training runs (:func:`drill_env.discrepancy.parameter_selection.first_calibration`): add the one
   whose refit lowers the sum of squares most while the drop passes the candidates' test
   for one parameter, jointly with the best significant candidate if there is one, so
   that neither absorbs the other. Only moved parameters are changed in the
@@ -226,7 +226,9 @@ class ParameterFit:
     sd: float  # posterior standard deviation from the window noise (the "moved" test)
     identified: bool
     moved: bool
-    sd_interval: float = float("nan")  # the one of the interval, at least sd (see decide.final_parameters)
+    sd_interval: float = float(
+        "nan"
+    )  # the one of the interval, at least sd (see parameter_selection.final_parameters)
 
     @property
     def ci95(self) -> tuple[float, float]:

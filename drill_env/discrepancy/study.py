@@ -177,7 +177,7 @@ def _job_fields(job: _Job) -> dict:
 
 
 def _one(job: _Job, base: SynthConfig, bootstrap: int) -> dict:
-    from drill_env.discrepancy.decide import DecisionRule
+    from drill_env.discrepancy.scoring import DecisionRule
 
     cfg = replace(base, angle_noise_std=job.angle_noise, param_error=job.param_error)
     truth = Truth(job.effects)

@@ -35,32 +35,29 @@ from drill_env.discrepancy.calibrate import (
 )
 from drill_env.discrepancy.compare import CompareConfig, RunComparison, aggregate, compare_run
 from drill_env.discrepancy.dataset import MeasuredDataset, load_dataset
-from drill_env.discrepancy.decide import (
-    NOT_AN_EFFECT,
-    CalibrationSetup,
-    Decision,
-    DecisionRule,
-    LineScan,
-    LineSignature,
-    decide,
-    demote,
-    final_parameters,
-    first_calibration,
-    line_scan,
-    line_signature,
-    moved_fit,
-    recalibrated_equations,
-    run_statistics,
-    second_effect,
-    sensor_worse,
-    split_runs,
-)
 from drill_env.discrepancy.effects import CANDIDATES
 from drill_env.discrepancy.equation_error import (
     AngleNoise,
     EquationErrorConfig,
     RunEquations,
     estimate_angle_noise,
+)
+from drill_env.discrepancy.parameter_selection import (
+    final_parameters,
+    first_calibration,
+    moved_fit,
+    recalibrated_equations,
+)
+from drill_env.discrepancy.scoring import CalibrationSetup, DecisionRule, run_statistics
+from drill_env.discrepancy.spectral_lines import LineScan, LineSignature, line_scan, line_signature
+from drill_env.discrepancy.verdict import (
+    NOT_AN_EFFECT,
+    Decision,
+    decide,
+    demote,
+    second_effect,
+    sensor_worse,
+    split_runs,
 )
 from drill_env.outputs import atomic_write_text, output_lock
 from drill_env.params import ParameterError, RigParams, load_params, validity_warnings
