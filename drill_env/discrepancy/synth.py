@@ -191,6 +191,7 @@ class SynthConfig:
     hold_quantum_s: float = 0.1
     level_max_v: float = 5.0
     param_error: float = 0.0  # [-] relative error of every identified parameter (uniform +-)
+    time_jitter: float = 0.0  # [periods] time-stamp error, uniform +-, of a jittered DAQ clock
 
     def __post_init__(self) -> None:
         for v in self.voltages:
@@ -212,6 +213,8 @@ class SynthConfig:
             raise ValueError(f"angle_noise_std: must be >= 0, got {self.angle_noise_std!r}")
         if not (math.isfinite(self.param_error) and 0.0 <= self.param_error <= 0.3):
             raise ValueError(f"param_error: {self.param_error!r} is outside [0, 0.3]")
+        if not (math.isfinite(self.time_jitter) and 0.0 <= self.time_jitter <= 0.1):
+            raise ValueError(f"time_jitter: {self.time_jitter!r} is outside [0, 0.1] periods")
         if not 0.0 < self.level_max_v <= 5.0:
             raise ValueError(f"level_max_v: {self.level_max_v!r} is outside (0, 5] V")
 
@@ -313,19 +316,33 @@ def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: 
     t_true = res.t[k0:]
     if abs(t_true[0]) > 1e-6 * dt + 1e-9:
         raise RuntimeError(f"internal: recording grid misaligned (t[0] = {t_true[0]!r})")
+    theta_u, theta_l = res.theta_u[k0:], res.theta_l[k0:]
+    jitter = np.zeros(n_rec)
+    if cfg.time_jitter > 0.0:
+        # A jittered DAQ clock: sample k taken at k dt + e_k. Drawn from a stream of its own, so
+        # that the dataset without jitter is the same draw; the angles at those instants by cubic
+        # Hermite interpolation on the simulated angles and speeds (exact to O(dt^4)).
+        from scipy.interpolate import CubicHermiteSpline
+
+        jrng = np.random.default_rng(rng.bit_generator.seed_seq.spawn(1)[0])
+        jitter = jrng.uniform(-cfg.time_jitter, cfg.time_jitter, n_rec) * dt
+        jitter[0] = 0.0
+        t_at = t_true + jitter
+        theta_u = CubicHermiteSpline(res.t, res.theta_u, res.x2)(t_at)
+        theta_l = CubicHermiteSpline(res.t, res.theta_l, res.x3)(t_at)
     if np.ndim(u_levels) == 0:
         u = np.full(n_rec, float(u_levels))
     else:
-        idx = np.floor((t_true - t0) / cdt + 1e-9).astype(int)
-        u = np.asarray(u_levels)[np.minimum(idx, len(u_levels) - 1)]
+        idx = np.floor((t_true + jitter - t0) / cdt + 1e-9).astype(int)
+        u = np.asarray(u_levels)[np.clip(idx, 0, len(u_levels) - 1)]
     sensors = SensorConfig(
         counts_per_rev=cfg.encoder_counts_per_rev,
         sample_rate_hz=cfg.sample_rate_hz,
         angle_noise_std=cfg.angle_noise_std,
     )
     meas = measure(
-        res.theta_u[k0:],
-        res.theta_l[k0:],
+        theta_u,
+        theta_l,
         sensors,
         initial_speeds=(float(res.x2[k0]), float(res.x3[k0])),
         seed=rng,
@@ -334,7 +351,7 @@ def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: 
     t_start = float(np.round(rng.uniform(0.0, 100.0) / dt) * dt)
     return MeasuredRun(
         name=name,
-        t=t_start + dt * np.arange(n_rec),
+        t=t_start + dt * np.arange(n_rec) + jitter,
         u=u,
         theta_u=meas.upper_angle,
         theta_l=meas.lower_angle,
@@ -420,6 +437,7 @@ def make_dataset(
             "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
             "angle_noise_std": cfg.angle_noise_std,
             "param_error": cfg.param_error,
+            "time_jitter": cfg.time_jitter,
         },
     }
     return SynthResult(runs=runs, truth=truth, answer=answer)
