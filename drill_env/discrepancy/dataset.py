@@ -64,6 +64,7 @@ __all__ = [
     "MIN_DURATION_S",
     "MAX_RUN_BYTES",
     "MAX_JITTER",
+    "CONSTANT_VOLTAGE_TOL",
     "regularise_run",
 ]
 
@@ -77,6 +78,7 @@ _COUNTS_MAX = 1 << 26
 _GRID_TOL = 1e-3  # [counts] how far an angle may sit from a whole encoder count (print rounding aside)
 MAX_RUN_BYTES = 1 << 30  # a run file of more than 1 GiB (about 25 million samples) is refused unread
 MAX_META_BYTES = 1 << 20
+CONSTANT_VOLTAGE_TOL = 0.05  # [V] largest deviation from its median of a constant run's voltage
 MAX_JITTER = 0.1  # largest time-stamp error of a jittered clock, in periods [-]
 _GRID_FIT_MARGIN = 0.02  # [periods] the uniform grid is fitted to the time stamps, not known
 _JITTERED_SHARE = 0.05  # share of odd steps above which a clock is jittered rather than glitched
@@ -113,12 +115,14 @@ class MeasuredRun:
 
     @property
     def is_constant_voltage(self) -> bool:
-        return bool(np.ptp(self.u) <= 1e-6)
+        """Every sample within :data:`CONSTANT_VOLTAGE_TOL` of the run's median voltage: a
+        constant input recorded through a noisy ADC (up to about 10 mV rms) is still constant."""
+        return bool(np.max(np.abs(self.u - np.median(self.u))) <= CONSTANT_VOLTAGE_TOL)
 
     @property
     def voltage(self) -> float:
-        """The constant voltage of a constant-voltage run, else nan."""
-        return float(self.u[0]) if self.is_constant_voltage else float("nan")
+        """The constant voltage of a constant-voltage run (the median of its samples), else nan."""
+        return float(np.median(self.u)) if self.is_constant_voltage else float("nan")
 
     @property
     def label(self) -> str:

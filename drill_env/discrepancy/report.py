@@ -369,6 +369,32 @@ def _signature_section(res) -> list[str]:
         for r in sig.runs
     ]
     drops = ", ".join(f"{k} {v:.4g}" for k, v in sorted(sig.drops.items(), key=lambda kv: -kv[1]))
+    explain: list[str] = []
+    if sig.explanations:
+        explain = [
+            "A line locked to a disk's rotation has two kinds of explanation, scored on the same "
+            "residual with coefficients common to the runs (drop of the sum of squares in noise units, "
+            "and the BIC score: the drop minus k ln n for k fitted parameters; the larger score fits "
+            "better). Check both on the rig: the physical one at the disk and its brake, the sensor one "
+            "at the encoder's mounting.",
+            "",
+            _table(
+                ["explanation", "kind", "what it is", "drop", "k", "score", "fitted"],
+                [
+                    [
+                        e["explanation"],
+                        e["kind"],
+                        e["what"],
+                        e["drop"],
+                        e["k"],
+                        e["score"],
+                        ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items()),
+                    ]
+                    for e in sig.explanations
+                ],
+            ),
+            "",
+        ]
     return [
         "## What to look for",
         "",
@@ -394,6 +420,7 @@ def _signature_section(res) -> list[str]:
             rows,
         ),
         "",
+        *explain,
     ]
 
 

@@ -4,7 +4,7 @@ what it is locked to -- time, a disk's rotation or the voltage (:func:`line_sign
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -149,6 +149,9 @@ class LineSignature:
     runs: list[dict[str, Any]]  # per run: name, voltage, rotation rates, amplitudes, shown
     threshold: float = float("nan")  # chi^2 level the winning drop must pass (Bonferroni)
     significant: bool = True
+    # a line locked to a disk's rotation: the physical and the sensor explanation, best first
+    # (see drill_env.discrepancy.sensor_effects.rotation_explanations)
+    explanations: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -166,7 +169,12 @@ class LineSignature:
             shown += " (constant voltages " + ", ".join(f"{v:g}" for v in volts) + " V)"
         if not self.significant:
             return f"no line stands out (the strongest, {what}, does not pass its test); {shown}"
-        return f"{what}; torque amplitude {amp}; {shown}"
+        out = f"{what}; torque amplitude {amp}; {shown}"
+        if self.explanations:
+            out += "; explained as " + " or ".join(
+                f"{e['explanation']} ({e['kind']}, score {e['score']:.4g})" for e in self.explanations
+            )
+        return out
 
 
 def _disk_regressors(eq: RunEquations, hyp: str, freq: float) -> dict[str, np.ndarray]:
@@ -258,7 +266,7 @@ def line_signature(eqs: list[RunEquations], frequency_hz: float, alpha: float = 
         shown = any(d > single for d, _ in res.values())
         row = {
             "run": eq.run.name,
-            "voltage_v": float(eq.run.u[0]) if eq.run.is_constant_voltage else None,
+            "voltage_v": eq.run.voltage if eq.run.is_constant_voltage else None,
             "lower_rotation_hz": float(np.mean(np.abs(eq.speed_l))) / (2.0 * math.pi),
             "upper_rotation_hz": float(np.mean(np.abs(eq.speed_u))) / (2.0 * math.pi),
             "amplitude_nm": {d: a for d, (_, a) in res.items()},

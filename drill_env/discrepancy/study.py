@@ -104,7 +104,8 @@ class Truth:
 def truths() -> list[Truth]:
     """The truths of the grid: none, each library effect, the pairs, the outside effect."""
     library = [e for e, h in HIDDEN_EFFECTS.items() if h.in_library and e != "none"]
-    outside = [e for e, h in HIDDEN_EFFECTS.items() if not h.in_library]
+    # the measurement effects (an encoder's reading error) are not cells of this grid
+    outside = [e for e, h in HIDDEN_EFFECTS.items() if not h.in_library and h.kind == "plant"]
     return (
         [Truth(())]
         + [Truth((e,)) for e in library]
@@ -591,7 +592,7 @@ def _write_markdown(
         lines.append(f"| {k} | {pct(v)} |")
     lines += ["", "## Detectable ranges", "", "| effect | magnitude | range |", "|---|---|---|"]
     for e, spec in HIDDEN_EFFECTS.items():
-        if e != "none":
+        if e != "none" and spec.kind == "plant":
             lines.append(f"| {e} | {_md_cell(spec.magnitude_meaning)} | [{spec.low:g}, {spec.high:g}] |")
     n0, e0 = SWEEP_CONDITION
     lines += [

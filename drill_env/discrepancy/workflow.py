@@ -49,6 +49,7 @@ from drill_env.discrepancy.parameter_selection import (
     recalibrated_equations,
 )
 from drill_env.discrepancy.scoring import CalibrationSetup, DecisionRule, run_statistics
+from drill_env.discrepancy.sensor_effects import rotation_explanations
 from drill_env.discrepancy.spectral_lines import LineScan, LineSignature, line_scan, line_signature
 from drill_env.discrepancy.verdict import (
     NOT_AN_EFFECT,
@@ -513,6 +514,10 @@ def analyse(
     signature = None
     if decision.effect == "unexplained":
         signature = line_signature(eqs_line, line.frequency_hz)
+        if signature.significant and signature.locked_to.endswith("disk rotation"):
+            # physical or sensor: a friction that follows the angle, or the angle read wrong
+            disk = signature.locked_to.split()[0]
+            signature = dataclasses.replace(signature, explanations=rotation_explanations(eqs_line, disk))
     timings["total"] = time.perf_counter() - t0
     return DiscrepancyResult(
         dataset=dataset,
