@@ -108,6 +108,13 @@ def test_a_gap_is_refused_with_its_remedy_and_split_on_request(tmp_path):
     runs = load_dataset(tmp_path).runs
     assert [r.name for r in runs] == ["run01@1", "run01@2"]
     assert runs[0].t.size == 2400 and runs[1].t[0] == pytest.approx(t[2400])
+    # a file named like one of the parts is refused, naming both
+    (tmp_path / "run01@2.csv").write_text(
+        "\n".join((tmp_path / "run01.csv").read_text().splitlines()[:2401]) + "\n"
+    )
+    msg = _error(tmp_path)
+    assert "two runs named 'run01@2'" in msg and "rename the other file" in msg
+    (tmp_path / "run01@2.csv").unlink()
     # a part shorter than a run may be is refused, naming its lines
     t2 = 2.0 + np.arange(int(25 * rate)) / rate
     t2[int(20 * rate) :] += 3 / rate

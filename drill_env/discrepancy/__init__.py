@@ -14,6 +14,8 @@
   intervals;
 * :mod:`~drill_env.discrepancy.verdict` -- the decision rule, the bootstrap, a second effect
   (:mod:`~drill_env.discrepancy.decide` re-exports the public names);
+* :mod:`~drill_env.discrepancy.sensor_effects` -- a rotation-locked line as an encoder's
+  reading error (eccentricity) beside position friction;
 * :mod:`~drill_env.discrepancy.compare` -- sensor-space comparison by simulation;
 * :mod:`~drill_env.discrepancy.workflow`, :mod:`~drill_env.discrepancy.report` -- the
   command's whole run and its report;

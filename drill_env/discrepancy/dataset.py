@@ -16,11 +16,13 @@ DAQ, a log written by a control loop). A jittered run is brought onto its unifor
 (:func:`regularise_run`): sample ``k`` stands for the instant ``t0 + k T``, its angles
 moved by the angle turned between the recorded and the grid instant (the local speed
 times the time-stamp error) in whole encoder counts, so that they stay on the encoder
-grid and the quantisation error keeps its nature; the voltage is the recorded sample's
-(a switching instant moves by at most the jitter). The time-stamp error a run had is in
+grid and the quantisation error keeps its nature; the voltage is the recorded sample's,
+held over its step of the grid (a DAQ updates its output on its own clock and logs it with
+the sample; a voltage from an external generator sampled by the DAQ shows each step up to
+one sample late). The time-stamp error a run had is in
 :attr:`MeasuredRun.time_jitter`. A *gap* (a step of a whole number of periods: samples
 lost) is refused unless ``dataset.json`` says ``"split_at_gaps": true``; the parts are then
-analysed as runs of their own, ``name@2``, ``name@3``... (every part at least
+analysed as runs of their own, ``name@1``, ``name@2``... (every part at least
 :data:`MIN_DURATION_S` long). A step that is neither (a glitch of the clock) is refused with
 its line.
 
@@ -624,11 +626,6 @@ def load_dataset(folder: str | Path) -> MeasuredDataset:
         raise DatasetError(f"{folder}: no run files (*.csv)")
     stems: dict[str, Path] = {}
     for f in files:
-        if "@" in f.stem:
-            raise DatasetError(
-                f"{folder / f.name}: '@' in a run's file name is kept for the parts of a run split at "
-                "its gaps; rename the file"
-            )
         if f.stem in stems:
             raise DatasetError(f"{folder}: two run files named {f.stem!r} ({stems[f.stem].name}, {f.name})")
         stems[f.stem] = f
@@ -638,6 +635,14 @@ def load_dataset(folder: str | Path) -> MeasuredDataset:
     runs = tuple(
         r for f in files for r in _load_csv(f, float(rate) if rate is not None else None, counts, split)
     )
+    seen: dict[str, MeasuredRun] = {}
+    for r in runs:
+        if r.name in seen:  # a part of a run split at its gaps named like another file
+            raise DatasetError(
+                f"{folder}: two runs named {r.name!r} ({seen[r.name].path.name}, {r.path.name}): the parts "
+                "of a run split at its gaps are named <file>@1, <file>@2, ...; rename the other file"
+            )
+        seen[r.name] = r
     _check_common_divisor(runs, counts, folder / "dataset.json")
     return MeasuredDataset(
         preset=str(meta["preset"]),

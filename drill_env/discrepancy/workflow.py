@@ -194,7 +194,14 @@ class DiscrepancyResult:
 
     def _verdict_line(self) -> str:
         d = self.decision
-        moved = ", ".join(f"{f.name} {f.value / f.nominal - 1.0:+.1%}" for f in d.recalibrated)
+        # "moved" is what the interval resolves; the others were refitted with them (the model
+        # holds their values) but their intervals hold the nominal
+        resolved = [f for f in d.recalibrated if f.excludes_nominal]
+        within = [f.name for f in d.recalibrated if not f.excludes_nominal]
+        moved = ", ".join(f"{f.name} {f.value / f.nominal - 1.0:+.1%}" for f in resolved)
+        if within:
+            what = f"refitted, within their intervals: {', '.join(within)}"
+            moved = f"{moved} ({what})" if moved else what
         cal = f"; recalibrated: {moved}" if moved else ""
         if d.effect in ("none", "unexplained"):
             extra = ""
