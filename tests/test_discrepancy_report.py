@@ -44,7 +44,6 @@ def assert_table_is_the_model(out: Path) -> dict[str, list[str]]:
     return rows
 
 
-@pytest.mark.slow
 def test_report_table_is_model_yaml_under_parameter_errors(tmp_path):
     """Several parameters off by a few percent (some fixed only jointly, like the second hump
     term and the lower viscous friction): every row of the table is model.yaml."""
@@ -122,7 +121,6 @@ def test_out_of_prior_recalibration_names_its_alternatives():
     )
 
 
-@pytest.mark.slow
 def test_a_model_worse_than_nominal_is_not_written(tmp_path):
     """An external torque the library lacks: the recalibration absorbs part of it and the
     recalibrated model simulates worse than the nominal one on the held-out runs (steady

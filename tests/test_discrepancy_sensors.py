@@ -46,7 +46,6 @@ def test_a_noisy_measured_voltage_keeps_constant_runs_constant():
     assert not stepped.is_constant_voltage
 
 
-@pytest.mark.slow
 def test_steady_state_features_survive_a_noisy_measured_voltage():
     cfg = SynthConfig(
         voltages=(1.0, 2.0, 3.0), random_runs=1, duration_s=30.0, pre_roll_s=20.0, sample_rate_hz=250.0
@@ -97,7 +96,6 @@ def test_position_friction_is_explained_as_physical():
     assert rows[0]["parameters"]["lower_position_amp_1"] == pytest.approx(truth, rel=0.2)
 
 
-@pytest.mark.slow
 def test_unexplained_rotation_line_lists_physical_and_sensor_explanations(tmp_path):
     """The workflow on an eccentric encoder: unexplained (no library effect is a reading error),
     and the verdict and the report's "What to look for" name the encoder first, position
