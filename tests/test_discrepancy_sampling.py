@@ -172,3 +172,19 @@ def test_jittered_recording_gives_the_verdict_of_the_uniform_one(tmp_path, effec
 )
 def test_jittered_recordings_at_several_seeds_and_rates(tmp_path, effect, seed, rate, jitter):
     assert _verdict(tmp_path, effect, seed, rate, jitter) == _verdict(tmp_path, effect, seed, rate, 0.0)
+
+
+def test_synth_command_writes_a_jittered_recording(tmp_path):
+    from typer.testing import CliRunner
+
+    from drill_env.cli import app
+
+    args = ["synth", "--effect", "none", "--seed", "3", "--duration", "12", "--voltages", "1.0,2.0"]
+    args += ["--random-runs", "0", "--rate", "250", "--answer", str(tmp_path / "a.json")]
+    r = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "bad"), "--time-jitter", "0.2"])
+    assert r.exit_code == 2 and "time_jitter: 0.2 is outside [0, 0.1] periods" in r.output
+    r = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "data"), "--time-jitter", "0.08"])
+    assert r.exit_code == 0, r.output
+    runs = load_dataset(tmp_path / "data").runs
+    assert all(0.05 < run.time_jitter <= 0.08 + 0.02 for run in runs)
+    assert all(np.ptp(np.diff(run.t)) < 1e-9 for run in runs)

@@ -26,7 +26,11 @@ def _progress():
 
 def synth(
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
-    effect: str = typer.Option(..., help="Hidden effect: none, a library effect, or external_torque."),
+    effect: str = typer.Option(
+        ...,
+        help="Hidden effect: none, a library effect, external_torque, or encoder_eccentricity_lower "
+        "(a reading error of the lower encoder).",
+    ),
     magnitude: float | None = typer.Option(
         None,
         help="Magnitude of the effect (its meaning per effect is in the README); default: "
@@ -55,6 +59,12 @@ def synth(
         "0.2,0.5,0.7,1.0,2.0,3.0,4.5", help="Constant-voltage runs [V], comma-separated ('' for none)."
     ),
     random_runs: int = typer.Option(3, help="Quasi-random voltage runs."),
+    time_jitter: float = typer.Option(
+        0.0,
+        "--time-jitter",
+        help="Time-stamp jitter of the DAQ clock, uniform +-this share of the period (0-0.1): the angles "
+        "are read at the jittered instants, which the time stamps record.",
+    ),
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
     parameters off by a few percent)."""
@@ -84,6 +94,7 @@ def synth(
             encoder_counts_per_rev=counts,
             angle_noise_std=angle_noise,
             param_error=param_error,
+            time_jitter=time_jitter,
         )
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:
