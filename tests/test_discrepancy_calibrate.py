@@ -12,9 +12,10 @@ import drill_env
 from drill_env.cli import app
 from drill_env.discrepancy.calibrate import CALIBRATED, calibration_columns, calibration_statistics
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.decide import DecisionRule, run_statistics, sensor_worse
 from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
+from drill_env.discrepancy.scoring import DecisionRule, run_statistics
 from drill_env.discrepancy.synth import IDENTIFIED, SynthConfig, make_dataset
+from drill_env.discrepancy.verdict import sensor_worse
 from drill_env.discrepancy.workflow import analyse
 
 NOMINAL = drill_env.load_params("brake")
@@ -275,7 +276,7 @@ def test_parameter_errors_are_never_named_as_effects(changes, seed):
 
 def test_predictive_heldout_sum_of_squares_matches_its_covariance():
     # r'(I + A C A')^-1 r for the held-out residual of a parameter refit with covariance C
-    from drill_env.discrepancy.decide import _predictive
+    from drill_env.discrepancy.scoring import _predictive
 
     rng = np.random.default_rng(5)
     a = rng.standard_normal((40, 4)) * np.array([1.0, 10.0, 0.1, 3.0])

@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 import drill_env
 from drill_env.cli import app
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.decide import DecisionRule
 from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
+from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.study import expected_verdict
 from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse
@@ -110,7 +110,10 @@ def test_cli_end_to_end(tmp_path):
         "evidence",
         "recalibrated",
         "effects",
+        "model_written",
+        "model_check",
     }
+    assert result["model_written"] is True and result["model_check"]["worse"] == []
     assert result["effect"] in RESULT_EFFECTS and result["effect"] == "friction_drift"
     assert abs(result["parameters"]["friction_drift"]) == pytest.approx(0.001, rel=0.1)
     assert (
@@ -120,6 +123,21 @@ def test_cli_end_to_end(tmp_path):
     for fig in ("spectra.png", "bifurcation.png", "trajectories.png", "residual_spectra.png"):
         assert (out / fig).is_file()
     assert "![spectra.png](spectra.png)" in (out / "report.md").read_text()
+    # the report's parameter table is the model written: every row's fitted value is model.yaml's
+    # (or, when no parameter moved, the report says so and model.yaml holds the nominal values)
+    written = drill_env.load_params(out / "model.yaml")
+    report = (out / "report.md").read_text().splitlines()
+    head = [i for i, ln in enumerate(report) if ln.startswith("| parameter | nominal | fitted |")]
+    if head:
+        rows = [ln.strip("|").split("|") for ln in report[head[0] + 2 : head[0] + 2 + 13]]
+        assert len({r[0].strip() for r in rows}) == 13
+        for r in rows:
+            assert float(r[2]) == pytest.approx(getattr(written, r[0].strip()), rel=6e-4), r
+    else:
+        assert any("none moved beyond its test" in ln for ln in report)
+        nominal = drill_env.load_params("brake")
+        for name in ("motor_constant", "lower_static", "lower_viscous", "lower_hump_2"):
+            assert getattr(written, name) == getattr(nominal, name)
     # the written model variant is accepted by the simulator
     p = drill_env.load_params(out / "model.yaml")
     assert p.effects.friction_drift == pytest.approx(result["parameters"]["friction_drift"])

@@ -9,9 +9,10 @@ import pytest
 
 import drill_env
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.decide import DecisionRule, line_scan, line_signature
 from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
 from drill_env.discrepancy.report import write_report
+from drill_env.discrepancy.scoring import DecisionRule
+from drill_env.discrepancy.spectral_lines import line_scan, line_signature
 from drill_env.discrepancy.synth import SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import analyse
 

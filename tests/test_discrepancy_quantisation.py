@@ -10,7 +10,6 @@ import pytest
 
 import drill_env
 from drill_env.discrepancy.dataset import MeasuredDataset, MeasuredRun
-from drill_env.discrepancy.decide import DecisionRule, RunStatistics, decide
 from drill_env.discrepancy.equation_error import (
     AngleNoise,
     RunEquations,
@@ -18,7 +17,9 @@ from drill_env.discrepancy.equation_error import (
     line_variance,
     quantisation_weights,
 )
+from drill_env.discrepancy.scoring import DecisionRule, RunStatistics
 from drill_env.discrepancy.synth import SynthConfig, make_dataset
+from drill_env.discrepancy.verdict import decide
 from drill_env.discrepancy.workflow import analyse
 
 STEP = 1.0  # one count, in the units of the angle

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.decide import DecisionRule
+from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.study import (
     CONDITIONS,
     PAIRS,
@@ -174,6 +174,56 @@ def test_parallel_workers_give_the_same_rows():
         a, b = dict(a), dict(b)
         a.pop("seconds"), b.pop("seconds")
         assert a == b
+
+
+@pytest.mark.slow
+def test_ray_backend_gives_the_rows_of_the_process_pool():
+    """The datasets as Ray tasks on a local Ray instance: the same rows, in the same order, as
+    the local pool of processes."""
+    pytest.importorskip("ray")
+    base = SynthConfig(
+        voltages=(0.5, 2.0), random_runs=2, duration_s=30.0, pre_roll_s=20.0, sample_rate_hz=200.0
+    )
+    jobs = [
+        _Job("grid", (), 10_001, 0.0, 0.02),
+        _Job("grid", ("position_friction_lower",), 10_002, 1e-3, 0.0),
+    ]
+    pool = _run_jobs(jobs, base, 10, 2, None)
+    seen = []
+    on_ray = _run_jobs(jobs, base, 10, 2, lambda i, n: seen.append((i, n)), backend="ray")
+    assert seen[-1] == (2, 2)
+    assert len(on_ray) == len(pool) == 2
+    for a, b in zip(pool, on_ray, strict=True):
+        a, b = dict(a), dict(b)
+        a.pop("seconds"), b.pop("seconds")
+        assert a == b
+
+
+def test_study_command_defaults_to_a_fresh_run_folder(tmp_path, monkeypatch):
+    """Without --out the study writes a new folder under runs/, never the committed results;
+    a bad backend is refused before anything is written."""
+    from typer.testing import CliRunner
+
+    from drill_env.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["discrepancy-study", "--backend", "dask"])
+    assert r.exit_code == 2 and "--backend: 'dask' is not a backend; allowed: process, ray" in r.output
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "results").exists()
+    r = CliRunner().invoke(app, ["discrepancy-study", "--ray-address", "auto"])
+    assert r.exit_code == 2 and "--ray-address: only with --backend ray" in r.output
+    out_seen = []
+
+    def fake_run_study(out, **kw):  # the folder the command chose; the study itself is tested above
+        out_seen.append(out)
+        raise SystemExit(0)
+
+    monkeypatch.setattr("drill_env.discrepancy.study.run_study", fake_run_study)
+    CliRunner().invoke(app, ["discrepancy-study", "--skip-paper-case", "--seeds", "1", "--sweep-seeds", "1"])
+    assert len(out_seen) == 1
+    out = out_seen[0]
+    assert out.resolve().parent == (tmp_path / "runs" / "discrepancy-study").resolve()
+    assert out.name.startswith("study_") and not (tmp_path / "results").exists()
 
 
 @pytest.mark.parametrize("seed", [31000, 31010])

@@ -9,9 +9,9 @@ import pytest
 
 import drill_env
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.decide import DecisionRule
 from drill_env.discrepancy.effects import CANDIDATES, THERMAL_TIMES_S, thermal_state, thermal_trajectory
 from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
+from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.synth import SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import analyse
 

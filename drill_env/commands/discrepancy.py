@@ -26,7 +26,11 @@ def _progress():
 
 def synth(
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
-    effect: str = typer.Option(..., help="Hidden effect: none, a library effect, or external_torque."),
+    effect: str = typer.Option(
+        ...,
+        help="Hidden effect: none, a library effect, external_torque, or encoder_eccentricity_lower "
+        "(a reading error of the lower encoder).",
+    ),
     magnitude: float | None = typer.Option(
         None,
         help="Magnitude of the effect (its meaning per effect is in the README); default: "
@@ -55,6 +59,12 @@ def synth(
         "0.2,0.5,0.7,1.0,2.0,3.0,4.5", help="Constant-voltage runs [V], comma-separated ('' for none)."
     ),
     random_runs: int = typer.Option(3, help="Quasi-random voltage runs."),
+    time_jitter: float = typer.Option(
+        0.0,
+        "--time-jitter",
+        help="Time-stamp jitter of the DAQ clock, uniform +-this share of the period (0-0.1): the angles "
+        "are read at the jittered instants, which the time stamps record.",
+    ),
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
     parameters off by a few percent)."""
@@ -84,6 +94,7 @@ def synth(
             encoder_counts_per_rev=counts,
             angle_noise_std=angle_noise,
             param_error=param_error,
+            time_jitter=time_jitter,
         )
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:
@@ -137,7 +148,11 @@ def discrepancy(
 
 
 def discrepancy_study(
-    out: Path = typer.Option(Path("results/discrepancy"), help="Output folder of the study."),
+    out: Path | None = typer.Option(
+        None,
+        help="Output folder of the study (default: a fresh folder under runs/discrepancy-study/; the "
+        "committed study is regenerated with --out results/discrepancy, see results/README.md).",
+    ),
     seeds: int = typer.Option(3, help="Seeds per truth and condition (angle noise x parameter error)."),
     sweep_seeds: int = typer.Option(2, help="Seeds per point of the magnitude sweep."),
     first_seed: int = typer.Option(
@@ -146,6 +161,12 @@ def discrepancy_study(
     ),
     workers: int = typer.Option(
         0, help="Processes that share the datasets (0: one per CPU core); the result does not depend on it."
+    ),
+    backend: str = typer.Option(
+        "process", help="process (a local pool of --workers processes) or ray (Ray tasks); same rows."
+    ),
+    ray_address: str | None = typer.Option(
+        None, help="With --backend ray: the Ray cluster's address (default: a local Ray instance)."
     ),
     paper_case_only: bool = typer.Option(False, "--paper-case-only", help="Only the paper's case."),
     skip_paper_case: bool = typer.Option(False, "--skip-paper-case", help="Skip the paper's case."),
@@ -169,8 +190,19 @@ def discrepancy_study(
     if not 0 <= workers <= 256:
         _fail(f"--workers must be an integer from 0 (one per CPU core) to 256, got {workers!r}")
     workers = workers or (os.cpu_count() or 1)
+    if backend not in ("process", "ray"):
+        _fail(f"--backend: {backend!r} is not a backend; allowed: process, ray")
+    if ray_address is not None and backend != "ray":
+        _fail("--ray-address: only with --backend ray")
     if paper_case_only and skip_paper_case:
         _fail("--paper-case-only and --skip-paper-case together leave nothing to do; give at most one")
+    if out is None:
+        from drill_env.outputs import fresh_run_folder
+
+        try:
+            out = fresh_run_folder(Path("runs") / "discrepancy-study", "study")
+        except OutputFolderError as exc:
+            _fail(str(exc))
     if out.exists() and not out.is_dir():
         _fail(f"--out {out} exists and is not a folder")
     try:
@@ -178,7 +210,12 @@ def discrepancy_study(
             if not paper_case_only:
                 import time
 
-                typer.echo(f"hidden-effect study: {workers} worker process(es); results in {out}")
+                where = (
+                    f"Ray tasks ({ray_address or f'a local Ray instance, {workers} CPU(s)'})"
+                    if backend == "ray"
+                    else f"{workers} worker process(es)"
+                )
+                typer.echo(f"hidden-effect study: {where}; results in {out}")
                 t0 = time.perf_counter()
                 import contextlib
                 import sys
@@ -202,6 +239,8 @@ def discrepancy_study(
                         first_seed=first_seed,
                         workers=workers,
                         progress=progress,
+                        backend=backend,
+                        ray_address=ray_address,
                     )
                 typer.echo(
                     f"accuracy {summary['accuracy']:.1%} over {summary['n_datasets']} datasets; "

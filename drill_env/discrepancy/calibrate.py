@@ -36,7 +36,7 @@ Choices the data leave open, documented here and in the README:
   standard deviation at least ``identified_ratio`` (3) times; the others stay nominal
   and are reported as not identified.
 * **Moved.** Which identified parameters moved is chosen by forward selection on the
-  training runs (:func:`drill_env.discrepancy.decide.first_calibration`): add the one
+  training runs (:func:`drill_env.discrepancy.parameter_selection.first_calibration`): add the one
   whose refit lowers the sum of squares most while the drop passes the candidates' test
   for one parameter, jointly with the best significant candidate if there is one, so
   that neither absorbs the other. Only moved parameters are changed in the
@@ -65,6 +65,7 @@ __all__ = [
     "CalibrationRule",
     "CalibrationStatistics",
     "ParameterFit",
+    "ALTERNATIVE_EXPLANATIONS",
     "calibration_columns",
     "calibration_statistics",
     "solve_joint",
@@ -216,9 +217,43 @@ def solve_joint(
     return cov @ b, cov
 
 
+# What else produces the same data as a recalibration far outside a parameter's prior: the
+# equation error sees a torque, and these are other torques (or inputs) of the same shape.
+ALTERNATIVE_EXPLANATIONS: dict[str, str] = {
+    "motor_constant": "an amplifier gain error or a voltage measured before a drop (the motor "
+    "torque is k_m u: any error on the gain from the recorded u to the torque reads as k_m)",
+    "upper_inertia": "a mass added to or removed from the upper disk, or a lag between the "
+    "recorded voltage and the motor torque",
+    "upper_static_pos": "a voltage offset at the amplifier or the DAQ (with u >= 0 a constant "
+    "offset u0 gives the torque k_m u0, identical to a change of the upper static friction), "
+    "or a constant external torque on the upper disk",
+    "upper_static_neg": "a voltage offset at the amplifier or the DAQ (with u <= 0 a constant "
+    "offset gives a constant torque, identical to a change of this friction), or a constant "
+    "external torque on the upper disk",
+    "upper_viscous_pos": "a voltage-dependent amplifier gain, or a speed-dependent drag on the "
+    "upper disk (a fan, a seal)",
+    "upper_viscous_neg": "a voltage-dependent amplifier gain, or a speed-dependent drag on the "
+    "upper disk (a fan, a seal)",
+    "lower_inertia": "a mass added to or removed from the lower disk, or a lag of the lower "
+    "friction behind the speed",
+    "lower_static": "a changed brake force, or a constant external torque on the lower disk",
+    "lower_viscous": "a speed-dependent drag on the lower disk, or a brake force that changes with speed",
+    "lower_hump_1": "a changed brake contact (wear, temperature) or a drift of the friction level",
+    "lower_hump_2": "a changed brake contact (wear, temperature) or a drift of the friction level",
+    "lower_hump_rate_1": "a changed brake contact (the Stribeck speed of the friction)",
+    "lower_hump_rate_2": "a changed brake contact (the Stribeck speed of the friction)",
+}
+
+
 @dataclass(frozen=True)
 class ParameterFit:
-    """One identified parameter: nominal, value, posterior interval, verdict."""
+    """One identified parameter: nominal, value, posterior interval, verdict.
+
+    Every calibrated parameter has the sign physics gives it (all are positive but the second
+    hump term of the lower friction, which is negative), so its 95 % interval is the posterior
+    one in ``log |p|`` (delta method: ``value * exp(+-1.96 s / |value|)``): it keeps that sign
+    however weakly the data fix the parameter, and for a precisely fixed one it is the
+    symmetric interval ``value +- 1.96 s`` to first order."""
 
     name: str
     nominal: float
@@ -226,16 +261,49 @@ class ParameterFit:
     sd: float  # posterior standard deviation from the window noise (the "moved" test)
     identified: bool
     moved: bool
-    sd_interval: float = float("nan")  # the one of the interval, at least sd (see decide.final_parameters)
+    sd_interval: float = float("nan")  # the one of the interval, at least sd (see final_parameters)
+    prior_sd: float = float("nan")  # of the prior at the nominal value [parameter units]
+
+    @property
+    def interval_sd(self) -> float:
+        return self.sd if not math.isfinite(self.sd_interval) else max(self.sd, self.sd_interval)
 
     @property
     def ci95(self) -> tuple[float, float]:
-        s = self.sd if not math.isfinite(self.sd_interval) else max(self.sd, self.sd_interval)
+        s = self.interval_sd
+        if self.value * self.nominal > 0.0 and math.isfinite(s):
+            rel = 1.96 * s / abs(self.value)
+            a, b = self.value * math.exp(-rel), self.value * math.exp(rel)
+            return (min(a, b), max(a, b))
         return (self.value - 1.96 * s, self.value + 1.96 * s)
+
+    @property
+    def excludes_nominal(self) -> bool:
+        """The 95 % interval does not hold the nominal value: a change the data resolve."""
+        lo, hi = self.ci95
+        return bool(self.nominal < lo or self.nominal > hi)
+
+    @property
+    def out_of_prior(self) -> bool:
+        """The value is further from the nominal than the prior's width (one prior standard
+        deviation): the recalibration is larger than the paper's values are thought to be off,
+        and something other than this parameter may be what changed."""
+        return bool(
+            self.moved and math.isfinite(self.prior_sd) and abs(self.value - self.nominal) > self.prior_sd
+        )
 
     def as_dict(self) -> dict[str, Any]:
         lo, hi = self.ci95
-        return {"nominal": self.nominal, "value": self.value, "ci95": [lo, hi]}
+        out: dict[str, Any] = {
+            "nominal": self.nominal,
+            "value": self.value,
+            "ci95": [lo, hi],
+            "interval_excludes_nominal": self.excludes_nominal,
+            "out_of_prior": self.out_of_prior,
+        }
+        if self.out_of_prior:
+            out["alternative_explanation"] = ALTERNATIVE_EXPLANATIONS.get(self.name, "")
+        return out
 
 
 def moved_z(n_identified: int, rule: CalibrationRule) -> float:
@@ -260,16 +328,25 @@ def parameter_fits(
     pos = {j: i for i, j in enumerate(free)}
     for j, name in enumerate(CALIBRATED):
         nom = float(getattr(nominal, name))
+        prior_sd = rule.prior_rel * abs(nom)
         if j in pos:
             i = pos[j]
             value = float(getattr(base, name)) + float(delta[i])
             sd = float(math.sqrt(max(cov[i, i], 0.0)))
             moved = j in identified and abs(value - nom) > z * sd
             si = float(sd_interval[i]) if sd_interval is not None else float("nan")
-            out.append(ParameterFit(name, nom, value, sd, j in identified, bool(moved), si))
+            out.append(ParameterFit(name, nom, value, sd, j in identified, bool(moved), si, prior_sd))
         else:
             out.append(
-                ParameterFit(name, nom, float(getattr(base, name)), float("nan"), j in identified, False)
+                ParameterFit(
+                    name,
+                    nom,
+                    float(getattr(base, name)),
+                    float("nan"),
+                    j in identified,
+                    False,
+                    prior_sd=prior_sd,
+                )
             )
     return out
 

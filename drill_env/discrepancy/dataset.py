@@ -6,9 +6,25 @@ A *dataset* is a folder holding
   "encoder_counts_per_rev": int}``; optional ``"sample_rate_hz"`` (checked against
   every run) and ``"description"``;
 * one CSV file per run, header ``t,u,theta_u,theta_l``: time [s], amplifier input
-  [V], encoder angles of the upper and lower disk [rad], uniformly sampled at any
-  rate from 100 Hz to 10 kHz. A run starts whenever its recording started (``t``
-  need not start at 0); its initial state is not given.
+  [V], encoder angles of the upper and lower disk [rad], sampled at any rate from
+  100 Hz to 10 kHz. A run starts whenever its recording started (``t`` need not start
+  at 0); its initial state is not given.
+
+Sampling. The sample clock is uniform, or *jittered*: each time stamp within
+:data:`MAX_JITTER` (10 %) of the period of its place on a uniform grid (a USB or PC-based
+DAQ, a log written by a control loop). A jittered run is brought onto its uniform grid
+(:func:`regularise_run`): sample ``k`` stands for the instant ``t0 + k T``, its angles
+moved by the angle turned between the recorded and the grid instant (the local speed
+times the time-stamp error) in whole encoder counts, so that they stay on the encoder
+grid and the quantisation error keeps its nature; the voltage is the recorded sample's,
+held over its step of the grid (a DAQ updates its output on its own clock and logs it with
+the sample; a voltage from an external generator sampled by the DAQ shows each step up to
+one sample late). The time-stamp error a run had is in
+:attr:`MeasuredRun.time_jitter`. A *gap* (a step of a whole number of periods: samples
+lost) is refused unless ``dataset.json`` says ``"split_at_gaps": true``; the parts are then
+analysed as runs of their own, ``name@1``, ``name@2``... (every part at least
+:data:`MIN_DURATION_S` long). A step that is neither (a glitch of the clock) is refused with
+its line.
 
 Conventions the workflow relies on: ``u`` is the voltage held from its sample to
 the next (zero-order hold, as a DAQ records its analogue output); the angles are
@@ -49,6 +65,9 @@ __all__ = [
     "MAX_RATE_HZ",
     "MIN_DURATION_S",
     "MAX_RUN_BYTES",
+    "MAX_JITTER",
+    "CONSTANT_VOLTAGE_TOL",
+    "regularise_run",
 ]
 
 COLUMNS = ("t", "u", "theta_u", "theta_l")
@@ -61,6 +80,10 @@ _COUNTS_MAX = 1 << 26
 _GRID_TOL = 1e-3  # [counts] how far an angle may sit from a whole encoder count (print rounding aside)
 MAX_RUN_BYTES = 1 << 30  # a run file of more than 1 GiB (about 25 million samples) is refused unread
 MAX_META_BYTES = 1 << 20
+CONSTANT_VOLTAGE_TOL = 0.05  # [V] largest deviation from its median of a constant run's voltage
+MAX_JITTER = 0.1  # largest time-stamp error of a jittered clock, in periods [-]
+_GRID_FIT_MARGIN = 0.02  # [periods] the uniform grid is fitted to the time stamps, not known
+_JITTERED_SHARE = 0.05  # share of odd steps above which a clock is jittered rather than glitched
 
 
 class DatasetError(ValueError):
@@ -77,6 +100,7 @@ class MeasuredRun:
     theta_u: np.ndarray  # [rad] upper-disk angle
     theta_l: np.ndarray  # [rad] lower-disk angle
     path: Path | None = None
+    time_jitter: float = 0.0  # largest recorded time-stamp error brought onto the grid [periods]
 
     @property
     def dt(self) -> float:
@@ -93,12 +117,14 @@ class MeasuredRun:
 
     @property
     def is_constant_voltage(self) -> bool:
-        return bool(np.ptp(self.u) <= 1e-6)
+        """Every sample within :data:`CONSTANT_VOLTAGE_TOL` of the run's median voltage: a
+        constant input recorded through a noisy ADC (up to about 10 mV rms) is still constant."""
+        return bool(np.max(np.abs(self.u - np.median(self.u))) <= CONSTANT_VOLTAGE_TOL)
 
     @property
     def voltage(self) -> float:
-        """The constant voltage of a constant-voltage run, else nan."""
-        return float(self.u[0]) if self.is_constant_voltage else float("nan")
+        """The constant voltage of a constant-voltage run (the median of its samples), else nan."""
+        return float(np.median(self.u)) if self.is_constant_voltage else float("nan")
 
     @property
     def label(self) -> str:
@@ -227,6 +253,9 @@ def _load_meta(folder: Path) -> dict[str, Any]:
         raise DatasetError(
             f"{path}: field 'encoder_counts_per_rev' = {counts!r:.80}; expected an integer in [1, {_COUNTS_MAX}]"
         )
+    split = meta.get("split_at_gaps", False)
+    if not isinstance(split, bool):
+        raise DatasetError(f"{path}: field 'split_at_gaps' = {split!r:.80}; expected true or false")
     rate = meta.get("sample_rate_hz")
     if rate is not None:
         if (
@@ -293,7 +322,104 @@ def _print_quantum(raw: bytes, col: int, tmax: float) -> float:
         return math.inf
 
 
-def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> MeasuredRun:
+def _clock(name: str, t: np.ndarray, d: np.ndarray, period: float, tol: float, uneven, line, split_at_gaps):
+    """The segments ``[(start, stop)]`` of a clock that is not uniform to print resolution,
+    and its largest time-stamp error [periods]; or :class:`DatasetError` naming the step.
+
+    A few odd steps in a uniform record are glitches or gaps; many are a jittered clock. A
+    step of ``n`` whole periods (within the jitter) is a gap of ``n - 1`` lost samples."""
+    jittered = float(np.mean(uneven)) >= _JITTERED_SHARE
+    bound = 2.0 * MAX_JITTER if jittered else 0.0  # two neighbouring errors in one step
+    n_periods = np.round(d / period)
+    off = np.abs(d - n_periods * period)
+    gap = (n_periods >= 2) & (off <= bound * period + tol)
+    glitch = (np.abs(d - period) > bound * period + tol) & ~gap
+    what = (
+        f"a jittered clock is accepted when every time stamp is within {MAX_JITTER:.0%} of the period "
+        "of a uniform grid"
+    )
+    if glitch.any():
+        i = _first(glitch) + 1
+        raise DatasetError(
+            f"{name}: line {line(i)}, column 't': step {d[i - 1]:.6g} s (from {_num(t[i - 1])} s on line "
+            f"{line(i - 1)}) differs from the sample period {period:.6g} s by {abs(d[i - 1] - period):.3g} s "
+            f"({abs(d[i - 1] - period) / period:.1%} of it) and is not a whole number of periods: sampling "
+            f"must be uniform ({what}); a glitch of the clock? Cut the run at line {line(i)} into two "
+            "files, or export the time stamps of the sample clock"
+        )
+    if gap.any() and not split_at_gaps:
+        i = _first(gap) + 1
+        raise DatasetError(
+            f"{name}: line {line(i)}, column 't': step {d[i - 1]:.6g} s (from {_num(t[i - 1])} s on line "
+            f"{line(i - 1)}) is {int(n_periods[i - 1])} sample periods of {period:.6g} s: "
+            f"{int(n_periods[i - 1]) - 1} sample(s) lost, a gap in the recording; sampling must be uniform "
+            f'({what}). Set "split_at_gaps": true in dataset.json to analyse the parts as runs of their '
+            f"own (each at least {MIN_DURATION_S:g} s), or cut the file at line {line(i)}"
+        )
+    cuts = [0] + [int(i) + 1 for i in np.flatnonzero(gap)] + [t.size]
+    segments = list(zip(cuts[:-1], cuts[1:], strict=True))
+    worst = 0.0
+    for a, b in segments:
+        err = _grid_error(t[a:b])
+        i = int(np.argmax(np.abs(err)))
+        if abs(err[i]) > (MAX_JITTER + _GRID_FIT_MARGIN) * period + tol:
+            raise DatasetError(
+                f"{name}: line {line(a + i)}, column 't': time stamp {_num(t[a + i])} s is "
+                f"{abs(err[i]):.3g} s ({abs(err[i]) / period:.1%} of the period {period:.6g} s) off the "
+                f"uniform grid of its run; {what} (at most {MAX_JITTER * period:.3g} s): is the sample "
+                "clock's rate drifting? Export the time stamps of the sample clock, or cut the run there"
+            )
+        worst = max(worst, float(np.max(np.abs(err))) / period)
+    return segments, worst
+
+
+def _grid_error(t: np.ndarray) -> np.ndarray:
+    """Each time stamp's distance from the least-squares uniform grid through them [s] (the
+    grid's rate is the clock's own, whatever the nominal rate)."""
+    k = np.arange(t.size, dtype=float)
+    slope, icpt = np.polyfit(k, t - t[0], 1)
+    return t - t[0] - (icpt + slope * k)
+
+
+def regularise_run(run: MeasuredRun, counts_per_rev: int) -> MeasuredRun:
+    """``run`` on its uniform grid ``t[0] + k T`` (see the module docstring, *Sampling*).
+
+    Each angle moves by ``-e_k w_k`` rounded to whole encoder counts, ``e_k`` the time
+    stamp's error from the least-squares uniform grid and ``w_k`` the disk's speed over the
+    neighbouring samples (about 10 ms either side, at the recorded instants); the angles stay
+    on the encoder grid. A run already on its grid comes back unchanged."""
+    t = np.asarray(run.t, dtype=float)
+    if t.size < 3:
+        return run
+    err = _grid_error(t)
+    grid = t - err
+    T = float((grid[-1] - grid[0]) / (t.size - 1))
+    k = np.arange(t.size)
+    if not np.any(np.abs(err) > 1e-9 * T):
+        return run
+    step = 2.0 * math.pi / counts_per_rev
+    m = max(1, int(round(0.01 / T)))
+    out = {}
+    for col in ("theta_u", "theta_l"):
+        th = np.asarray(getattr(run, col), dtype=float)
+        lo = np.clip(k - m, 0, t.size - 1)
+        hi = np.clip(k + m, 0, t.size - 1)
+        speed = (th[hi] - th[lo]) / (t[hi] - t[lo])
+        out[col] = th + step * np.round(-err * speed / step)
+    return MeasuredRun(
+        name=run.name,
+        t=grid,
+        u=run.u,
+        theta_u=out["theta_u"],
+        theta_l=out["theta_l"],
+        path=run.path,
+        time_jitter=float(np.max(np.abs(err)) / T),
+    )
+
+
+def _load_csv(
+    path: Path, expected_rate: float | None, counts_per_rev: int, split_at_gaps: bool = False
+) -> list[MeasuredRun]:
     import pandas as pd
 
     raw = _read_text(path, "run file (CSV)", MAX_RUN_BYTES)
@@ -378,14 +504,11 @@ def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> M
         if print_tol <= 0.1 * period:
             tol = max(tol, print_tol)
         uneven = np.abs(d - period) > tol
+    segments = [(0, t.size)]
+    jitter = 0.0
     if uneven.any():
-        i = _first(uneven) + 1
-        raise DatasetError(
-            f"{name}: line {line(i)}, column 't': step {d[i - 1]:.6g} s (from {_num(t[i - 1])} s on line "
-            f"{line(i - 1)}) differs from the sample period {period:.6g} s by more than {tol:.2g} s; "
-            "sampling must be uniform (a gap or a glitch in the recording?)"
-        )
-    dt = (t[-1] - t[0]) / (t.size - 1)
+        segments, jitter = _clock(name, t, d, period, tol, uneven, line, split_at_gaps)
+    dt = (t[-1] - t[0]) / (t.size - 1) if len(segments) == 1 else period
     rate = 1.0 / dt
     if not (MIN_RATE_HZ * (1 - _RATE_TOL) <= rate <= MAX_RATE_HZ * (1 + _RATE_TOL)):
         raise DatasetError(
@@ -397,7 +520,7 @@ def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> M
             f"{name}: column 't': sample rate {rate:.6g} Hz differs from dataset.json "
             f"'sample_rate_hz' = {expected_rate:g} Hz"
         )
-    if t[-1] - t[0] < MIN_DURATION_S:
+    if len(segments) == 1 and t[-1] - t[0] < MIN_DURATION_S:
         raise DatasetError(
             f"{name}: column 't': the run lasts {t[-1] - t[0]:.4g} s; at least {MIN_DURATION_S:g} s are needed"
         )
@@ -410,7 +533,7 @@ def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> M
             f"[{-RIG_VOLTAGE_LIMIT:g}, {RIG_VOLTAGE_LIMIT:g}] V"
         )
     for col in ("theta_u", "theta_l"):
-        jump = np.abs(np.diff(data[col])) > MAX_SPEED_RAD_S * dt
+        jump = np.abs(np.diff(data[col])) > MAX_SPEED_RAD_S * np.maximum(d, dt)
         if jump.any():
             i = _first(jump) + 1
             raise DatasetError(
@@ -420,7 +543,25 @@ def _load_csv(path: Path, expected_rate: float | None, counts_per_rev: int) -> M
             )
     for col in ("theta_u", "theta_l"):
         _check_encoder_grid(name, col, data[col], raw, cols.index(col), counts_per_rev, line)
-    return MeasuredRun(name=path.stem, t=t, u=u, theta_u=data["theta_u"], theta_l=data["theta_l"], path=path)
+    runs = []
+    for j, (a, b) in enumerate(segments):
+        part = f"{path.stem}@{j + 1}" if len(segments) > 1 else path.stem
+        if t[b - 1] - t[a] < MIN_DURATION_S:
+            raise DatasetError(
+                f"{name}: lines {line(a)}-{line(b - 1)}, column 't': the part between gaps lasts "
+                f"{t[b - 1] - t[a]:.4g} s; at least {MIN_DURATION_S:g} s are needed (split_at_gaps makes "
+                "each part a run of its own); cut the short part out of the file"
+            )
+        run = MeasuredRun(
+            name=part,
+            t=t[a:b],
+            u=u[a:b],
+            theta_u=data["theta_u"][a:b],
+            theta_l=data["theta_l"][a:b],
+            path=path,
+        )
+        runs.append(regularise_run(run, counts_per_rev) if jitter > 0.0 else run)
+    return runs
 
 
 def _check_encoder_grid(
@@ -490,7 +631,18 @@ def load_dataset(folder: str | Path) -> MeasuredDataset:
         stems[f.stem] = f
     rate = meta.get("sample_rate_hz")
     counts = int(meta["encoder_counts_per_rev"])
-    runs = tuple(_load_csv(f, float(rate) if rate is not None else None, counts) for f in files)
+    split = bool(meta.get("split_at_gaps", False))
+    runs = tuple(
+        r for f in files for r in _load_csv(f, float(rate) if rate is not None else None, counts, split)
+    )
+    seen: dict[str, MeasuredRun] = {}
+    for r in runs:
+        if r.name in seen:  # a part of a run split at its gaps named like another file
+            raise DatasetError(
+                f"{folder}: two runs named {r.name!r} ({seen[r.name].path.name}, {r.path.name}): the parts "
+                "of a run split at its gaps are named <file>@1, <file>@2, ...; rename the other file"
+            )
+        seen[r.name] = r
     _check_common_divisor(runs, counts, folder / "dataset.json")
     return MeasuredDataset(
         preset=str(meta["preset"]),

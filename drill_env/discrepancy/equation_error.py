@@ -61,7 +61,7 @@ lines fade and the white model comes back (1 mrad at 2000 counts/rev: rho_1^2 = 
 The dither s is what the third differences show above the quantisation floor
 (:func:`estimate_angle_noise`). Windows do not share samples, so the white part of their
 noise is independent; at a constant rate the lines can make the windows of one run
-depend on each other, which the structure tests of :mod:`drill_env.discrepancy.decide`
+depend on each other, which the structure tests of :mod:`drill_env.discrepancy.verdict`
 allow for.
 
 Every extra effect of the candidate library enters linearly (or, for the two lag

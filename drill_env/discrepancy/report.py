@@ -225,23 +225,47 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     return figs
 
 
+def written_value(res, name: str) -> float:
+    """The value of parameter ``name`` in the model the analysis chose (``model.yaml``, or
+    ``model_rejected.yaml`` when that model was not written as the result; the nominal when the
+    chosen model is the nominal one)."""
+    model = res.corrected if res.corrected is not None else res.params
+    return float(getattr(model, name))
+
+
 def parameter_table(res) -> list[str]:
-    """Markdown lines: nominal against recalibrated parameters with their 95 % intervals."""
+    """Markdown lines: nominal against recalibrated parameters with their 95 % intervals.
+
+    The "fitted" column is the value of the chosen model (what ``model.yaml`` holds), always."""
     d = res.decision
     if not d.parameters:
+        if d.calibration is not None:
+            return [
+                "The identified parameters were refitted on the training runs; none moved beyond its "
+                "test, so every parameter keeps its nominal value in the chosen model.",
+                "",
+            ]
         return ["The parameters were taken as exact (no recalibration).", ""]
     rows = []
     for f in d.parameters:
+        value = written_value(res, f.name)
         if f.moved:
             lo, hi = f.ci95
             interval = f"[{lo:.4g}, {hi:.4g}]"
-            change = f"{f.value / f.nominal - 1.0:+.2%}" if f.nominal else "-"
-            status = "moved: recalibrated"
+            change = f"{value / f.nominal - 1.0:+.2%}" if f.nominal else "-"
+            if f.excludes_nominal:
+                status = "moved: recalibrated"
+            else:
+                status = "refitted jointly, interval holds the nominal: not a resolved change"
+            if not f.identified:
+                status += " (fixed by the data only jointly with others)"
+            if f.out_of_prior:
+                status += f"; OUT OF PRIOR (beyond +-{f.prior_sd / abs(f.nominal):.0%}), see below"
         elif f.identified:
             interval, change, status = "-", "-", "excited, no significant change: kept nominal"
         else:
             interval, change, status = "-", "-", "not excited by the data: kept nominal"
-        rows.append([f.name, f.nominal, f.value if f.identified else f.nominal, interval, change, status])
+        rows.append([f.name, f.nominal, value, interval, change, status])
     k_theta = res.params.string_stiffness
     lines = [
         "Every identified parameter is refitted on the training runs jointly with the named effect "
@@ -252,11 +276,16 @@ def parameter_table(res) -> list[str]:
         "stays nominal. The parameters that moved are chosen by forward selection on the training runs "
         "(each one must lower the sum of squares by more than max(chi2_1 quantile at 1e-3, ln n)), "
         "jointly with the named effect, and refitted with the others at nominal; only those enter "
-        "`model.yaml`. Intervals: posterior 95 %, at least as wide as the jackknife over training runs.",
+        "`model.yaml`. Intervals: posterior 95 % in the logarithm of the parameter's magnitude (each "
+        "keeps the sign physics gives the parameter), at least as wide as the jackknife over training runs. A "
+        "parameter is *moved* when its interval excludes the nominal value; one refitted jointly whose "
+        "interval holds the nominal value is not a resolved change. The fitted column is the value in "
+        "the chosen model.",
         "",
         _table(["parameter", "nominal", "fitted", "95 % interval", "change", "status"], rows),
         "",
     ]
+    lines += out_of_prior_lines(d.parameters)
     st = d.structure
     if "recalibration_gain" in st and d.recalibrated:
         lines += [
@@ -266,6 +295,30 @@ def parameter_table(res) -> list[str]:
             "",
         ]
     return lines
+
+
+def out_of_prior_lines(fits) -> list[str]:
+    """A paragraph per recalibration beyond its prior, with what else gives the same data."""
+    from drill_env.discrepancy.calibrate import ALTERNATIVE_EXPLANATIONS
+
+    far = [f for f in fits if f.out_of_prior]
+    if not far:
+        return []
+    lines = [
+        "### Recalibrations outside the prior",
+        "",
+        "The paper's values are thought to be known to within the prior's width; a recalibration "
+        "beyond it is more likely something else that produces the same equation error. Check "
+        "these before trusting the new value:",
+        "",
+    ]
+    for f in far:
+        lines.append(
+            f"- **{f.name}** {f.value / f.nominal - 1.0:+.1%} "
+            f"({abs(f.value - f.nominal) / f.prior_sd:.1f} prior widths): the same data come from "
+            f"{ALTERNATIVE_EXPLANATIONS.get(f.name, 'another torque of the same shape')}."
+        )
+    return lines + [""]
 
 
 def _sensor_lines(res) -> list[str]:
@@ -316,6 +369,32 @@ def _signature_section(res) -> list[str]:
         for r in sig.runs
     ]
     drops = ", ".join(f"{k} {v:.4g}" for k, v in sorted(sig.drops.items(), key=lambda kv: -kv[1]))
+    explain: list[str] = []
+    if sig.explanations:
+        explain = [
+            "A line locked to a disk's rotation has two kinds of explanation, scored on the same "
+            "residual with coefficients common to the runs (drop of the sum of squares in noise units, "
+            "and the BIC score: the drop minus k ln n for k fitted parameters; the larger score fits "
+            "better). Check both on the rig: the physical one at the disk and its brake, the sensor one "
+            "at the encoder's mounting.",
+            "",
+            _table(
+                ["explanation", "kind", "what it is", "drop", "k", "score", "fitted"],
+                [
+                    [
+                        e["explanation"],
+                        e["kind"],
+                        e["what"],
+                        e["drop"],
+                        e["k"],
+                        e["score"],
+                        ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items()),
+                    ]
+                    for e in sig.explanations
+                ],
+            ),
+            "",
+        ]
     return [
         "## What to look for",
         "",
@@ -341,6 +420,7 @@ def _signature_section(res) -> list[str]:
             rows,
         ),
         "",
+        *explain,
     ]
 
 
@@ -362,7 +442,17 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         f"Reason: {d.reason}. Bootstrap over runs: {d.bootstrap_counts}.",
         "",
     ]
-    if res.corrected is not None:
+    if res.corrected is not None and res.model_rejected:
+        lines += [
+            "**The chosen model is not written as the result.** Simulated on the held-out runs it makes "
+            + ", ".join(res.model_check["worse"])
+            + " worse than the nominal model beyond their noise (see *Gap before and after*): it "
+            "absorbs part of something the library does not hold, and would mislead a controller "
+            "design. It is kept as `model_rejected.yaml` for inspection; the nominal preset stays "
+            "the model to use.",
+            "",
+        ]
+    elif res.corrected is not None:
         lines += [
             "The chosen model (recalibrated parameters, plus the effect if one is named) is written as a rig configuration, `model.yaml` (its `effects:` entry); "
             '`drill_env.simulate("model.yaml", ...)` and `drill_env.load_params("model.yaml")` accept it. '
@@ -448,7 +538,11 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         f"Strongest common spectral line of the residual: {ln.frequency_hz:.4g} Hz, drop of the sum of squares "
         f"{ln.reduction:.4g} against a threshold of {ln.threshold:.4g} "
         f"({'significant' if ln.significant else 'not significant'}; "
-        f"{'locked to the rotation of the lower disk' if ln.related_to_rotation else 'not locked to rotation'}).",
+        + (
+            "what it is locked to: see *What to look for*)."
+            if getattr(res, "signature", None) is not None
+            else f"{'its frequency near the lower disk rotation rate' if ln.related_to_rotation else 'its frequency away from the lower disk rotation rate'})."
+        ),
         "",
     ]
     lines += _signature_section(res)
@@ -490,8 +584,21 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         "",
     ]
     keys = list(res.gap_before)
-    rows = [[k, res.gap_before[k], res.gap_after.get(k, float("nan"))] for k in keys]
-    lines += [_table(["metric", "nominal model", "chosen model"], rows), ""]
+    worse = set(res.model_check.get("worse", []))
+    rows = [[k, res.gap_before[k], res.gap_after.get(k, float("nan")), k in worse] for k in keys]
+    lines += [_table(["metric", "nominal model", "chosen model", "worse than nominal"], rows), ""]
+    if res.model_check:
+        lines += [
+            "Before `model.yaml` is written, the chosen model's sensor-space gaps on the held-out runs are "
+            "compared with the nominal model's; a gap counts as worse when it grows by more than 25 % plus "
+            "its noise floor. "
+            + (
+                "It is worse in " + ", ".join(sorted(worse)) + ": not written (`model_rejected.yaml`)."
+                if worse
+                else "It is nowhere worse: written as `model.yaml`."
+            ),
+            "",
+        ]
     if res.corrected is None:
         lines += [
             "Neither an effect nor new parameter values were needed: the model and its gap are unchanged.",
@@ -499,7 +606,11 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         ]
     else:
         lines += [
-            "The chosen model (`model.yaml`): "
+            (
+                "The rejected model (`model_rejected.yaml`): "
+                if res.model_rejected
+                else "The chosen model (`model.yaml`): "
+            )
             + (f"the effect {d.effect}" if d.named else "no effect")
             + (
                 ", with the recalibrated parameters " + ", ".join(f.name for f in d.recalibrated)

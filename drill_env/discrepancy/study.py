@@ -104,7 +104,8 @@ class Truth:
 def truths() -> list[Truth]:
     """The truths of the grid: none, each library effect, the pairs, the outside effect."""
     library = [e for e, h in HIDDEN_EFFECTS.items() if h.in_library and e != "none"]
-    outside = [e for e, h in HIDDEN_EFFECTS.items() if not h.in_library]
+    # the measurement effects (an encoder's reading error) are not cells of this grid
+    outside = [e for e, h in HIDDEN_EFFECTS.items() if not h.in_library and h.kind == "plant"]
     return (
         [Truth(())]
         + [Truth((e,)) for e in library]
@@ -177,7 +178,7 @@ def _job_fields(job: _Job) -> dict:
 
 
 def _one(job: _Job, base: SynthConfig, bootstrap: int) -> dict:
-    from drill_env.discrepancy.decide import DecisionRule
+    from drill_env.discrepancy.scoring import DecisionRule
 
     cfg = replace(base, angle_noise_std=job.angle_noise, param_error=job.param_error)
     truth = Truth(job.effects)
@@ -292,32 +293,89 @@ def run_study(
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
     first_seed: int = 0,
+    backend: str = "process",
+    ray_address: str | None = None,
 ) -> dict:
     """Run the study and write ``study.json``, ``confusion.md`` and the figures to ``out``.
 
     ``seeds`` (datasets per truth and condition) and ``sweep_seeds`` (per point of the
     magnitude sweep) are 1 to :data:`MAX_SEEDS`, taken from seed index ``first_seed`` on (0: the
-    committed study; any other start gives datasets it never saw); ``workers`` processes share the datasets;
-    nothing is written unless the arguments are valid. ``base`` sets the experiment design
+    committed study; any other start gives datasets it never saw); ``workers`` processes share the datasets
+    (``backend="process"``, a local pool), or Ray tasks on a local Ray instance with ``workers`` CPUs
+    or on the cluster at ``ray_address`` (``backend="ray"``); the rows do not depend on either.
+    Nothing is written unless the arguments are valid. ``base`` sets the experiment design
     (its noise and parameter error are those of each condition)."""
     check_seed_count("seeds", seeds)
     check_seed_count("sweep_seeds", sweep_seeds)
     check_first_seed(first_seed, seeds, sweep_seeds)
     check_workers(workers)
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: {backend!r}; allowed: {list(BACKENDS)}")
     if isinstance(bootstrap, bool) or not isinstance(bootstrap, (int, np.integer)) or bootstrap < 0:
         raise ValueError(f"bootstrap must be an integer >= 0, got {bootstrap!r}")
     out = Path(out)
     with output_lock(out, "discrepancy-study"):
         return _run_study(
-            out, seeds, sweep_seeds, base or SynthConfig(), bootstrap, workers, progress, first_seed
+            out,
+            seeds,
+            sweep_seeds,
+            base or SynthConfig(),
+            bootstrap,
+            workers,
+            progress,
+            first_seed,
+            backend=backend,
+            ray_address=ray_address,
         )
 
 
-def _run_jobs(jobs: list[_Job], base: SynthConfig, bootstrap: int, workers: int, progress) -> list[dict]:
-    """The rows of ``jobs`` in their order, analysed by ``workers`` processes."""
+BACKENDS = ("process", "ray")  # a local pool of processes; Ray tasks (a local instance or a cluster)
+
+
+def _run_ray(args, workers: int, address: str | None, rows: list, progress) -> None:
+    """Every dataset a Ray task (one CPU each); the rows land at their job's index."""
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("backend: 'ray' needs Ray; install it with `pip install drill-env[ray]`") from None
+    started = False
+    if not ray.is_initialized():
+        if address:
+            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, ignore_reinit_error=True, log_to_driver=False, include_dashboard=False)
+        started = True
+    try:
+        remote = ray.remote(num_cpus=1)(_run_job)
+        pending = [remote.remote(a) for a in args]
+        k = 0
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            i, row = ray.get(ready[0])
+            rows[i] = row
+            k += 1
+            if progress:
+                progress(k, len(args))
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _run_jobs(
+    jobs: list[_Job],
+    base: SynthConfig,
+    bootstrap: int,
+    workers: int,
+    progress,
+    backend: str = "process",
+    ray_address: str | None = None,
+) -> list[dict]:
+    """The rows of ``jobs`` in their order, analysed by ``workers`` processes or as Ray tasks."""
     rows: list[dict | None] = [None] * len(jobs)
     args = [(i, j, base, bootstrap) for i, j in enumerate(jobs)]
-    if workers == 1:
+    if backend == "ray":
+        _run_ray(args, workers, ray_address, rows, progress)
+    elif workers == 1:
         for k, a in enumerate(args):
             i, row = _run_job(a)
             rows[i] = row
@@ -340,14 +398,26 @@ def _run_jobs(jobs: list[_Job], base: SynthConfig, bootstrap: int, workers: int,
 
 
 def _run_study(
-    out: Path, seeds, sweep_seeds, base: SynthConfig, bootstrap, workers, progress, first_seed: int = 0
+    out: Path,
+    seeds,
+    sweep_seeds,
+    base: SynthConfig,
+    bootstrap,
+    workers,
+    progress,
+    first_seed: int = 0,
+    backend: str = "process",
+    ray_address: str | None = None,
 ) -> dict:
     t0 = time.perf_counter()
-    done = _run_jobs(_jobs(seeds, sweep_seeds, first_seed), base, bootstrap, workers, progress)
+    done = _run_jobs(
+        _jobs(seeds, sweep_seeds, first_seed), base, bootstrap, workers, progress, backend, ray_address
+    )
     summary = _summarise(done)
     summary["errors"] = sum(r["verdict"] == "error" for r in done)
     summary["wall_seconds"] = time.perf_counter() - t0
     summary["workers"] = workers
+    summary["backend"] = backend
     design = {
         "preset": base.preset,
         "voltages": list(base.voltages),
@@ -522,7 +592,7 @@ def _write_markdown(
         lines.append(f"| {k} | {pct(v)} |")
     lines += ["", "## Detectable ranges", "", "| effect | magnitude | range |", "|---|---|---|"]
     for e, spec in HIDDEN_EFFECTS.items():
-        if e != "none":
+        if e != "none" and spec.kind == "plant":
             lines.append(f"| {e} | {_md_cell(spec.magnitude_meaning)} | [{spec.low:g}, {spec.high:g}] |")
     n0, e0 = SWEEP_CONDITION
     lines += [

@@ -60,6 +60,9 @@ class HiddenEffect:
     build: Callable[[float, np.random.Generator], dict[str, float]]
     in_library: bool = True
     max_magnitude: float = math.inf  # hard validity limit of the magnitude
+    # "plant": ModelEffects fields of the truth model; "measurement": an error of the angle
+    # readings (the plant is the preset's), applied before the encoder's quantisation
+    kind: str = "plant"
 
     def draw(self, rng: np.random.Generator) -> float:
         if self.low == self.high:
@@ -89,6 +92,20 @@ def _heating(kappa: float, rng: np.random.Generator) -> dict[str, float]:
         "friction_heating": float(kappa * rng.choice([-1.0, 1.0])),
         "thermal_time": float(math.exp(rng.uniform(math.log(40.0), math.log(200.0)))),
     }
+
+
+def _eccentricity(disk: str) -> Callable[[float, np.random.Generator], dict[str, float]]:
+    def build(a: float, rng: np.random.Generator) -> dict[str, float]:
+        return {f"{disk}_encoder_eccentricity": a, f"{disk}_encoder_phase": float(rng.uniform(0.0, _TWO_PI))}
+
+    return build
+
+
+def reading_error(fields_: dict[str, float], disk: str, theta: np.ndarray) -> np.ndarray:
+    """The angle reading error of a disk's encoder [rad]: ``a sin(theta + phi)`` for an
+    eccentric encoder disk (once per revolution), zero without one."""
+    a = fields_.get(f"{disk}_encoder_eccentricity", 0.0)
+    return a * np.sin(theta + fields_.get(f"{disk}_encoder_phase", 0.0)) if a else np.zeros_like(theta)
 
 
 def _external(amp: float, rng: np.random.Generator) -> dict[str, float]:
@@ -170,6 +187,18 @@ HIDDEN_EFFECTS: dict[str, HiddenEffect] = {
             _external,
             in_library=False,
         ),
+        HiddenEffect(
+            "encoder_eccentricity_lower",
+            "a [rad]: once-per-revolution reading error a sin(theta_l + phi) of the lower encoder "
+            "(an eccentric encoder disk; phase uniform), a measurement effect outside the candidate "
+            "library",
+            2e-3,
+            2e-2,
+            _eccentricity("lower"),
+            in_library=False,
+            max_magnitude=0.2,
+            kind="measurement",
+        ),
     )
 }
 
@@ -191,6 +220,7 @@ class SynthConfig:
     hold_quantum_s: float = 0.1
     level_max_v: float = 5.0
     param_error: float = 0.0  # [-] relative error of every identified parameter (uniform +-)
+    time_jitter: float = 0.0  # [periods] time-stamp error, uniform +-, of a jittered DAQ clock
 
     def __post_init__(self) -> None:
         for v in self.voltages:
@@ -212,6 +242,8 @@ class SynthConfig:
             raise ValueError(f"angle_noise_std: must be >= 0, got {self.angle_noise_std!r}")
         if not (math.isfinite(self.param_error) and 0.0 <= self.param_error <= 0.3):
             raise ValueError(f"param_error: {self.param_error!r} is outside [0, 0.3]")
+        if not (math.isfinite(self.time_jitter) and 0.0 <= self.time_jitter <= 0.1):
+            raise ValueError(f"time_jitter: {self.time_jitter!r} is outside [0, 0.1] periods")
         if not 0.0 < self.level_max_v <= 5.0:
             raise ValueError(f"level_max_v: {self.level_max_v!r} is outside (0, 5] V")
 
@@ -270,6 +302,8 @@ def _truth_params(preset: str, effect: str, magnitude: float | None, rng: np.ran
             f"({spec.magnitude_meaning}); detectable range [{spec.low:g}, {spec.high:g}]"
         )
     fields_ = spec.build(mag, rng)
+    if spec.kind == "measurement":
+        return load_params(preset), spec, mag, fields_
     return load_params(preset, **fields_), spec, mag, fields_
 
 
@@ -287,7 +321,9 @@ def _random_levels(cfg: SynthConfig, total_s: float, rng: np.random.Generator) -
     return out
 
 
-def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: str) -> MeasuredRun:
+def _simulate_run(
+    truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: str, reading: dict[str, float] | None = None
+) -> MeasuredRun:
     from drill_env.sensors import SensorConfig, measure
     from drill_env.simulator import simulate
 
@@ -313,9 +349,25 @@ def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: 
     t_true = res.t[k0:]
     if abs(t_true[0]) > 1e-6 * dt + 1e-9:
         raise RuntimeError(f"internal: recording grid misaligned (t[0] = {t_true[0]!r})")
+    theta_u, theta_l = res.theta_u[k0:], res.theta_l[k0:]
+    jitter = np.zeros(n_rec)
+    if cfg.time_jitter > 0.0:
+        # A jittered DAQ clock: the angles of sample k read at k dt + e_k. Drawn from a stream of its own, so
+        # that the dataset without jitter is the same draw; the angles at those instants by cubic
+        # Hermite interpolation on the simulated angles and speeds (exact to O(dt^4)).
+        from scipy.interpolate import CubicHermiteSpline
+
+        jrng = np.random.default_rng(rng.bit_generator.seed_seq.spawn(1)[0])
+        jitter = jrng.uniform(-cfg.time_jitter, cfg.time_jitter, n_rec) * dt
+        jitter[0] = 0.0
+        t_at = t_true + jitter
+        theta_u = CubicHermiteSpline(res.t, res.theta_u, res.x2)(t_at)
+        theta_l = CubicHermiteSpline(res.t, res.theta_l, res.x3)(t_at)
     if np.ndim(u_levels) == 0:
         u = np.full(n_rec, float(u_levels))
     else:
+        # the voltage of sample k is the one the DAQ holds over step k (its output, updated on
+        # its own clock, logged with the sample), whatever the time stamp's jitter
         idx = np.floor((t_true - t0) / cdt + 1e-9).astype(int)
         u = np.asarray(u_levels)[np.minimum(idx, len(u_levels) - 1)]
     sensors = SensorConfig(
@@ -323,9 +375,12 @@ def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: 
         sample_rate_hz=cfg.sample_rate_hz,
         angle_noise_std=cfg.angle_noise_std,
     )
+    if reading:
+        theta_u = theta_u + reading_error(reading, "upper", theta_u)
+        theta_l = theta_l + reading_error(reading, "lower", theta_l)
     meas = measure(
-        res.theta_u[k0:],
-        res.theta_l[k0:],
+        theta_u,
+        theta_l,
         sensors,
         initial_speeds=(float(res.x2[k0]), float(res.x3[k0])),
         seed=rng,
@@ -334,7 +389,7 @@ def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: 
     t_start = float(np.round(rng.uniform(0.0, 100.0) / dt) * dt)
     return MeasuredRun(
         name=name,
-        t=t_start + dt * np.arange(n_rec),
+        t=t_start + dt * np.arange(n_rec) + jitter,
         u=u,
         theta_u=meas.upper_angle,
         theta_l=meas.lower_angle,
@@ -391,7 +446,8 @@ def make_dataset(
     for _ in range(cfg.random_runs):
         designs.append(_random_levels(cfg, cfg.pre_roll_s + cfg.duration_s, rng))
     for i, design in enumerate(designs):
-        runs.append(_simulate_run(truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}"))
+        reading = fields_ if spec.kind == "measurement" else None
+        runs.append(_simulate_run(truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}", reading))
         if progress is not None:
             progress(i + 1, total)
     answer = {
@@ -400,7 +456,8 @@ def make_dataset(
         "magnitude": mag,
         "magnitude_meaning": spec.magnitude_meaning,
         "detectable_range": [spec.low, spec.high],
-        "model_effects": fields_,
+        "model_effects": fields_ if spec.kind == "plant" else {},
+        "measurement_effects": fields_ if spec.kind == "measurement" else {},
         "effects": [effect] + ([second_effect] if second_effect else []) if effect != "none" else [],
         "second_effect": second or None,
         "extra_effects": extra,
@@ -420,6 +477,7 @@ def make_dataset(
             "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
             "angle_noise_std": cfg.angle_noise_std,
             "param_error": cfg.param_error,
+            "time_jitter": cfg.time_jitter,
         },
     }
     return SynthResult(runs=runs, truth=truth, answer=answer)

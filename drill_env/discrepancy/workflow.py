@@ -35,32 +35,30 @@ from drill_env.discrepancy.calibrate import (
 )
 from drill_env.discrepancy.compare import CompareConfig, RunComparison, aggregate, compare_run
 from drill_env.discrepancy.dataset import MeasuredDataset, load_dataset
-from drill_env.discrepancy.decide import (
-    NOT_AN_EFFECT,
-    CalibrationSetup,
-    Decision,
-    DecisionRule,
-    LineScan,
-    LineSignature,
-    decide,
-    demote,
-    final_parameters,
-    first_calibration,
-    line_scan,
-    line_signature,
-    moved_fit,
-    recalibrated_equations,
-    run_statistics,
-    second_effect,
-    sensor_worse,
-    split_runs,
-)
 from drill_env.discrepancy.effects import CANDIDATES
 from drill_env.discrepancy.equation_error import (
     AngleNoise,
     EquationErrorConfig,
     RunEquations,
     estimate_angle_noise,
+)
+from drill_env.discrepancy.parameter_selection import (
+    final_parameters,
+    first_calibration,
+    moved_fit,
+    recalibrated_equations,
+)
+from drill_env.discrepancy.scoring import CalibrationSetup, DecisionRule, run_statistics
+from drill_env.discrepancy.sensor_effects import rotation_explanations
+from drill_env.discrepancy.spectral_lines import LineScan, LineSignature, line_scan, line_signature
+from drill_env.discrepancy.verdict import (
+    NOT_AN_EFFECT,
+    Decision,
+    decide,
+    demote,
+    second_effect,
+    sensor_worse,
+    split_runs,
 )
 from drill_env.outputs import atomic_write_text, output_lock
 from drill_env.params import ParameterError, RigParams, load_params, validity_warnings
@@ -90,6 +88,14 @@ class DiscrepancyResult:
     gap_after: dict[str, float]
     timings: dict[str, float]
     signature: LineSignature | None = None  # what an unexplained line is locked to
+    # the chosen model against the nominal one in sensor space, held-out runs (see model_check)
+    model_check: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def model_rejected(self) -> bool:
+        """The chosen model is worse than the nominal one somewhere on the held-out runs beyond
+        the noise: it is not written as the result (``model_rejected.yaml`` instead)."""
+        return bool(self.model_check.get("worse"))
 
     @property
     def effect(self) -> str:
@@ -123,6 +129,8 @@ class DiscrepancyResult:
             "parameters": params,
             "effects": list(self.effects),
             "recalibrated": {f.name: f.as_dict() for f in d.recalibrated},
+            "model_written": self.corrected is not None and not self.model_rejected,
+            "model_check": self.model_check,
             "gap_before": self.gap_before,
             "gap_after": self.gap_after,
             "heldout_runs": d.heldout_runs,
@@ -148,6 +156,9 @@ class DiscrepancyResult:
                             "sd": f.sd,
                             "identified": f.identified,
                             "moved": f.moved,
+                            "ci95": list(f.ci95) if f.moved else None,
+                            "interval_excludes_nominal": f.excludes_nominal if f.moved else False,
+                            "out_of_prior": f.out_of_prior,
                         }
                         for f in d.parameters
                     ],
@@ -165,8 +176,32 @@ class DiscrepancyResult:
         }
 
     def verdict_line(self) -> str:
+        line = self._verdict_line()
+        far = [f for f in self.decision.recalibrated if f.out_of_prior]
+        if far:
+            line += "; OUT OF PRIOR: " + ", ".join(
+                f"{f.name} {f.value / f.nominal - 1.0:+.1%} (beyond +-{f.prior_sd / abs(f.nominal):.0%})"
+                for f in far
+            )
+            line += " -- other causes give the same data (see the report)"
+        if self.model_rejected:
+            line += (
+                "; MODEL NOT WRITTEN: the chosen model makes "
+                + ", ".join(self.model_check["worse"])
+                + " worse than the nominal model on the held-out runs (kept as model_rejected.yaml)"
+            )
+        return line
+
+    def _verdict_line(self) -> str:
         d = self.decision
-        moved = ", ".join(f"{f.name} {f.value / f.nominal - 1.0:+.1%}" for f in d.recalibrated)
+        # "moved" is what the interval resolves; the others were refitted with them (the model
+        # holds their values) but their intervals hold the nominal
+        resolved = [f for f in d.recalibrated if f.excludes_nominal]
+        within = [f.name for f in d.recalibrated if not f.excludes_nominal]
+        moved = ", ".join(f"{f.name} {f.value / f.nominal - 1.0:+.1%}" for f in resolved)
+        if within:
+            what = f"refitted, within their intervals: {', '.join(within)}"
+            moved = f"{moved} ({what})" if moved else what
         cal = f"; recalibrated: {moved}" if moved else ""
         if d.effect in ("none", "unexplained"):
             extra = ""
@@ -468,9 +503,28 @@ def analyse(
         gap_after.update(aggregate([after[n] for n in decision.heldout_runs if n in after]))
     else:
         gap_after = dict(gap_before)  # no change: the model is the nominal one
+    model_check: dict[str, Any] = {}
+    if corrected is not None and held_nom and after:
+        # never hand out a model worse than the nominal one: the same sensor-space gaps and
+        # tolerance as for a named effect, now the chosen model against the nominal one
+        floors_nom = {
+            k: float(np.mean([c.floors[k] for c in held_nom])) for k in ("angle_rad", "speed_rad_s")
+        }
+        chosen_g = aggregate([after[n] for n in decision.heldout_runs if n in after])
+        nominal_g = aggregate(held_nom)
+        model_check = {
+            "nominal_model": nominal_g,
+            "chosen_model": chosen_g,
+            "floors": floors_nom,
+            "worse": sensor_worse(nominal_g, chosen_g, floors_nom),
+        }
     signature = None
     if decision.effect == "unexplained":
         signature = line_signature(eqs_line, line.frequency_hz)
+        if signature.significant and signature.locked_to.endswith("disk rotation"):
+            # physical or sensor: a friction that follows the angle, or the angle read wrong
+            disk = signature.locked_to.split()[0]
+            signature = dataclasses.replace(signature, explanations=rotation_explanations(eqs_line, disk))
     timings["total"] = time.perf_counter() - t0
     return DiscrepancyResult(
         dataset=dataset,
@@ -491,6 +545,7 @@ def analyse(
         gap_after=gap_after,
         timings=timings,
         signature=signature,
+        model_check=model_check,
     )
 
 
@@ -517,15 +572,26 @@ def run_discrepancy(
     figures: bool = True,
     seed: int = 0,
     progress: Callable[[str, int, int], None] | None = None,
+    rule: DecisionRule | None = None,
 ) -> DiscrepancyResult:
     """Run the workflow on a dataset folder and write ``report.md``, ``result.json``,
-    the figures and (when an effect is named) ``model.yaml`` under ``out``, which is held
-    for this run alone (:func:`drill_env.outputs.output_lock`) from the analysis on."""
+    the figures and the chosen model under ``out``, which is held for this run alone
+    (:func:`drill_env.outputs.output_lock`) from the analysis on. The chosen model (when it
+    differs from the nominal one) is ``model.yaml``, unless it simulates worse than the
+    nominal model on the held-out runs (:attr:`DiscrepancyResult.model_rejected`): then it is
+    ``model_rejected.yaml``, with the reason in its description, and no ``model.yaml`` is
+    written."""
     dataset = load_dataset(data_dir)
     out = Path(out)
     with output_lock(out, "discrepancy"):
-        res = analyse(dataset, heldout=heldout, seed=seed, progress=progress)
-        if res.corrected is not None:
+        res = analyse(dataset, heldout=heldout, seed=seed, progress=progress, rule=rule)
+        if res.corrected is not None and res.model_rejected:
+            worse = ", ".join(res.model_check["worse"])
+            res.corrected.replace(
+                description=f"{res.corrected.description}; NOT THE RESULT: it makes {worse} worse than "
+                "the nominal model on the held-out runs"
+            ).to_yaml(out / "model_rejected.yaml")
+        elif res.corrected is not None:
             res.corrected.to_yaml(out / "model.yaml")
         atomic_write_text(out / "result.json", json.dumps(_jsonable(res.result_json()), indent=2) + "\n")
         from drill_env.discrepancy.report import write_report
