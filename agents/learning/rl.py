@@ -533,7 +533,7 @@ def load_policy(
     model = _algo_class(algo).load(str(path), device="cpu", custom_objects=renamed_objects(path))
     policy = SB3Policy(model, name or algo, str(path))
     config = path.parent / "config.yaml"
-    residual = yaml.safe_load(config.read_text()).get("residual") if config.is_file() else None
+    residual = _policy_config(config).get("residual") if config.is_file() else None
     if residual is None:
         return policy
     from drill_env.agents.learning.residual import ResidualPolicy, base_controller
@@ -545,6 +545,14 @@ def load_policy(
         cfg.residual.scale,
         observe_base=cfg.residual.observe_base,
     )
+
+
+def _policy_config(path: Path) -> dict[str, Any]:
+    """A saved policy's ``config.yaml`` (read by the one YAML reader; a mapping or an error)."""
+    data = load_yaml(path, what="policy config", error=ValueError) or {}
+    if not isinstance(data, Mapping):
+        raise ValueError(f"policy: {path} must hold a YAML mapping (the training config)")
+    return dict(data)
 
 
 def policy_observation_version(path: str | Path) -> int:
@@ -566,7 +574,7 @@ def policy_observation_version(path: str | Path) -> int:
     extra = ""
     config = path.parent / "config.yaml"
     if config.is_file() and len(shape) == 1:
-        residual = (yaml.safe_load(config.read_text()) or {}).get("residual")
+        residual = _policy_config(config).get("residual")
         if isinstance(residual, dict) and residual.get("observe_base") is True:
             from drill_env.agents.learning.residual import BASE_OBSERVATIONS
 

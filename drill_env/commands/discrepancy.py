@@ -24,6 +24,9 @@ def _progress():
     )
 
 
+DATASET_FILES = ("dataset.json", "*.csv")  # what synth writes into --out
+
+
 def synth(
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
     effect: str = typer.Option(..., help="Hidden effect: none, a library effect, or external_torque."),
@@ -39,7 +42,7 @@ def synth(
         0.0,
         "--angle-noise",
         "--noise",
-        help="Gaussian angle noise before quantisation [rad]; 0 is a real encoder (the angle is the "
+        help="Gaussian angle noise before quantisation [rad], 0 to 1; 0 is a real encoder (the angle is the "
         "quantised true angle and nothing else). --noise is the older name.",
     ),
     param_error: float = typer.Option(
@@ -48,21 +51,39 @@ def synth(
         help="Relative error of every identified parameter of the truth model, drawn uniformly from "
         "[-REL, REL] per dataset from the seed (0-0.3); the drawn values go to --answer only.",
     ),
-    counts: int = typer.Option(2000, help="Encoder counts per revolution."),
-    rate: float = typer.Option(500.0, help="Sample rate [Hz] (100-10000)."),
-    duration: float = typer.Option(150.0, help="Recorded length of each run [s]."),
+    counts: int = typer.Option(2000, help="Encoder counts per revolution (1 to 2^26)."),
+    rate: float = typer.Option(500.0, help="Sample rate [Hz] (100-10000, the loader's range)."),
+    duration: float = typer.Option(
+        150.0,
+        help="Recorded length of each run [s]: 10 (the loader's shortest) to 3600, and at most a "
+        "1 GiB file per run (1342 s at 10 kHz).",
+    ),
     voltages: str = typer.Option(
         "0.2,0.5,0.7,1.0,2.0,3.0,4.5", help="Constant-voltage runs [V], comma-separated ('' for none)."
     ),
-    random_runs: int = typer.Option(3, help="Quasi-random voltage runs."),
+    random_runs: int = typer.Option(3, help="Quasi-random voltage runs (runs in all: at most 100)."),
+    fresh: bool = typer.Option(
+        False,
+        "--fresh",
+        help="Replace the dataset already in --out whole (only a folder holding a dataset: dataset.json "
+        "and run CSVs); without it --out must be new or empty.",
+    ),
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
     parameters off by a few percent)."""
     from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
-    from drill_env.outputs import check_output_file, check_output_folder, output_lock
+    from drill_env.outputs import (
+        check_new_folder,
+        check_output_file,
+        check_output_folder,
+        clear_folder,
+        output_lock,
+    )
     from drill_env.params import ParameterError
 
-    # both outputs are checked before the runs are simulated
+    # both outputs are checked before the runs are simulated; a dataset is never mixed with
+    # the runs of another one
+    stale = check_new_folder(out, "--out", fresh=fresh, replaceable=DATASET_FILES, what="dataset")
     check_output_folder(out, "--out")
     check_output_file(answer, "--answer")
     if out.resolve() in answer.resolve().parents:
@@ -95,6 +116,7 @@ def synth(
                     config=cfg,
                     progress=lambda i, n: prog.update(task, completed=i),
                 )
+            clear_folder(stale)  # --fresh: the former dataset goes whole, once the new one is made
             write_synthetic(res, out, answer, preset=preset)
     except (ValueError, ParameterError) as exc:
         _fail(str(exc))
@@ -116,6 +138,10 @@ def discrepancy(
     from drill_env.outputs import check_output_folder
 
     check_output_folder(out, "--out")
+    if data_dir.exists() and (
+        out.resolve() == data_dir.resolve() or data_dir.resolve() in out.resolve().parents
+    ):
+        _fail(f"--out {out}: lies in the dataset folder {data_dir}; keep the analysis apart from the data")
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout else None
     try:
         with _progress() as prog:
@@ -137,7 +163,11 @@ def discrepancy(
 
 
 def discrepancy_study(
-    out: Path = typer.Option(Path("results/discrepancy"), help="Output folder of the study."),
+    out: Path | None = typer.Option(
+        None,
+        help="Output folder of the study. Default: a fresh run folder runs/discrepancy-study/study_TIME; "
+        "the committed results/discrepancy is regenerated only when named here.",
+    ),
     seeds: int = typer.Option(3, help="Seeds per truth and condition (angle noise x parameter error)."),
     sweep_seeds: int = typer.Option(2, help="Seeds per point of the magnitude sweep."),
     first_seed: int = typer.Option(
@@ -171,8 +201,12 @@ def discrepancy_study(
     workers = workers or (os.cpu_count() or 1)
     if paper_case_only and skip_paper_case:
         _fail("--paper-case-only and --skip-paper-case together leave nothing to do; give at most one")
-    if out.exists() and not out.is_dir():
+    if out is not None and out.exists() and not out.is_dir():
         _fail(f"--out {out} exists and is not a folder")
+    if out is None:  # never the committed results unless named
+        from drill_env.outputs import fresh_run_folder
+
+        out = fresh_run_folder(Path("runs") / "discrepancy-study", "study")
     try:
         with output_lock(out, "discrepancy-study"):  # for the whole command, both parts
             if not paper_case_only:
