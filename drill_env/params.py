@@ -364,6 +364,8 @@ def _apply_overrides(params: RigParams, overrides: Mapping[str, Any]) -> RigPara
 
 # -- YAML files ------------------------------------------------------------------------------
 
+from drill_env.yamlio import MAX_YAML_BYTES  # noqa: E402 (re-exported)
+
 
 def load_yaml(path: str | Path, *, what: str = "YAML file", error: type[Exception] = ParameterError) -> Any:
     """Read a small YAML file by the rules of :mod:`drill_env.yamlio` (YAML 1.2 numbers and
