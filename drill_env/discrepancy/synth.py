@@ -43,6 +43,7 @@ from drill_env.discrepancy.dataset import (
 )
 from drill_env.outputs import atomic_write_text
 from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams, load_params
+from drill_env.sensors import MAX_ANGLE_NOISE_RAD
 
 __all__ = [
     "HiddenEffect",
@@ -253,8 +254,7 @@ class SynthConfig:
 # commas): a run whose file could exceed the loader's MAX_RUN_BYTES is refused up front.
 MAX_SYNTH_DURATION_S = 3600.0
 CSV_ROW_BYTES = 4 * 19 + 4
-# Angle noise beyond a radian is no encoder's; the loader refuses angle jumps of 100 rad/s.
-MAX_ANGLE_NOISE_RAD = 1.0
+# Angle noise beyond a radian is no encoder's (the sensors' bound, MAX_ANGLE_NOISE_RAD).
 MAX_SYNTH_RUNS = 100  # runs of one dataset
 
 
