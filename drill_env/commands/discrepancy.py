@@ -35,7 +35,7 @@ def synth(
         help="Magnitude of the effect (its meaning per effect is in the README); default: "
         "drawn log-uniformly from the documented detectable range.",
     ),
-    seed: int = typer.Option(0, help="Seed of everything random (effect phases, runs, noise)."),
+    seed: int = typer.Option(0, min=0, help="Seed of everything random (effect phases, runs, noise)."),
     out: Path = typer.Option(..., help="Dataset folder to write (runs + dataset.json)."),
     answer: Path = typer.Option(..., help="File that receives the effect and its parameters (JSON)."),
     angle_noise: float = typer.Option(
@@ -129,7 +129,7 @@ def discrepancy(
     heldout: str | None = typer.Option(
         None, help="Comma-separated run names to hold out (default: every third run by voltage)."
     ),
-    seed: int = typer.Option(0, help="Seed of the bootstrap."),
+    seed: int = typer.Option(0, min=0, help="Seed of the bootstrap."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
 ) -> None:
     """Find where and why measured data disagree with the nominal model; name the missing effect."""
