@@ -64,7 +64,7 @@ MAX_DURATION_S = 1e7  # [s] t_final - t0 (about 116 days of rig time)
 _SHIFT_T0 = 1e3  # [s] autonomous runs starting later than this are integrated from 0
 MIN_DT = 1e-9  # [s] output sample period
 MIN_CONTROL_DT = 1e-6  # [s] hold period of a voltage sequence
-MAX_EVENT_CAPACITY = 10_000_000  # initial event-log size (it grows by itself as needed)
+MAX_EVENT_CAPACITY = 1_000_000  # initial event-log size (about 80 MB; it grows by itself as needed)
 MAX_MAX_STEPS = 10**12
 _INTERRUPTIBLE_S = 50.0  # [s] runs this long run in a worker thread that Ctrl-C can stop
 

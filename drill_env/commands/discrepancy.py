@@ -71,7 +71,7 @@ def synth(
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
     parameters off by a few percent)."""
-    from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
+    from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
     from drill_env.outputs import (
         check_new_folder,
         check_output_file,
@@ -81,16 +81,9 @@ def synth(
     )
     from drill_env.params import ParameterError
 
-    # both outputs are checked before the runs are simulated; a dataset is never mixed with
-    # the runs of another one
-    stale = check_new_folder(out, "--out", fresh=fresh, replaceable=DATASET_FILES, what="dataset")
-    check_output_folder(out, "--out")
-    check_output_file(answer, "--answer")
-    if out.resolve() in answer.resolve().parents:
-        _fail(
-            f"--answer {answer}: lies inside the dataset folder --out {out}; keep the answer apart from the data"
-        )
-
+    # the arguments first, then both outputs, all before the runs are simulated
+    if effect not in HIDDEN_EFFECTS:
+        _fail(f"effect: unknown effect {effect!r}; allowed: {sorted(HIDDEN_EFFECTS)}")
     try:
         volts = tuple(float(v) for v in voltages.split(",") if v.strip())
     except ValueError:
@@ -106,6 +99,17 @@ def synth(
             angle_noise_std=angle_noise,
             param_error=param_error,
         )
+    except (ValueError, ParameterError) as exc:
+        _fail(str(exc))
+    # a dataset is never mixed with the runs of another one
+    stale = check_new_folder(out, "--out", fresh=fresh, replaceable=DATASET_FILES, what="dataset")
+    check_output_folder(out, "--out")
+    check_output_file(answer, "--answer")
+    if out.resolve() in answer.resolve().parents:
+        _fail(
+            f"--answer {answer}: lies inside the dataset folder --out {out}; keep the answer apart from the data"
+        )
+    try:
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:
                 task = prog.add_task("simulating runs", total=len(volts) + random_runs)
