@@ -273,7 +273,7 @@ def test_the_committed_results_folder_is_recognised():
     ("args", "words"),
     [
         (["benchmark", "--seeds", "1000000000"], ["--seeds", "1 to 1000"]),
-        (["benchmark", "--duration", "1e9"], ["--duration", "1e+04"]),
+        (["benchmark", "--duration", "1e9"], ["--duration", "(0, 10000] s"]),
         (["benchmark", "--warmup", "-1"], ["--warmup"]),
         (["benchmark", "--workers", "0"], ["--workers", "1 to 256"]),
         (["benchmark", "--seeds", "1000", "--plants", "family"], ["runs", "at most 1,000,000"]),
@@ -307,7 +307,7 @@ def test_counts_and_sizes_are_refused_before_any_work(tmp_path, args, words):
         (dict(t_final=1.0, event_capacity=0), "event_capacity"),
         (dict(t_final=1.0, event_capacity=2.5), "event_capacity"),
         (dict(t_final=1.0, max_steps=10**30), "max_steps"),
-        (dict(t_final=2e6, t0=1.5e6, u=lambda t: 1.0), "t0"),
+        (dict(t_final=2e6, t0=1.5e6, dt=1e3, u=lambda t: 1.0), "t0"),
         (dict(t_final=1e300, t0=1e299), "t_final"),
     ],
 )
