@@ -162,13 +162,11 @@ def test_the_committed_configs_read_as_before():
 
 def _yaml_options(d: Path, path: str) -> dict[str, list[str]]:
     """The command lines of the options that read a YAML file, each given ``path``."""
-    if d.is_dir() and not (d / "bench").exists():
-        (d / "bench").write_text("a file: a benchmark refuses it as --out after reading its YAML\n")
     return {
         "simulate --preset": ["simulate", "--preset", path, "--duration", "1"],
         "bifurcation --preset": ["bifurcation", "--preset", path, "--out", str(d / "bif"), "--no-check"],
         "rig-comparison --params": ["rig-comparison", "--params", path],
-        # --out a file (refused after the files are read): a valid file never starts a benchmark
+        # --out a file (see _bench_file)
         "benchmark --plant": ["benchmark", "--plant", path, "--out", str(d / "bench"), "--quick"],
         "benchmark --gains": ["benchmark", "--gains", path, "--out", str(d / "bench"), "--quick"],
         "train --config": ["train", "--algo", "ppo", "--config", path, "--out", str(d / "train")],
@@ -185,6 +183,12 @@ def _yaml_options(d: Path, path: str) -> dict[str, list[str]]:
         ],
         "tune --params": ["tune", "--params", path, "--out", str(d / "gains.yaml")],
     }
+
+
+def _bench_file(d: Path) -> None:
+    """A file where the benchmark's --out goes: refused after its YAML is read, so that a valid
+    file never starts a benchmark."""
+    (d / "bench").write_text("not a folder\n")
 
 
 BAD_FILES = {
@@ -212,6 +216,7 @@ def _one_error_line(res) -> str:
 @pytest.mark.parametrize("option", sorted(_yaml_options(Path("."), "x")))
 def test_every_yaml_option_refuses_a_bad_file_in_one_line(tmp_path, option, kind):
     text, words = BAD_FILES[kind]
+    _bench_file(tmp_path)
     path = tmp_path / f"{kind}.yaml"
     path.write_text(text)
     line = _one_error_line(runner.invoke(app, _yaml_options(tmp_path, str(path))[option]))
@@ -329,6 +334,7 @@ def test_fuzz_the_reader_returns_data_or_one_value_error(text):
 def test_fuzz_every_yaml_option_ends_in_one_error_line(tmp_path, text, option):
     """Random YAML in every option that reads YAML: exit 2 and one ``error:`` line naming the
     file, before any output is made (random text is never a complete valid file)."""
+    _bench_file(tmp_path)
     path = tmp_path / "fuzz.yaml"
     path.write_text(text)
     res = runner.invoke(app, _yaml_options(tmp_path, str(path))[option])
