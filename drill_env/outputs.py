@@ -8,8 +8,12 @@
   is taken over with a warning. The lock is removed when the run ends, also on an error.
   Nested locks on the same folder in the same thread are allowed (a command that locks its
   folder may call a function that locks it too).
+* :func:`check_new_folder` -- an output folder must be new or empty (``synth``): what a
+  command writes is never mixed with what was there; with ``--fresh`` a folder of the
+  command's own files is replaced whole. :func:`refuse_links` and :func:`open_append` --
+  an output file is never written through a symbolic link.
 * :func:`fresh_run_folder` -- the default output of a command that produces results
-  (``train``, ``tune``): a new folder ``<parent>/<name>_<YYYYmmdd-HHMMSS>`` created
+  (``train``, ``tune``, ``discrepancy-study``): a new folder ``<parent>/<name>_<YYYYmmdd-HHMMSS>`` created
   atomically, never an existing one, so a default run never replaces committed results.
 * :func:`atomic_write_text`, :func:`atomic_write_bytes` and :func:`atomic_file` -- a file
   is written to a temporary file of its own (a unique name) in the same folder and moved
@@ -52,7 +56,6 @@ __all__ = [
     "clear_folder",
     "refuse_links",
     "open_append",
-    "committed_results_root",
 ]
 
 LOCK_NAME = ".drill-env.lock"
@@ -217,19 +220,6 @@ def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
         raise
     open_kwargs.setdefault("encoding", "utf-8")
     return os.fdopen(fd, "a", **open_kwargs)
-
-
-def committed_results_root(path: str | os.PathLike[str]) -> Path | None:
-    """The committed ``results/`` folder of a drill-env source tree that ``path`` lies in
-    (or is), else None. Such a folder is regenerated only by the commands of its README;
-    a command writes there only when the user names the folder."""
-    p = Path(os.path.abspath(path))
-    for folder in (p, *p.parents):
-        if folder.name == "results" and (folder / "README.md").is_file():
-            root = folder.parent
-            if (root / "pyproject.toml").is_file() and (root / "drill_env").is_dir():
-                return folder
-    return None
 
 
 # -- one writer per folder -------------------------------------------------------------------------

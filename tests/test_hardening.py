@@ -259,13 +259,6 @@ def test_discrepancy_study_by_default_writes_a_fresh_run_folder_not_the_committe
     assert res.exit_code == 0 and written[-1] == Path("results/discrepancy/paper_case")
 
 
-def test_the_committed_results_folder_is_recognised():
-    from drill_env.outputs import committed_results_root
-
-    assert committed_results_root(ROOT / "results" / "benchmark") == ROOT / "results"
-    assert committed_results_root(ROOT / "runs" / "x") is None
-
-
 # -- 3. bounds up front -----------------------------------------------------------------------------
 
 
