@@ -66,7 +66,9 @@ def register(app: typer.Typer) -> None:
             f"1 to {MAX_SEEDS}, and at most {MAX_RUNS:,} runs in all.",
         ),
         duration: float = typer.Option(90.0, help="Closed-loop time per run [s], at most 1e4."),
-        window: float = typer.Option(20.0, help="Steady-state window at the end of each run [s]."),
+        window: float = typer.Option(
+            20.0, help="Steady-state window at the end of each run [s], at most --duration."
+        ),
         warmup: float = typer.Option(
             60.0, help="Open-loop warm-up before the controller is switched on [s], 0 to 1e4."
         ),
@@ -79,7 +81,8 @@ def register(app: typer.Typer) -> None:
         ),
         agents_dir: Path | None = typer.Option(
             None,
-            help="Trained policies, laid out like results/agents. Default: $DRILL_ENV_AGENTS_DIR if "
+            help="Trained policies, laid out like results/agents (a policy zip inflates to at most 64 MiB). "
+            "Default: $DRILL_ENV_AGENTS_DIR if "
             "set, else results/agents/ of the source tree in a checkout, else the committed "
             "policies installed with the package.",
         ),

@@ -172,8 +172,10 @@ def discrepancy_study(
         help="Output folder of the study. Default: a fresh run folder runs/discrepancy-study/study_TIME; "
         "the committed results/discrepancy is regenerated only when named here.",
     ),
-    seeds: int = typer.Option(3, help="Seeds per truth and condition (angle noise x parameter error)."),
-    sweep_seeds: int = typer.Option(2, help="Seeds per point of the magnitude sweep."),
+    seeds: int = typer.Option(
+        3, help="Seeds per truth and condition (angle noise x parameter error), 1 to 100."
+    ),
+    sweep_seeds: int = typer.Option(2, help="Seeds per point of the magnitude sweep, 1 to 100."),
     first_seed: int = typer.Option(
         0,
         help="Index of the first seed (0: the committed study; any other start gives datasets it never saw).",
