@@ -42,8 +42,10 @@ __all__ = [
     "OutputSizeError",
     "MAX_RESULT_BYTES",
     "MAX_TIME_S",
+    "MAX_DURATION_S",
     "MAX_EVENT_CAPACITY",
     "MIN_CONTROL_DT",
+    "MIN_DT",
     "DEFAULT_RTOL",
     "DEFAULT_ATOL",
 ]
@@ -394,6 +396,15 @@ def simulate(
             (default: generous); reaching it ends the run with status 1 and a warning.
         event_capacity: initial size of the event log (grown automatically).
 
+    Bounds (docs/guides/limits.md): ``t_final - t0`` at most :data:`MAX_DURATION_S`;
+    ``dt`` at least :data:`MIN_DT`; ``control_dt`` from :data:`MIN_CONTROL_DT` to
+    :data:`MAX_DURATION_S`; ``event_capacity`` up to :data:`MAX_EVENT_CAPACITY`;
+    ``max_steps`` up to 1e12. With a constant or held input and no time-varying effect a
+    late ``t0`` gives exactly the run started at 0, shifted (the clock is moved); with a
+    function ``u(t)`` or ``effects.friction_drift``, ``|t0|`` and ``|t_final|`` are at
+    most :data:`MAX_TIME_S`. A run of 50 s or more in the main thread stops within a step
+    on Ctrl-C (KeyboardInterrupt).
+
     Returns:
         :class:`SimulationResult`.
 
@@ -517,7 +528,7 @@ def simulate(
         if use_func:
             u_requested = np.array([fn.ctypes(float(tt)) for tt in t_out])
         else:
-            idx = np.clip(np.searchsorted(seg_t, t_out, side="right") - 1, 0, seg_u.size - 1)
+            idx = np.clip(np.searchsorted(seg_t, t_run, side="right") - 1, 0, seg_u.size - 1)
             u_requested = seg_u[idx]
     return SimulationResult.from_kernel(
         params=params,

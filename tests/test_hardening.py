@@ -513,6 +513,14 @@ def test_a_late_start_gives_the_same_run_as_a_start_at_zero():
     a = drill_env.simulate("brake", seq, 3.0, dt=0.01, control_dt=0.1)
     b = drill_env.simulate("brake", seq, 1e9 + 3.0, dt=0.01, control_dt=0.1, t0=1e9)
     np.testing.assert_array_equal(a.x3, b.x3)
+    # what the amplifier was asked for, before its limit, at the same instants
+    a = drill_env.simulate("brake", [1.0, 7.0, 3.0] * 10, 3.0, dt=0.01, control_dt=0.1, voltage_limit=5.0)
+    b = drill_env.simulate(
+        "brake", [1.0, 7.0, 3.0] * 10, 1e9 + 3.0, dt=0.01, control_dt=0.1, voltage_limit=5.0, t0=1e9
+    )
+    np.testing.assert_array_equal(a.u_requested, b.u_requested)
+    np.testing.assert_array_equal(a.u, b.u)
+    assert a.u_requested.max() == 7.0 and a.u.max() == 5.0
     with pytest.raises(ValueError, match=r"^t0: .*full precision only up to 1e\+06 s"):
         drill_env.simulate("brake", lambda t: 1.0, 1e7 + 1.0, t0=1e7)
 
