@@ -160,15 +160,21 @@ class _Loader(yaml.SafeLoader):
     def construct_yaml_int(self, node: ScalarNode) -> int:
         text = str(self.construct_scalar(node))
         digits = text.lstrip("+-")
-        if digits.startswith(("0x", "0o")):
-            value = int(digits[2:], 16 if digits[1] == "x" else 8)
+        if digits.startswith(("0x", "0o")) and len(digits) > 2:
+            try:
+                value = int(digits[2:], 16 if digits[1] == "x" else 8)
+            except ValueError:
+                raise _Bounded(f"{_where(node)}: {self._field()}: {text[:40]!r} is not an integer") from None
             value = -value if text.startswith("-") else value
             if abs(value) >= 10**MAX_INT_DIGITS:
                 raise self._too_large(node, text)
             return value
         if len(digits) > MAX_INT_DIGITS:
             raise self._too_large(node, text)
-        return int(text)
+        try:
+            return int(text)
+        except ValueError:  # an explicit "!!int" on text that is none
+            raise _Bounded(f"{_where(node)}: {self._field()}: {text[:40]!r} is not an integer") from None
 
     def _too_large(self, node: Any, text: str) -> _Bounded:
         shown = text if len(text) <= 24 else f"{text[:12]}... ({len(text)} characters)"
@@ -176,12 +182,21 @@ class _Loader(yaml.SafeLoader):
             f"{_where(node)}: {self._field()}: the integer {shown} is too large; allowed: |n| < 1e{MAX_INT_DIGITS}"
         )
 
+    def construct_yaml_bool(self, node: ScalarNode) -> bool:
+        text = str(self.construct_scalar(node))
+        if not _BOOL.match(text):  # an explicit "!!bool" on text that is neither
+            raise _Bounded(f"{_where(node)}: {self._field()}: {text[:40]!r} is not true or false")
+        return text.lower() == "true"
+
     def construct_yaml_float(self, node: ScalarNode) -> float:
         text = str(self.construct_scalar(node))
         low = text.lower().lstrip("+-")
         if low in (".inf", ".nan"):
             return float(low[1:]) * (-1.0 if text.startswith("-") else 1.0)
-        value = float(text)
+        try:
+            value = float(text)
+        except ValueError:  # an explicit "!!float" on text that is none
+            raise _Bounded(f"{_where(node)}: {self._field()}: {text[:40]!r} is not a number") from None
         if value in (float("inf"), float("-inf")):
             shown = text if len(text) <= 24 else f"{text[:12]}... ({len(text)} characters)"
             raise _Bounded(
@@ -212,7 +227,7 @@ _Loader.add_constructor("tag:yaml.org,2002:map", _Loader.construct_yaml_map)
 _Loader.add_constructor("tag:yaml.org,2002:seq", _Loader.construct_yaml_seq)
 _Loader.add_constructor("tag:yaml.org,2002:int", _Loader.construct_yaml_int)
 _Loader.add_constructor("tag:yaml.org,2002:float", _Loader.construct_yaml_float)
-_Loader.add_constructor("tag:yaml.org,2002:bool", yaml.SafeLoader.construct_yaml_bool)
+_Loader.add_constructor("tag:yaml.org,2002:bool", _Loader.construct_yaml_bool)
 # Explicit tags that YAML 1.2's core schema does not have are refused (a "!!timestamp",
 # "!!binary", "!!set" or "!!omap" value is not a configuration value).
 for _tag in ("timestamp", "binary", "set", "omap", "pairs"):
@@ -237,6 +252,8 @@ def parse_yaml(
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise error(f"{source}: not valid YAML{where}: {problem}") from None
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:  # a last guard
+        raise error(f"{source}: not valid YAML: {type(exc).__name__}: {exc}"[:300]) from None
     except RecursionError:  # not reached within the depth bound; kept as a last guard
         raise error(f"{source}: nested too deeply; allowed: at most {MAX_YAML_DEPTH} levels") from None
     finally:

@@ -143,8 +143,15 @@ def test_size_and_tags_are_bounded(tmp_path):
     (tmp_path / "big.yaml").write_text("a: " + "x" * MAX_YAML_BYTES + "\n")
     with pytest.raises(ValueError, match=f"at most {MAX_YAML_BYTES} bytes"):
         load_yaml(tmp_path / "big.yaml")
-    for tag in ("!!timestamp 2020-01-01", "!!binary aGk=", "!!python/object:os.system x"):
+    for tag in ("!!timestamp 2020-01-01", "!!binary aGk=", "!!python/object:os.system x", "!!set {a}"):
         with pytest.raises(ValueError, match="not valid YAML"):
+            parse_yaml(f"v: {tag}")
+    for tag, what in (
+        ("!!int abc", "not an integer"),
+        ("!!bool maybe", "not true or false"),
+        ("!!float x", "not a number"),
+    ):
+        with pytest.raises(ValueError, match=rf"^<text>: line 1: v: .* is {what}"):
             parse_yaml(f"v: {tag}")
 
 
@@ -254,6 +261,12 @@ _scalars = st.one_of(
             "2024-01-01",
             "'quoted'",
             "!!binary aGk=",
+            "!!int abc",
+            "!!int 0b101",
+            "!!bool maybe",
+            "!!float x",
+            "!!str [1]",
+            "!!set {a}",
             "*nowhere",
             "&a 1",
             "<<",
