@@ -272,10 +272,13 @@ class RigParams:
         eff_unknown = sorted(set(eff) - eff_known)
         if eff_unknown:
             raise ParameterError(f"{source}: unknown effect(s) {eff_unknown}; allowed: {sorted(eff_known)}")
-        for key, value in list(data.items()):
-            if key in cls._RANGES:
-                data[key] = _as_float(key, value)
-        effects = ModelEffects(**{k: _as_float(f"effects.{k}", v) for k, v in eff.items()})
+        try:
+            for key, value in list(data.items()):
+                if key in cls._RANGES:
+                    data[key] = _as_float(key, value)
+            effects = ModelEffects(**{k: _as_float(f"effects.{k}", v) for k, v in eff.items()})
+        except ParameterError as exc:  # the file as well as the field
+            raise ParameterError(f"{source}: {exc}") from None
         return cls(effects=effects, **data)
 
     def as_array(self) -> np.ndarray:
