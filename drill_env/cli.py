@@ -24,13 +24,23 @@ MAX_SIMULATE_ROWS = 10_000_000
 
 
 def _expected_errors() -> tuple[type[BaseException], ...]:
-    """The library's errors for bad input: shown as one line, never as a traceback."""
-    from drill_env.discrepancy.dataset import DatasetError
-    from drill_env.outputs import OutputFolderError
-    from drill_env.params import ParameterError
-    from drill_env.simulator import InputFunctionError, OutputSizeError
+    """The library's errors for bad input: shown as one line, never as a traceback.
 
-    return (ParameterError, DatasetError, OutputFolderError, InputFunctionError, OutputSizeError, OSError)
+    Only modules already imported can have raised one: none is imported here (importing
+    the discrepancy package would cost a second on every error and every Ctrl-C)."""
+    import sys
+
+    found: list[type[BaseException]] = [OSError]
+    for module, names in (
+        ("drill_env.discrepancy.dataset", ("DatasetError",)),
+        ("drill_env.outputs", ("OutputFolderError",)),
+        ("drill_env.params", ("ParameterError",)),
+        ("drill_env.simulator", ("InputFunctionError", "OutputSizeError")),
+    ):
+        mod = sys.modules.get(module)
+        if mod is not None:
+            found += [getattr(mod, n) for n in names]
+    return tuple(found)
 
 
 def _one_line(exc: BaseException) -> str:
@@ -40,14 +50,29 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+INTERRUPTED_EXIT = 130  # the shell's code for a command ended by Ctrl-C (128 + SIGINT)
+
+
 class _Commands(TyperGroup):
-    """Every command runs inside one handler for the expected error types."""
+    """Every command runs inside one handler for the expected error types and for Ctrl-C."""
 
     def invoke(self, ctx):  # noqa: ANN001, ANN201 (click's signature)
         try:
             return super().invoke(ctx)
+        except (typer.Exit, typer.Abort, typer.BadParameter.__mro__[2]):  # click's own: passed on
+            raise
         except _expected_errors() as exc:  # evaluated only when an exception propagates
             _fail(_one_line(exc))
+        except KeyboardInterrupt:
+            interrupted(
+                "every file written so far is complete (each is replaced whole); nothing else was written"
+            )
+
+
+def interrupted(kept: str) -> None:
+    """End a command stopped by Ctrl-C: one line saying what is kept, exit code 130."""
+    typer.secho(f"interrupted (Ctrl-C): {kept}", fg=typer.colors.YELLOW, err=True)
+    raise typer.Exit(code=INTERRUPTED_EXIT)
 
 
 # Plain help text (no rich markup): units in brackets such as "[s]" stay visible, switches show
@@ -79,8 +104,10 @@ def _warn(message: str) -> None:
 def simulate(
     preset: str = typer.Option("brake", help="Rig preset (brake, no_brake) or a YAML file."),
     voltage: float = typer.Option(2.0, help="Constant amplifier input voltage u [V]."),
-    duration: float = typer.Option(300.0, help="Simulated time [s]."),
-    dt: float = typer.Option(0.01, help="Output sample period [s]."),
+    duration: float = typer.Option(300.0, help="Simulated time [s], at most 1e7 (longer: split the run)."),
+    dt: float = typer.Option(
+        0.01, help="Output sample period [s], at least 1e-9; at most 1e7 output samples in all."
+    ),
     out: Path | None = typer.Option(None, help="CSV file to write (t,u,theta_u,...)."),
     no_voltage_limit: bool = typer.Option(
         False, "--no-voltage-limit", help="Lift the rig's +-5 V amplifier limit (analysis only)."
@@ -93,6 +120,14 @@ def simulate(
             _fail(f"{name} must be a finite number > 0, got {value!r}")
     if not math.isfinite(voltage):
         _fail(f"--voltage must be finite, got {voltage!r}")
+    from drill_env.simulator import MAX_DURATION_S, MIN_DT
+
+    if duration > MAX_DURATION_S:
+        _fail(f"--duration: {duration:g} s; allowed: at most {MAX_DURATION_S:g} s (split a longer run)")
+    if dt < MIN_DT:
+        _fail(f"--dt: {dt:g} s is below the clock's resolution; allowed: at least {MIN_DT:g} s")
+    if summary_window > MAX_DURATION_S:
+        _fail(f"--summary-window: {summary_window:g} s; allowed: at most {MAX_DURATION_S:g} s")
     if dt > duration:
         _fail(f"--dt ({dt:g} s) must not exceed --duration ({duration:g} s)")
     rows = math.floor(duration / dt * (1 + 1e-12) + 1e-9) + 1
@@ -123,7 +158,10 @@ def simulate(
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a failed run is reported below
-        res = run_simulation(params, applied, duration, dt=dt)
+        try:
+            res = run_simulation(params, applied, duration, dt=dt)
+        except KeyboardInterrupt:
+            interrupted("the simulation was stopped; nothing written")
     if res.status != 0:
         typer.secho(
             f"error: the simulation at u = {applied:g} V failed: {res.message.rstrip('.')} (status {res.status}); "

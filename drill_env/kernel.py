@@ -90,11 +90,16 @@ STATUS_MESSAGES = {
     2: "The step size fell below its minimum (the vector field may be non-finite).",
     3: "Switching events repeated at one instant (chattering); integration stopped.",
     4: "The input voltage was not a finite number (the input function failed or returned NaN/inf).",
+    5: "Interrupted (a stop was requested, e.g. Ctrl-C); the run ended early.",
 }
 
 # Slots of the stats vector returned by the kernels.
 ST_STEPS, ST_REJECTED, ST_RHS, ST_EVENTS, ST_STATUS, ST_H, ST_T, ST_LOGGED, ST_BAD_T = range(9)
 N_STATS = 9
+# A stats vector one slot longer than N_STATS carries a stop request: another thread sets
+# stats[ST_STOP] != 0 and the run ends after the current step with status 5 (the kernel
+# releases the GIL, so a Ctrl-C reaches the caller's thread while it runs).
+ST_STOP = N_STATS
 
 SIMULTANEOUS_TOL = 1e-10  # [s] events closer than this are handled at one instant
 H_MAX = 1.0  # [s]
@@ -618,6 +623,7 @@ def run_ws(p, y, modes, inputs, u_func, control, samples, log, stats, work):
     # neither, two stuck disks (and no lag states) are an equilibrium until the next segment.
     time_varying = use_func or p[L.DIST_A] != 0.0 or p[L.DRIFT] != 0.0
     frozen_when_stuck = not time_varying and n_act == 4
+    stoppable = stats.shape[0] > ST_STOP
 
     for seg in range(seg_t.shape[0] - 1):
         tb = seg_t[seg + 1]
@@ -638,6 +644,9 @@ def run_ws(p, y, modes, inputs, u_func, control, samples, log, stats, work):
         while t < tb:
             if n_steps + n_rejected >= max_steps:  # rejected attempts count too
                 status = 1
+                break
+            if stoppable and stats[ST_STOP] != 0.0:
+                status = 5
                 break
             h = h_prop
             if time_varying and (mu == 0 or ml == 0) and h > STUCK_H_MAX:

@@ -8,8 +8,12 @@
   is taken over with a warning. The lock is removed when the run ends, also on an error.
   Nested locks on the same folder in the same thread are allowed (a command that locks its
   folder may call a function that locks it too).
+* :func:`check_new_folder` -- an output folder must be new or empty (``synth``): what a
+  command writes is never mixed with what was there; with ``--fresh`` a folder of the
+  command's own files is replaced whole. :func:`refuse_links` and :func:`open_append` --
+  an output file is never written through a symbolic link.
 * :func:`fresh_run_folder` -- the default output of a command that produces results
-  (``train``, ``tune``): a new folder ``<parent>/<name>_<YYYYmmdd-HHMMSS>`` created
+  (``train``, ``tune``, ``discrepancy-study``): a new folder ``<parent>/<name>_<YYYYmmdd-HHMMSS>`` created
   atomically, never an existing one, so a default run never replaces committed results.
 * :func:`atomic_write_text`, :func:`atomic_write_bytes` and :func:`atomic_file` -- a file
   is written to a temporary file of its own (a unique name) in the same folder and moved
@@ -48,6 +52,10 @@ __all__ = [
     "fresh_run_folder",
     "check_output_file",
     "check_output_folder",
+    "check_new_folder",
+    "clear_folder",
+    "refuse_links",
+    "open_append",
 ]
 
 LOCK_NAME = ".drill-env.lock"
@@ -126,6 +134,92 @@ def check_output_folder(path: str | os.PathLike[str], option: str = "--out") -> 
         raise OutputFolderError(f"{option} {path}: is a dangling link")
     _check_parent(path / ".probe", option, shown=path)
     return path
+
+
+# -- folders never mixed, files never written through links ----------------------------------------
+
+
+def check_new_folder(
+    path: str | os.PathLike[str],
+    option: str = "--out",
+    *,
+    fresh: bool = False,
+    replaceable: tuple[str, ...] = (),
+    what: str = "output",
+) -> list[Path]:
+    """Check, before any work, that ``path`` is empty or absent, so that what a command writes
+    is never mixed with what was there.
+
+    With ``fresh`` a folder whose every entry matches one of the glob patterns
+    ``replaceable`` (what an earlier run of the same command wrote) may be replaced whole:
+    the entries to remove are returned (remove them with :func:`clear_folder` once the new
+    content is ready). A folder holding anything else is refused even with ``fresh``.
+    Raises :class:`OutputFolderError` naming ``option``.
+    """
+    import fnmatch
+
+    path = Path(path)
+    check_output_folder(path, option)
+    if not path.is_dir():
+        return []
+    entries = sorted(p for p in path.iterdir() if p.name != LOCK_NAME)
+    if not entries:
+        return []
+    shown = ", ".join(p.name for p in entries[:3]) + (
+        f" and {len(entries) - 3} more" if len(entries) > 3 else ""
+    )
+    if not fresh:
+        hint = " or --fresh to replace it whole" if replaceable else ""
+        raise OutputFolderError(
+            f"{option} {path}: not empty ({shown}); the {what} is written only into a new or empty "
+            f"folder, never mixed with what is there: choose another folder{hint}"
+        )
+    foreign = [
+        p
+        for p in entries
+        if p.is_symlink() or not p.is_file() or not any(fnmatch.fnmatch(p.name, pat) for pat in replaceable)
+    ]
+    if foreign:
+        raise OutputFolderError(
+            f"{option} {path}: --fresh replaces only a folder written by this command; "
+            f"{foreign[0].name} is not one of its files ({', '.join(replaceable)}): choose another folder"
+        )
+    return entries
+
+
+def clear_folder(entries: list[Path]) -> None:
+    """Remove the files :func:`check_new_folder` returned (a ``--fresh`` replacement)."""
+    for p in entries:
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+
+
+def refuse_links(folder: str | os.PathLike[str], names: tuple[str, ...], option: str = "--out") -> None:
+    """Refuse output files of ``folder`` that are symbolic links: a result is never written
+    through a link to a file elsewhere."""
+    folder = Path(folder)
+    for name in names:
+        p = folder / name
+        if p.is_symlink():
+            raise OutputFolderError(
+                f"{option} {folder}: {name} is a symbolic link (to {os.readlink(p)}); output files are "
+                "never written through links: remove the link or choose another folder"
+            )
+
+
+def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
+    """Open ``path`` for appending text, never through a symbolic link (``O_NOFOLLOW``)."""
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(path, flags, 0o666)
+    except OSError:
+        if Path(path).is_symlink():
+            raise OutputFolderError(
+                f"{path}: is a symbolic link; output files are never written through links"
+            ) from None
+        raise
+    open_kwargs.setdefault("encoding", "utf-8")
+    return os.fdopen(fd, "a", **open_kwargs)
 
 
 # -- one writer per folder -------------------------------------------------------------------------

@@ -272,10 +272,13 @@ class RigParams:
         eff_unknown = sorted(set(eff) - eff_known)
         if eff_unknown:
             raise ParameterError(f"{source}: unknown effect(s) {eff_unknown}; allowed: {sorted(eff_known)}")
-        for key, value in list(data.items()):
-            if key in cls._RANGES:
-                data[key] = _as_float(key, value)
-        effects = ModelEffects(**{k: _as_float(f"effects.{k}", v) for k, v in eff.items()})
+        try:
+            for key, value in list(data.items()):
+                if key in cls._RANGES:
+                    data[key] = _as_float(key, value)
+            effects = ModelEffects(**{k: _as_float(f"effects.{k}", v) for k, v in eff.items()})
+        except ParameterError as exc:  # the file as well as the field
+            raise ParameterError(f"{source}: {exc}") from None
         return cls(effects=effects, **data)
 
     def as_array(self) -> np.ndarray:
@@ -364,67 +367,16 @@ def _apply_overrides(params: RigParams, overrides: Mapping[str, Any]) -> RigPara
 
 # -- YAML files ------------------------------------------------------------------------------
 
-MAX_YAML_BYTES = 1 << 20  # a configuration file is small; anything larger is not one
-
-
-# PyYAML follows YAML 1.1, where a float needs a dot ("5.0e-4"): 5e-4 and 1e300 would load
-# as strings. The loader adds YAML 1.2's exponent form.
-def _yaml_loader() -> type:
-    import re
-
-    import yaml
-
-    class Loader(yaml.SafeLoader):
-        pass
-
-    # copy the resolvers before adding one, so that yaml.SafeLoader itself is left alone
-    Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
-    Loader.add_implicit_resolver(
-        "tag:yaml.org,2002:float",
-        re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-        list("-+0123456789."),
-    )
-    return Loader
+from drill_env.yamlio import MAX_YAML_BYTES  # noqa: E402 (re-exported)
 
 
 def load_yaml(path: str | Path, *, what: str = "YAML file", error: type[Exception] = ParameterError) -> Any:
-    """Parse a small YAML file; every failure is ``error`` with a one-line message naming the file.
+    """Read a small YAML file by the rules of :mod:`drill_env.yamlio` (YAML 1.2 numbers and
+    booleans, duplicate keys refused, size, nesting and numbers bounded); every failure is
+    ``error`` with a one-line message naming the file."""
+    from drill_env.yamlio import load_yaml as _load
 
-    Numbers in exponent form without a dot (``5e-4``, ``1e300``) are read as floats, as
-    YAML 1.2 does. A file that is missing, not a regular file (a folder, a FIFO), larger
-    than :data:`MAX_YAML_BYTES`, not UTF-8 text or not valid YAML is refused, with the
-    line and column of a syntax error.
-    """
-    import stat
-
-    import yaml
-
-    path = Path(path)
-    try:
-        st = path.stat()
-    except OSError as exc:
-        raise error(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise error(f"{path}: not a regular file; expected a {what}")
-    if st.st_size > MAX_YAML_BYTES:
-        raise error(f"{path}: {st.st_size} bytes; a {what} is at most {MAX_YAML_BYTES} bytes")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise error(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise error(
-            f"{path}: not UTF-8 text (byte {exc.start} is 0x{raw[exc.start]:02x}); expected a {what}"
-        ) from None
-    try:
-        return yaml.load(text, Loader=_yaml_loader())  # noqa: S506 (a SafeLoader subclass)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise error(f"{path}: not valid YAML{where}: {problem}") from None
+    return _load(path, what=what, error=error)
 
 
 def _preset_dirs() -> list[Path]:

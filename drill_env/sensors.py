@@ -81,6 +81,13 @@ def state_size(delay_samples: int) -> int:
     return NSTATE_BASE + 2 * (int(delay_samples) + 1)
 
 
+# Bounds of the measurement chain: a sensor clock beyond 1 MHz (memory per control step grows
+# with it) or noise beyond these levels (observations of no rig) is refused.
+MAX_SAMPLE_RATE_HZ = 1e6  # [Hz]
+MAX_ANGLE_NOISE_RAD = 1.0  # [rad]
+MAX_SPEED_NOISE_RAD_S = 1e3  # [rad/s]
+
+
 @dataclass(frozen=True)
 class SensorConfig:
     """Measurement chain of the rig (Sec. 2.1), SI units.
@@ -103,7 +110,7 @@ class SensorConfig:
     def __post_init__(self) -> None:
         if self.counts_per_rev is not None:
             _check_int("counts_per_rev", self.counts_per_rev, 1, 2**31 - 1)
-        rate = _check_float("sample_rate_hz", self.sample_rate_hz, 0.0, math.inf, lo_incl=False)
+        rate = _check_float("sample_rate_hz", self.sample_rate_hz, 0.0, MAX_SAMPLE_RATE_HZ, lo_incl=False)
         nyquist = math.pi * rate
         _check_float(
             "cutoff_rad_s",
@@ -115,8 +122,8 @@ class SensorConfig:
             hint="(must lie below the Nyquist frequency pi * sample_rate_hz)",
         )
         _check_int("filter_order", self.filter_order, 1, 2)
-        _check_float("angle_noise_std", self.angle_noise_std, 0.0, math.inf)
-        _check_float("speed_noise_std", self.speed_noise_std, 0.0, math.inf)
+        _check_float("angle_noise_std", self.angle_noise_std, 0.0, MAX_ANGLE_NOISE_RAD)
+        _check_float("speed_noise_std", self.speed_noise_std, 0.0, MAX_SPEED_NOISE_RAD_S)
         _check_int("delay_samples", self.delay_samples, 0, MAX_DELAY_SAMPLES)
 
     @classmethod

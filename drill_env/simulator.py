@@ -27,6 +27,7 @@ from drill_env.kernel import (
     ST_EVENTS,
     ST_LOGGED,
     ST_STATUS,
+    ST_STOP,
     STATUS_MESSAGES,
     run,
 )
@@ -40,6 +41,11 @@ __all__ = [
     "InputFunctionError",
     "OutputSizeError",
     "MAX_RESULT_BYTES",
+    "MAX_TIME_S",
+    "MAX_DURATION_S",
+    "MAX_EVENT_CAPACITY",
+    "MIN_CONTROL_DT",
+    "MIN_DT",
     "DEFAULT_RTOL",
     "DEFAULT_ATOL",
 ]
@@ -49,6 +55,20 @@ __all__ = [
 DEFAULT_RTOL = 1e-9
 DEFAULT_ATOL = 1e-9
 _OPTIONS = {"rtol", "atol", "control_dt", "voltage_limit", "max_steps", "event_capacity", "t0"}
+
+# Bounds of the arguments (a larger or smaller value is a ValueError naming it).
+# Times: beyond 1e6 s a float64 clock resolves only ~1e-10 s and, with a time-varying input
+# or effect, the run would differ from the same run started at 0; with a constant or held
+# input and no time-varying effect the clock is moved to start at 0 whenever |t0| > 1e3 s,
+# so any finite t0 keeps full precision there.
+MAX_TIME_S = 1e6  # [s] |t0|, |t_final| of a run with an input function or a time-varying effect
+MAX_DURATION_S = 1e7  # [s] t_final - t0 (about 116 days of rig time)
+_SHIFT_T0 = 1e3  # [s] autonomous runs starting later than this are integrated from 0
+MIN_DT = 1e-9  # [s] output sample period
+MIN_CONTROL_DT = 1e-6  # [s] hold period of a voltage sequence
+MAX_EVENT_CAPACITY = 1_000_000  # initial event-log size (about 80 MB; it grows by itself as needed)
+MAX_MAX_STEPS = 10**12
+_INTERRUPTIBLE_S = 50.0  # [s] runs this long run in a worker thread that Ctrl-C can stop
 
 
 def initial_state(params: RigParams, x0: Any = None, u0: float = 0.0) -> np.ndarray:
@@ -376,6 +396,15 @@ def simulate(
             (default: generous); reaching it ends the run with status 1 and a warning.
         event_capacity: initial size of the event log (grown automatically).
 
+    Bounds (docs/guides/limits.md): ``t_final - t0`` at most :data:`MAX_DURATION_S`;
+    ``dt`` at least :data:`MIN_DT`; ``control_dt`` from :data:`MIN_CONTROL_DT` to
+    :data:`MAX_DURATION_S`; ``event_capacity`` up to :data:`MAX_EVENT_CAPACITY`;
+    ``max_steps`` up to 1e12. With a constant or held input and no time-varying effect a
+    late ``t0`` gives exactly the run started at 0, shifted (the clock is moved); with a
+    function ``u(t)`` or ``effects.friction_drift``, ``|t0|`` and ``|t_final|`` are at
+    most :data:`MAX_TIME_S`. A run of 50 s or more in the main thread stops within a step
+    on Ctrl-C (KeyboardInterrupt).
+
     Returns:
         :class:`SimulationResult`.
 
@@ -388,16 +417,23 @@ def simulate(
         raise TypeError(f"simulate: unknown option(s) {unknown}; allowed: {sorted(_OPTIONS)}")
     params = resolve_params(params_or_preset)
     t0 = _finite("t0", options.get("t0", 0.0))
-    if not math.isfinite(t0):
-        raise ValueError(f"t0: must be finite, got {t0!r}")
+    if isinstance(t_final, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"t_final: expected a number, got {t_final!r}")
     try:
         t_final = float(t_final)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"t_final: expected a number, got {t_final!r}") from None
     if not math.isfinite(t_final) or t_final <= t0:
         raise ValueError(f"t_final: must be finite and > t0 = {t0:g} s, got {t_final!r}")
     duration = t_final - t0
+    if duration > MAX_DURATION_S:
+        raise ValueError(
+            f"t_final: the run would last {duration:.4g} s; allowed: at most {MAX_DURATION_S:g} s "
+            "(split a longer run: pass the final state as x0 of the next)"
+        )
     dt = _check_positive("dt", dt)
+    if dt < MIN_DT:
+        raise ValueError(f"dt: {dt!r} s is below the clock's resolution; allowed: dt >= {MIN_DT:g} s")
     rtol = _check_positive("rtol", options.get("rtol", DEFAULT_RTOL))
     atol = _check_positive("atol", options.get("atol", DEFAULT_ATOL))
     vlim = options.get("voltage_limit")
@@ -405,13 +441,40 @@ def simulate(
         vlim = _check_positive("voltage_limit", vlim)
     _check_output_size(_n_output(t0, t_final, dt), _BYTES_PER_SAMPLE, duration, dt)
     max_steps = options.get("max_steps", max(100_000, int(duration * 2000)))
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"max_steps: expected an integer >= 1, got {max_steps!r}")
+    if (
+        isinstance(max_steps, bool)
+        or not isinstance(max_steps, (int, np.integer))
+        or not 1 <= max_steps <= MAX_MAX_STEPS
+    ):
+        raise ValueError(f"max_steps: expected an integer from 1 to {MAX_MAX_STEPS:.0e}, got {max_steps!r}")
     max_steps = int(max_steps)
-    seg_t, seg_u, fn, use_func, lim = _input_program(
-        u, t0, t_final, options.get("control_dt"), vlim if vlim is not None else math.inf
-    )
+    cap = options.get("event_capacity", 256)
+    if isinstance(cap, bool) or not isinstance(cap, (int, np.integer)) or not 1 <= cap <= MAX_EVENT_CAPACITY:
+        raise ValueError(
+            f"event_capacity: expected an integer from 1 to {MAX_EVENT_CAPACITY:.0e} (the log grows as "
+            f"needed), got {cap!r}"
+        )
+    cap = int(cap)
+    cdt = options.get("control_dt")
+    if cdt is not None:
+        cdt = _check_positive("control_dt", cdt)
+        if not MIN_CONTROL_DT <= cdt <= MAX_DURATION_S:
+            raise ValueError(f"control_dt: {cdt!r} s is outside [{MIN_CONTROL_DT:g}, {MAX_DURATION_S:g}] s")
     eff = params.effects
+    time_varying = callable(u) or eff.friction_drift != 0.0
+    if time_varying and max(abs(t0), abs(t_final)) > MAX_TIME_S:
+        name = "t0" if abs(t0) > MAX_TIME_S else "t_final"
+        raise ValueError(
+            f"{name}: {t0 if name == 't0' else t_final:g} s; with "
+            f"{'an input function' if callable(u) else 'effects.friction_drift'} the clock keeps full "
+            f"precision only up to {MAX_TIME_S:g} s; allowed: |t0|, |t_final| <= {MAX_TIME_S:g} s"
+        )
+    # A run whose dynamics do not depend on the absolute time is integrated on a clock that
+    # starts at 0 (a late t0 would otherwise cost precision in every step and event time).
+    shift = t0 if (not time_varying and abs(t0) > _SHIFT_T0) else 0.0
+    seg_t, seg_u, fn, use_func, lim = _input_program(
+        u, t0 - shift, t_final - shift, cdt, vlim if vlim is not None else math.inf
+    )
     if eff.friction_drift != 0.0:
         worst = 1.0 + eff.friction_drift * (t_final if eff.friction_drift < 0 else t0)
         if worst <= 0.0:
@@ -424,8 +487,10 @@ def simulate(
         u0 = max(-vlim, min(vlim, u0))
     y0 = initial_state(params, x0, u0)
     p = params.as_array()
+    if shift and p[L.DIST_A] != 0.0:  # the disturbance's phase at the moved clock's 0
+        p[L.DIST_P] = math.fmod(p[L.DIST_P] + math.fmod(p[L.DIST_W] * shift, 2 * math.pi), 2 * math.pi)
     t_out = _output_grid(t0, t_final, dt)
-    cap = int(options.get("event_capacity", 256))
+    t_run = _output_grid(0.0, duration, dt) if shift else t_out  # shift == t0: the same samples from 0
     while True:
         y = y0.copy()
         modes = np.zeros(2, dtype=np.int64)
@@ -438,31 +503,10 @@ def simulate(
         ev_from = np.empty(cap, dtype=np.int64)
         ev_to = np.empty(cap, dtype=np.int64)
         ev_y = np.empty((cap, L.NY))
-        stats = np.zeros(N_STATS)
-        status = run(
-            p,
-            y,
-            modes,
-            seg_t,
-            seg_u,
-            fn,
-            use_func,
-            lim,
-            t_out,
-            rtol,
-            atol,
-            0.0,
-            max_steps,
-            Y,
-            M,
-            U,
-            ev_t,
-            ev_disk,
-            ev_from,
-            ev_to,
-            ev_y,
-            stats,
-        )
+        stats = np.zeros(N_STATS + 1)  # the last slot: a stop request (Ctrl-C)
+        args = (p, y, modes, seg_t, seg_u, fn, use_func, lim, t_run, rtol, atol, 0.0, max_steps)
+        args += (Y, M, U, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
+        status = _run_stoppable(args, stats, duration >= _INTERRUPTIBLE_S)
         if stats[ST_EVENTS] <= cap:
             break
         cap = int(stats[ST_EVENTS]) + 16
@@ -473,7 +517,7 @@ def simulate(
     if status != 0:
         warnings.warn(f"simulate: {STATUS_MESSAGES[int(status)]}", RuntimeWarning, stacklevel=2)
     events = EventLog(
-        t=ev_t[:n_ev].copy(),
+        t=ev_t[:n_ev] + shift,
         disk=ev_disk[:n_ev].copy(),
         mode_before=ev_from[:n_ev].copy(),
         mode_after=ev_to[:n_ev].copy(),
@@ -484,7 +528,7 @@ def simulate(
         if use_func:
             u_requested = np.array([fn.ctypes(float(tt)) for tt in t_out])
         else:
-            idx = np.clip(np.searchsorted(seg_t, t_out, side="right") - 1, 0, seg_u.size - 1)
+            idx = np.clip(np.searchsorted(seg_t, t_run, side="right") - 1, 0, seg_u.size - 1)
             u_requested = seg_u[idx]
     return SimulationResult.from_kernel(
         params=params,
@@ -499,6 +543,36 @@ def simulate(
         final_modes=modes,
         u_requested=u_requested,
     )
+
+
+def _run_stoppable(args: tuple[Any, ...], stats: np.ndarray, long_run: bool) -> int:
+    """Run the kernel; a long run in the main thread runs in a worker thread (the kernel
+    releases the GIL) so that Ctrl-C stops it within a step: the kernel is asked to stop
+    (``stats[ST_STOP]``), waited for, and KeyboardInterrupt is raised again."""
+    import threading
+
+    if not long_run or threading.current_thread() is not threading.main_thread():
+        return run(*args)
+    box: dict[str, Any] = {}
+
+    def target() -> None:
+        try:
+            box["status"] = run(*args)
+        except BaseException as exc:  # noqa: BLE001 (passed on to the caller)
+            box["error"] = exc
+
+    worker = threading.Thread(target=target, name="drill-env-simulate", daemon=True)
+    worker.start()
+    try:
+        while worker.is_alive():
+            worker.join(0.05)
+    except KeyboardInterrupt:
+        stats[ST_STOP] = 1.0
+        worker.join()
+        raise
+    if "error" in box:
+        raise box["error"]
+    return box["status"]
 
 
 @nb.njit(**JIT_ALLOC)
@@ -591,7 +665,15 @@ def simulate_batch(
     if plist is not None and len(plist) != n_rigs:
         raise ValueError(f"params: {len(plist)} parameter sets for {n_rigs} rigs")
     t_final = _check_positive("t_final", t_final)
+    if t_final > MAX_DURATION_S:
+        raise ValueError(f"t_final: {t_final:.4g} s; allowed: at most {MAX_DURATION_S:g} s")
     dt = _check_positive("dt", dt)
+    if dt < MIN_DT:
+        raise ValueError(f"dt: {dt!r} s is below the clock's resolution; allowed: dt >= {MIN_DT:g} s")
+    if control_dt is not None and not MIN_CONTROL_DT <= control_dt <= MAX_DURATION_S:
+        raise ValueError(
+            f"control_dt: {control_dt!r} s is outside [{MIN_CONTROL_DT:g}, {MAX_DURATION_S:g}] s"
+        )
     _check_output_size(_n_output(0.0, t_final, dt), _BYTES_PER_BATCH_SAMPLE, t_final, dt, n_rigs)
     P = (
         np.stack([q.as_array() for q in plist])

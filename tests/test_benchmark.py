@@ -275,7 +275,9 @@ def test_cli_benchmark_says_what_was_resumed_and_fails_when_a_run_failed(tmp_pat
     agents = tmp_path / "agents"
     (agents / "ppo").mkdir(parents=True)
     (agents / "ppo" / "policy.zip").write_bytes(b"PK\x03\x04 not a policy")
-    res = runner.invoke(app, [*args, "--controllers", "open_loop,ppo", "--agents-dir", str(agents)])
+    res = runner.invoke(
+        app, [*args, "--controllers", "open_loop,ppo", "--agents-dir", str(agents), "--trust-policies"]
+    )
     assert res.exit_code == 1
     assert "1 resumed from an earlier run" in res.output
     assert "1 of 2 runs failed" in res.output and "first: ppo brake" in res.output

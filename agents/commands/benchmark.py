@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from contextlib import ExitStack
 from pathlib import Path
@@ -12,6 +13,10 @@ from drill_env.params import PRESETS as RIG_PRESETS
 
 PRESETS = ("all", *RIG_PRESETS)
 
+
+MAX_SEEDS = 1000  # seeds per operating point
+MAX_RUNS = 1_000_000  # runs of one benchmark (controllers x voltages x plants x seeds)
+MAX_WORKERS = 256
 
 TIMESERIES_VOLTAGE = 1.0  # [V] the rig's operating region, where position friction hurts most
 
@@ -28,6 +33,15 @@ def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
         return tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError:
         _fail(f"{name} must be a comma-separated list of numbers, got {text!r}")
+
+
+def resumed_count(out: Path) -> int:
+    """Complete rows of the benchmark CSV in ``out`` (what an interrupted run keeps)."""
+    try:
+        data = (out / "benchmark.csv").read_bytes()
+    except OSError:
+        return 0
+    return max(0, data.count(b"\n") - 1)
 
 
 def register(app: typer.Typer) -> None:
@@ -47,21 +61,28 @@ def register(app: typer.Typer) -> None:
             help="Comma-separated nominal voltages [V] (replace the grid; default: the full or quick grid).",
         ),
         seeds: int | None = typer.Option(
-            None, help="Number of seeds per operating point: seeds 0, 1, ... (default: 5; 1 with --quick)."
+            None,
+            help=f"Number of seeds per operating point: seeds 0, 1, ... (default: 5; 1 with --quick); "
+            f"1 to {MAX_SEEDS}, and at most {MAX_RUNS:,} runs in all.",
         ),
-        duration: float = typer.Option(90.0, help="Closed-loop time per run [s]."),
-        window: float = typer.Option(20.0, help="Steady-state window at the end of each run [s]."),
+        duration: float = typer.Option(90.0, help="Closed-loop time per run [s], at most 1e4."),
+        window: float = typer.Option(
+            20.0, help="Steady-state window at the end of each run [s], at most --duration."
+        ),
         warmup: float = typer.Option(
-            60.0, help="Open-loop warm-up before the controller is switched on [s]."
+            60.0, help="Open-loop warm-up before the controller is switched on [s], 0 to 1e4."
         ),
         backend: str = typer.Option("process", help="process (local pool), sequential or ray."),
-        workers: int | None = typer.Option(None, help="Parallel workers (default: the number of CPUs)."),
+        workers: int | None = typer.Option(
+            None, help=f"Parallel workers, 1 to {MAX_WORKERS} (default: the number of CPUs)."
+        ),
         ray_address: str | None = typer.Option(
             None, help="Ray cluster address (default: a local Ray instance)."
         ),
         agents_dir: Path | None = typer.Option(
             None,
-            help="Trained policies, laid out like results/agents. Default: $DRILL_ENV_AGENTS_DIR if "
+            help="Trained policies, laid out like results/agents (a policy zip inflates to at most 64 MiB). "
+            "Default: $DRILL_ENV_AGENTS_DIR if "
             "set, else results/agents/ of the source tree in a checkout, else the committed "
             "policies installed with the package.",
         ),
@@ -86,6 +107,13 @@ def register(app: typer.Typer) -> None:
         ),
         fresh: bool = typer.Option(
             False, "--fresh", help="Discard results already in OUT instead of resuming."
+        ),
+        trust_policies: bool = typer.Option(
+            False,
+            "--trust-policies",
+            help="Load policy files from outside results/agents/ (loading one can run code it holds) "
+            "in a run without a terminal, which otherwise refuses them; also "
+            "DRILL_ENV_TRUST_POLICIES=1. On a terminal they load with a warning.",
         ),
         timeseries: bool | None = typer.Option(
             None,
@@ -133,8 +161,26 @@ def register(app: typer.Typer) -> None:
         ctrls = CONTROLLERS
         if controllers is not None:
             ctrls = tuple(c.strip() for c in controllers.split(",") if c.strip())
-        if seeds is not None and seeds < 1:
-            _fail(f"--seeds must be >= 1, got {seeds!r}")
+        if seeds is not None and not 1 <= seeds <= MAX_SEEDS:
+            _fail(f"--seeds: {seeds!r}; allowed: an integer from 1 to {MAX_SEEDS}")
+        if workers is not None and not 1 <= workers <= MAX_WORKERS:
+            _fail(
+                f"--workers: {workers!r}; allowed: an integer from 1 to {MAX_WORKERS} (default: the number of CPUs)"
+            )
+        from drill_env.agents.evaluation.episodes import MAX_EPISODE_S
+
+        for name, value, low in (
+            ("--duration", duration, 0.0),
+            ("--window", window, 0.0),
+            ("--warmup", warmup, None),
+        ):
+            if (
+                not math.isfinite(value)
+                or value > MAX_EPISODE_S
+                or (value < 0 if low is None else value <= 0)
+            ):
+                allowed = f"[0, {MAX_EPISODE_S:g}]" if low is None else f"(0, {MAX_EPISODE_S:g}]"
+                _fail(f"--{name.lstrip('-')}: {value!r} s; allowed: {allowed} s")
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
         from drill_env.agents.evaluation.plants import FAMILY, NOMINAL, Plant, standard_family
@@ -194,20 +240,50 @@ def register(app: typer.Typer) -> None:
                 )
         except ValueError as exc:
             _fail(str(exc))
+        n_runs = (
+            len(cfg.controllers)
+            * len(cfg.plants)
+            * len(cfg.seeds)
+            * sum(len(v) for v in cfg.voltages.values())
+        )
+        if n_runs > MAX_RUNS:
+            _fail(
+                f"the grid has {n_runs:,} runs; allowed: at most {MAX_RUNS:,} (fewer seeds, voltages or controllers)"
+            )
         # every file the runs will need, before the first run
+        from drill_env.agents.learning.rl import (
+            TRUST_ENV_VAR,
+            check_policy_zip,
+            trust_from_environment,
+            untrusted_policy_note,
+        )
         from drill_env.agents.registry import LEARNED, load_gains, policy_path
 
+        untrusted: list[str] = []
         try:
             if any(c not in LEARNED for c in cfg.controllers):
                 load_gains(cfg.gains_file)
             for c in cfg.controllers:
                 if c in LEARNED:
                     for p in cfg.presets:
-                        policy_path(c, p, cfg.agents_dir)
+                        path = policy_path(c, p, cfg.agents_dir)
+                        check_policy_zip(path)
+                        if untrusted_policy_note(path) is not None:
+                            untrusted.append(str(path))
         except ValueError as exc:
             if "policy" not in str(exc):
                 _fail(f"--gains: {exc}")
             _fail(f"--agents-dir: {exc}" if agents_dir is not None else str(exc))
+        import sys
+
+        if untrusted and not (trust_policies or trust_from_environment()) and not sys.stdin.isatty():
+            _fail(
+                f"--agents-dir: {untrusted[0]}"
+                + (f" (and {len(untrusted) - 1} more)" if len(untrusted) > 1 else "")
+                + " is not one of the committed policies in results/agents/; loading a policy unpickles "
+                "Python objects, which can run arbitrary code, and this run has no terminal to warn on: "
+                f"pass --trust-policies (or set {TRUST_ENV_VAR}=1) to load files you made or trust"
+            )
         from drill_env.outputs import OutputFolderError, check_output_folder, output_lock
 
         check_output_folder(out, "--out")
@@ -277,6 +353,15 @@ def register(app: typer.Typer) -> None:
                     )
                 except ValueError as exc:
                     _fail(str(exc))
+                except KeyboardInterrupt:
+                    from drill_env.cli import interrupted
+
+                    prog.stop()
+                    finished = resumed_count(out)
+                    interrupted(
+                        f"{finished} finished run(s) are kept in {out / 'benchmark.csv'}; the same command "
+                        "resumes with the runs still missing (summary.md and the figures are made at the end)"
+                    )
         reused = resumed[0] if resumed else 0
         typer.echo(
             f"{n} runs in {time.perf_counter() - t0:.0f} s"

@@ -57,7 +57,7 @@ def register(app: typer.Typer) -> None:
             "(from configs/agents/, works from any folder): ppo, sac, ppo_no_brake, sac_no_brake, "
             "v0/ppo, ...",
         ),
-        seed: int = typer.Option(0, help="Random seed of the training run (>= 0)."),
+        seed: int = typer.Option(0, min=0, help="Random seed of the training run (>= 0)."),
         out: Path | None = typer.Option(
             None,
             help="Where the policy, config, summary and learning curve go. Default: a fresh "

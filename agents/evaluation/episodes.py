@@ -93,13 +93,18 @@ def env_id_of(preset: str, observation_version: int = 0) -> str:
     return ENV_ID_OF[key]
 
 
-def _positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
+# The longest closed-loop time or warm-up of one evaluation episode [s]: 1e6 control steps at
+# the 10 ms control period, some minutes of computing per run; the rig's runs last minutes.
+MAX_EPISODE_S = 1e4
+
+
+def _positive(name: str, value: Any, *, allow_zero: bool = False, upper: float = MAX_EPISODE_S) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{name}: expected a number, got {value!r}")
     v = float(value)
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero) or v > upper:
         raise ValueError(
-            f"{name}: {value!r} is outside the allowed range {'[0' if allow_zero else '(0'}, inf)"
+            f"{name}: {value!r} is outside the allowed range {'[0' if allow_zero else '(0'}, {upper:g}] s"
         )
     return v
 

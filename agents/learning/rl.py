@@ -62,6 +62,7 @@ import copy
 import io
 import json
 import math
+import os
 import pickle
 import pickletools
 import platform
@@ -92,6 +93,10 @@ __all__ = [
     "COMMITTED_POLICY_DIR",
     "PACKAGED_POLICY_DIR",
     "UntrustedPolicyWarning",
+    "MAX_POLICY_INFLATED_BYTES",
+    "TRUST_ENV_VAR",
+    "check_policy_zip",
+    "trust_from_environment",
     "untrusted_policy_note",
     "policy_observation_version",
     "plateau",
@@ -404,6 +409,35 @@ class SB3Policy:
         return {"name": self.name, "path": self.path}
 
 
+# A policy of this project inflates to about 1 MiB; a zip that would inflate to more than this
+# is refused before anything in it is read (a small file can inflate to gigabytes).
+MAX_POLICY_INFLATED_BYTES = 64 * 2**20
+# Set to 1 (or true/yes) to let a command without a terminal load policies from outside
+# results/agents/ (the command-line flag --trust-policies does the same).
+TRUST_ENV_VAR = "DRILL_ENV_TRUST_POLICIES"
+
+
+def check_policy_zip(path: str | Path) -> None:
+    """Refuse a policy zip whose members would inflate to more than
+    :data:`MAX_POLICY_INFLATED_BYTES` (their declared sizes, which bound what is read), before
+    anything in it is decompressed. A file that is no zip is left to the loader to report."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            total = sum(max(0, i.file_size) for i in zf.infolist())
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return
+    if total > MAX_POLICY_INFLATED_BYTES:
+        raise ValueError(
+            f"policy: {path} inflates to {total / 2**20:.4g} MiB; allowed: at most "
+            f"{MAX_POLICY_INFLATED_BYTES / 2**20:g} MiB (a policy of this project is about 1 MiB)"
+        )
+
+
+def trust_from_environment() -> bool:
+    """Whether :data:`TRUST_ENV_VAR` says to trust policy files from outside results/agents/."""
+    return os.environ.get(TRUST_ENV_VAR, "").strip().lower() in ("1", "true", "yes")
+
+
 class UntrustedPolicyWarning(UserWarning):
     """A policy file from outside ``results/agents/`` is loaded: loading it may run code."""
 
@@ -518,6 +552,7 @@ def load_policy(
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy: no such file {str(path)!r}")
+    check_policy_zip(path)
     note = None if trusted else untrusted_policy_note(path)
     if note is not None:
         warnings.warn(note, UntrustedPolicyWarning, stacklevel=2)
@@ -533,7 +568,7 @@ def load_policy(
     model = _algo_class(algo).load(str(path), device="cpu", custom_objects=renamed_objects(path))
     policy = SB3Policy(model, name or algo, str(path))
     config = path.parent / "config.yaml"
-    residual = yaml.safe_load(config.read_text()).get("residual") if config.is_file() else None
+    residual = _policy_config(config).get("residual") if config.is_file() else None
     if residual is None:
         return policy
     from drill_env.agents.learning.residual import ResidualPolicy, base_controller
@@ -547,6 +582,14 @@ def load_policy(
     )
 
 
+def _policy_config(path: Path) -> dict[str, Any]:
+    """A saved policy's ``config.yaml`` (read by the one YAML reader; a mapping or an error)."""
+    data = load_yaml(path, what="policy config", error=ValueError) or {}
+    if not isinstance(data, Mapping):
+        raise ValueError(f"policy: {path} must hold a YAML mapping (the training config)")
+    return dict(data)
+
+
 def policy_observation_version(path: str | Path) -> int:
     """The observation version (see ``drill_env.envs.config.OBSERVATION_VERSIONS``) a saved
     policy was trained on, read from the observation space stored in its zip (the policy
@@ -557,6 +600,7 @@ def policy_observation_version(path: str | Path) -> int:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy: no such file {str(path)!r}")
+    check_policy_zip(path)
     try:
         with zipfile.ZipFile(path) as zf:
             data = json.loads(zf.read("data"))
@@ -566,7 +610,7 @@ def policy_observation_version(path: str | Path) -> int:
     extra = ""
     config = path.parent / "config.yaml"
     if config.is_file() and len(shape) == 1:
-        residual = (yaml.safe_load(config.read_text()) or {}).get("residual")
+        residual = _policy_config(config).get("residual")
         if isinstance(residual, dict) and residual.get("observe_base") is True:
             from drill_env.agents.learning.residual import BASE_OBSERVATIONS
 

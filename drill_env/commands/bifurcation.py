@@ -16,12 +16,15 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
+MAX_ABS_VOLTAGE = 100.0  # [V] the analysed range (the rig's amplifier limit is 5 V)
+
+
 def register(app: typer.Typer) -> None:
     @app.command("bifurcation")
     def bifurcation(
         preset: str = typer.Option("brake", help="Rig preset (brake, no_brake) or a YAML file."),
-        umax: float = typer.Option(5.0, help="Upper end of the voltage range [V]."),
-        umin: float = typer.Option(0.0, help="Lower end of the voltage range [V]."),
+        umax: float = typer.Option(5.0, help="Upper end of the voltage range [V], at most 100."),
+        umin: float = typer.Option(0.0, help="Lower end of the voltage range [V], at least -100."),
         out: Path = typer.Option(..., help="Directory for bifurcation.json and the figures."),
         check: bool = typer.Option(
             True, "--check/--no-check", help="Confirm the diagram by brute-force simulation."
@@ -37,6 +40,12 @@ def register(app: typer.Typer) -> None:
         """
         if not (math.isfinite(umin) and math.isfinite(umax)) or umax <= umin:
             _fail(f"need finite --umin < --umax, got {umin!r}, {umax!r}")
+        for name, value in (("--umin", umin), ("--umax", umax)):
+            if abs(value) > MAX_ABS_VOLTAGE:
+                _fail(
+                    f"{name}: {value:g} V; allowed: [-{MAX_ABS_VOLTAGE:g}, {MAX_ABS_VOLTAGE:g}] V "
+                    "(the rig's amplifier gives +-5 V; the model is analysed beyond it up to this bound)"
+                )
         from rich.console import Console
         from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
         from rich.table import Table
@@ -75,7 +84,10 @@ def register(app: typer.Typer) -> None:
                         description=f"continuation: u = {c.u:7.4f} V, amplitude {c.amplitude:7.4f} rad/s",
                     )
 
-                diagram = bifurcation_diagram(params, u_max=umax, u_min=umin, on_point=on_point)
+                try:
+                    diagram = bifurcation_diagram(params, u_max=umax, u_min=umin, on_point=on_point)
+                except ValueError as exc:
+                    _fail(f"the diagram from {umin:g} to {umax:g} V: {exc}")
                 prog.update(task, completed=umax - umin, description="continuation: done")
                 result = None
                 if check:

@@ -24,6 +24,9 @@ def _progress():
     )
 
 
+DATASET_FILES = ("dataset.json", "*.csv")  # what synth writes into --out
+
+
 def synth(
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
     effect: str = typer.Option(
@@ -36,14 +39,14 @@ def synth(
         help="Magnitude of the effect (its meaning per effect is in the README); default: "
         "drawn log-uniformly from the documented detectable range.",
     ),
-    seed: int = typer.Option(0, help="Seed of everything random (effect phases, runs, noise)."),
+    seed: int = typer.Option(0, min=0, help="Seed of everything random (effect phases, runs, noise)."),
     out: Path = typer.Option(..., help="Dataset folder to write (runs + dataset.json)."),
     answer: Path = typer.Option(..., help="File that receives the effect and its parameters (JSON)."),
     angle_noise: float = typer.Option(
         0.0,
         "--angle-noise",
         "--noise",
-        help="Gaussian angle noise before quantisation [rad]; 0 is a real encoder (the angle is the "
+        help="Gaussian angle noise before quantisation [rad], 0 to 1; 0 is a real encoder (the angle is the "
         "quantised true angle and nothing else). --noise is the older name.",
     ),
     param_error: float = typer.Option(
@@ -52,34 +55,45 @@ def synth(
         help="Relative error of every identified parameter of the truth model, drawn uniformly from "
         "[-REL, REL] per dataset from the seed (0-0.3); the drawn values go to --answer only.",
     ),
-    counts: int = typer.Option(2000, help="Encoder counts per revolution."),
-    rate: float = typer.Option(500.0, help="Sample rate [Hz] (100-10000)."),
-    duration: float = typer.Option(150.0, help="Recorded length of each run [s]."),
+    counts: int = typer.Option(2000, help="Encoder counts per revolution (1 to 2^26)."),
+    rate: float = typer.Option(500.0, help="Sample rate [Hz] (100-10000, the loader's range)."),
+    duration: float = typer.Option(
+        150.0,
+        help="Recorded length of each run [s]: 10 (the loader's shortest) to 3600, and at most a "
+        "1 GiB file per run (1342 s at 10 kHz).",
+    ),
     voltages: str = typer.Option(
         "0.2,0.5,0.7,1.0,2.0,3.0,4.5", help="Constant-voltage runs [V], comma-separated ('' for none)."
     ),
-    random_runs: int = typer.Option(3, help="Quasi-random voltage runs."),
+    random_runs: int = typer.Option(3, help="Quasi-random voltage runs (runs in all: at most 100)."),
     time_jitter: float = typer.Option(
         0.0,
         "--time-jitter",
         help="Time-stamp jitter of the DAQ clock, uniform +-this share of the period (0-0.1): the angles "
         "are read at the jittered instants, which the time stamps record.",
     ),
+    fresh: bool = typer.Option(
+        False,
+        "--fresh",
+        help="Replace the dataset already in --out whole (only a folder holding a dataset: dataset.json "
+        "and run CSVs); without it --out must be new or empty.",
+    ),
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
     parameters off by a few percent)."""
-    from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
-    from drill_env.outputs import check_output_file, check_output_folder, output_lock
+    from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
+    from drill_env.outputs import (
+        check_new_folder,
+        check_output_file,
+        check_output_folder,
+        clear_folder,
+        output_lock,
+    )
     from drill_env.params import ParameterError
 
-    # both outputs are checked before the runs are simulated
-    check_output_folder(out, "--out")
-    check_output_file(answer, "--answer")
-    if out.resolve() in answer.resolve().parents:
-        _fail(
-            f"--answer {answer}: lies inside the dataset folder --out {out}; keep the answer apart from the data"
-        )
-
+    # the arguments first, then both outputs, all before the runs are simulated
+    if effect not in HIDDEN_EFFECTS:
+        _fail(f"effect: unknown effect {effect!r}; allowed: {sorted(HIDDEN_EFFECTS)}")
     try:
         volts = tuple(float(v) for v in voltages.split(",") if v.strip())
     except ValueError:
@@ -96,6 +110,17 @@ def synth(
             param_error=param_error,
             time_jitter=time_jitter,
         )
+    except (ValueError, ParameterError) as exc:
+        _fail(str(exc))
+    # a dataset is never mixed with the runs of another one
+    stale = check_new_folder(out, "--out", fresh=fresh, replaceable=DATASET_FILES, what="dataset")
+    check_output_folder(out, "--out")
+    check_output_file(answer, "--answer")
+    if out.resolve() in answer.resolve().parents:
+        _fail(
+            f"--answer {answer}: lies inside the dataset folder --out {out}; keep the answer apart from the data"
+        )
+    try:
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:
                 task = prog.add_task("simulating runs", total=len(volts) + random_runs)
@@ -106,6 +131,7 @@ def synth(
                     config=cfg,
                     progress=lambda i, n: prog.update(task, completed=i),
                 )
+            clear_folder(stale)  # --fresh: the former dataset goes whole, once the new one is made
             write_synthetic(res, out, answer, preset=preset)
     except (ValueError, ParameterError) as exc:
         _fail(str(exc))
@@ -118,7 +144,7 @@ def discrepancy(
     heldout: str | None = typer.Option(
         None, help="Comma-separated run names to hold out (default: every third run by voltage)."
     ),
-    seed: int = typer.Option(0, help="Seed of the bootstrap."),
+    seed: int = typer.Option(0, min=0, help="Seed of the bootstrap."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
 ) -> None:
     """Find where and why measured data disagree with the nominal model; name the missing effect."""
@@ -127,6 +153,10 @@ def discrepancy(
     from drill_env.outputs import check_output_folder
 
     check_output_folder(out, "--out")
+    if data_dir.exists() and (
+        out.resolve() == data_dir.resolve() or data_dir.resolve() in out.resolve().parents
+    ):
+        _fail(f"--out {out}: lies in the dataset folder {data_dir}; keep the analysis apart from the data")
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout else None
     try:
         with _progress() as prog:
@@ -150,11 +180,13 @@ def discrepancy(
 def discrepancy_study(
     out: Path | None = typer.Option(
         None,
-        help="Output folder of the study (default: a fresh folder under runs/discrepancy-study/; the "
-        "committed study is regenerated with --out results/discrepancy, see results/README.md).",
+        help="Output folder of the study. Default: a fresh run folder runs/discrepancy-study/study_TIME; "
+        "the committed results/discrepancy is regenerated only when named here.",
     ),
-    seeds: int = typer.Option(3, help="Seeds per truth and condition (angle noise x parameter error)."),
-    sweep_seeds: int = typer.Option(2, help="Seeds per point of the magnitude sweep."),
+    seeds: int = typer.Option(
+        3, help="Seeds per truth and condition (angle noise x parameter error), 1 to 100."
+    ),
+    sweep_seeds: int = typer.Option(2, help="Seeds per point of the magnitude sweep, 1 to 100."),
     first_seed: int = typer.Option(
         0,
         help="Index of the first seed (0: the committed study; any other start gives datasets it never saw).",
@@ -196,15 +228,15 @@ def discrepancy_study(
         _fail("--ray-address: only with --backend ray")
     if paper_case_only and skip_paper_case:
         _fail("--paper-case-only and --skip-paper-case together leave nothing to do; give at most one")
-    if out is None:
+    if out is not None and out.exists() and not out.is_dir():
+        _fail(f"--out {out} exists and is not a folder")
+    if out is None:  # never the committed results unless named
         from drill_env.outputs import fresh_run_folder
 
         try:
             out = fresh_run_folder(Path("runs") / "discrepancy-study", "study")
         except OutputFolderError as exc:
             _fail(str(exc))
-    if out.exists() and not out.is_dir():
-        _fail(f"--out {out} exists and is not a folder")
     try:
         with output_lock(out, "discrepancy-study"):  # for the whole command, both parts
             if not paper_case_only:

@@ -387,13 +387,20 @@ def _run_jobs(
         # spawn: the workers start clean (no forked compiler or thread state) and load the
         # compiled kernels from the on-disk cache
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        try:
             futures = [pool.submit(_run_job, a) for a in args]
             for k, fut in enumerate(as_completed(futures)):
                 i, row = fut.result()
                 rows[i] = row
                 if progress:
                     progress(k + 1, len(jobs))
+        except BaseException:  # Ctrl-C or a failed dataset: the queue is not drained
+            from drill_env.interrupts import stop_pool
+
+            stop_pool(pool)
+            raise
+        pool.shutdown(wait=True)
     return [r for r in rows if r is not None]
 
 

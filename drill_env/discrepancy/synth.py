@@ -33,9 +33,17 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.discrepancy.dataset import MeasuredRun, write_dataset
+from drill_env.discrepancy.dataset import (
+    MAX_RATE_HZ,
+    MAX_RUN_BYTES,
+    MIN_DURATION_S,
+    MIN_RATE_HZ,
+    MeasuredRun,
+    write_dataset,
+)
 from drill_env.outputs import atomic_write_text
 from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams, load_params
+from drill_env.sensors import MAX_ANGLE_NOISE_RAD
 
 __all__ = [
     "HiddenEffect",
@@ -226,26 +234,60 @@ class SynthConfig:
         for v in self.voltages:
             if not (math.isfinite(v) and abs(v) <= 5.0):
                 raise ValueError(f"voltages: {v!r} V is outside the rig's range [-5, 5] V")
-        if self.random_runs < 0:
-            raise ValueError(f"random_runs: must be >= 0, got {self.random_runs}")
+        if (
+            isinstance(self.random_runs, bool)
+            or not isinstance(self.random_runs, int)
+            or self.random_runs < 0
+        ):
+            raise ValueError(f"random_runs: expected an integer >= 0, got {self.random_runs!r}")
+        if len(self.voltages) + self.random_runs > MAX_SYNTH_RUNS:
+            raise ValueError(
+                f"voltages/random_runs: {len(self.voltages)} + {self.random_runs} runs; a dataset holds at most "
+                f"{MAX_SYNTH_RUNS}"
+            )
         if not self.voltages and self.random_runs == 0:
             raise ValueError("voltages/random_runs: the dataset would hold no run")
-        if not 100.0 <= self.sample_rate_hz <= 10_000.0:
-            raise ValueError(f"sample_rate_hz: {self.sample_rate_hz!r} is outside [100, 10000] Hz")
-        if not 10.0 <= self.duration_s <= 3600.0:
-            raise ValueError(f"duration_s: {self.duration_s!r} is outside [10, 3600] s")
+        # the ranges of the loader (drill_env.discrepancy.dataset): a dataset synth writes is one
+        # the workflow reads
+        if not (math.isfinite(self.sample_rate_hz) and MIN_RATE_HZ <= self.sample_rate_hz <= MAX_RATE_HZ):
+            raise ValueError(
+                f"sample_rate_hz: {self.sample_rate_hz!r} is outside [{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}] Hz"
+            )
+        if not (math.isfinite(self.duration_s) and MIN_DURATION_S <= self.duration_s <= MAX_SYNTH_DURATION_S):
+            raise ValueError(
+                f"duration_s: {self.duration_s!r} is outside [{MIN_DURATION_S:g}, {MAX_SYNTH_DURATION_S:g}] s"
+            )
+        n_rec = int(round(self.duration_s * self.sample_rate_hz)) + 1
+        if n_rec * CSV_ROW_BYTES > MAX_RUN_BYTES:
+            longest = (MAX_RUN_BYTES // CSV_ROW_BYTES - 1) / self.sample_rate_hz
+            raise ValueError(
+                f"duration_s: {self.duration_s:g} s at {self.sample_rate_hz:g} Hz makes run files of up to "
+                f"{n_rec * CSV_ROW_BYTES / 2**30:.3g} GiB; the loader reads at most {MAX_RUN_BYTES / 2**30:g} GiB "
+                f"per run: at most {math.floor(longest):g} s at this rate"
+            )
         if not 0.0 <= self.pre_roll_s <= 600.0:
             raise ValueError(f"pre_roll_s: {self.pre_roll_s!r} is outside [0, 600] s")
         if not 1 <= self.encoder_counts_per_rev <= 1 << 26:
             raise ValueError(f"encoder_counts_per_rev: {self.encoder_counts_per_rev!r} is outside [1, 2^26]")
-        if not (math.isfinite(self.angle_noise_std) and self.angle_noise_std >= 0.0):
-            raise ValueError(f"angle_noise_std: must be >= 0, got {self.angle_noise_std!r}")
+        if not (math.isfinite(self.angle_noise_std) and 0.0 <= self.angle_noise_std <= MAX_ANGLE_NOISE_RAD):
+            raise ValueError(
+                f"angle_noise_std: {self.angle_noise_std!r} is outside [0, {MAX_ANGLE_NOISE_RAD:g}] rad"
+            )
         if not (math.isfinite(self.param_error) and 0.0 <= self.param_error <= 0.3):
             raise ValueError(f"param_error: {self.param_error!r} is outside [0, 0.3]")
         if not (math.isfinite(self.time_jitter) and 0.0 <= self.time_jitter <= 0.1):
             raise ValueError(f"time_jitter: {self.time_jitter!r} is outside [0, 0.1] periods")
         if not 0.0 < self.level_max_v <= 5.0:
             raise ValueError(f"level_max_v: {self.level_max_v!r} is outside (0, 5] V")
+
+
+# The longest run synth records [s] (about an hour, as the rig's recordings), and the most
+# bytes one CSV row can take (four numbers of 12 significant digits with signs, exponents,
+# commas): a run whose file could exceed the loader's MAX_RUN_BYTES is refused up front.
+MAX_SYNTH_DURATION_S = 3600.0
+CSV_ROW_BYTES = 4 * 19 + 4
+# Angle noise beyond a radian is no encoder's (the sensors' bound, MAX_ANGLE_NOISE_RAD).
+MAX_SYNTH_RUNS = 100  # runs of one dataset
 
 
 @dataclass

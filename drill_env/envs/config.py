@@ -348,6 +348,9 @@ class EpisodeSetup:
     y0: np.ndarray  # kernel state at the start (before the warm-up)
 
 
+MAX_SENSOR_SAMPLES_PER_STEP = 100_000  # sensor samples in one control period (memory per step)
+
+
 class EnvSettings:
     """Validated configuration of a drill-string environment (see DrillStringEnv's arguments)."""
 
@@ -383,6 +386,11 @@ class EnvSettings:
             raise ValueError(
                 f"control_dt: {control_dt!r} s must be a whole number (>= 1) of sensor periods "
                 f"(1/sample_rate_hz = {ts:g} s)"
+            )
+        if n_sub > MAX_SENSOR_SAMPLES_PER_STEP:
+            raise ValueError(
+                f"control_dt: {control_dt!r} s is {n_sub} sensor samples at sample_rate_hz = "
+                f"{self.sensors.sample_rate_hz:g} Hz; allowed: at most {MAX_SENSOR_SAMPLES_PER_STEP} per control step"
             )
         self.n_sub = n_sub
         self.task = TaskConfig.from_any(task)

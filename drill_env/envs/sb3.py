@@ -58,10 +58,14 @@ def sb3_vec_env(env_id: str, n_envs: int, seed: int | None = 0, **env_kwargs: An
             "autoreset_mode: not an argument of sb3_vec_env (SB3 resets a finished episode in the same "
             "step and returns its last observation in infos[i]['terminal_observation'])"
         )
+    from drill_env.envs import ENV_IDS
+
+    if env_id not in ENV_IDS:  # another package's env (CartPole-v1) has no drill-env vector env
+        raise ValueError(
+            f"env_id: {env_id!r} is not a drill-env id (no native vector env); allowed: {sorted(ENV_IDS)}"
+        )
     spec = gym.spec(env_id)
     if spec.vector_entry_point is None:
-        from drill_env.envs import ENV_IDS
-
         raise ValueError(f"env_id: {env_id!r} has no native vector env; use one of {sorted(ENV_IDS)}")
     venv = gym.make_vec(
         env_id,

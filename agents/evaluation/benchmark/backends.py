@@ -194,8 +194,11 @@ def _run_process_pool(todo: list[Job], cfg: BenchmarkConfig, workers: int, finis
                 for row in fut.result():
                     finish(row)
     except BaseException:
-        # interrupted: what is written stays written; do not wait for the queued runs
-        pool.shutdown(wait=False, cancel_futures=True)
+        # interrupted: what is written stays written; neither the queued nor the running runs
+        # are waited for (they are run again on resume)
+        from drill_env.interrupts import stop_pool
+
+        stop_pool(pool)
         raise
     pool.shutdown(wait=True)
 

@@ -20,7 +20,7 @@ from drill_env.agents.evaluation.benchmark.grid import BenchmarkConfig
 from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED, METRIC_COLUMNS
 from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.registry import CONTROLLERS
-from drill_env.outputs import atomic_file
+from drill_env.outputs import atomic_file, open_append, refuse_links
 from drill_env.params import PRESETS
 
 COLUMNS = METRIC_COLUMNS[:2] + ("plant",) + METRIC_COLUMNS[2:] + ("error",)
@@ -74,6 +74,7 @@ def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any]
     out = Path(out_dir)
     csv_path = out / "benchmark.csv"
     cfg_path = out / "benchmark_config.json"
+    refuse_links(out, ("benchmark.csv", "benchmark_config.json", "summary.md"), "out:")
     if not (cfg_path.is_file() and csv_path.is_file()):
         return None
     record = cfg.settings_record()
@@ -91,7 +92,61 @@ def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any]
                 "file, use another directory or --fresh to start over"
             )
     _done_keys(csv_path)
+    _check_same_grid(cfg, out, old, csv_path)
     return old
+
+
+def _check_same_grid(cfg: BenchmarkConfig, out: Path, old: Mapping[str, Any], csv_path: Path) -> None:
+    """Refuse to resume a benchmark of another grid: every run of the one in ``out`` (its
+    recorded grid and every row of its CSV) must be a run of ``cfg``, so that the results and
+    the report never mix grids or describe a part of what the folder holds. A grid that grows
+    (more controllers, voltages, seeds) resumes."""
+    new = {j.key for j in cfg.jobs()}
+    before: set[tuple[str, str, str, float, int]] = set()
+    if all(k in old for k in ("presets", "controllers", "voltages", "seeds")):
+        plants = [str(q.get("name")) for q in old.get("plant_notes", [])] or [NOMINAL]
+        before |= {
+            (str(c), str(p), q, round(float(v), 9), int(s))
+            for p in old["presets"]
+            for q in plants
+            for v in old["voltages"].get(p, [])
+            for s in old["seeds"]
+            for c in old["controllers"]
+        }
+    data = csv_path.read_bytes()
+    source: Path | io.BytesIO = csv_path
+    if data and not data.endswith(b"\n"):
+        source = io.BytesIO(data[: data.rfind(b"\n") + 1])
+    before |= {_key_of_row(r) for r in load_results(source).to_dict("records")}
+    extra = before - new
+    if not extra:
+        return
+    diffs = []
+    # the key's fields: controller, preset, plant, voltage, seed
+    for i, (name, here) in enumerate(
+        (
+            ("controllers", set(cfg.controllers)),
+            ("presets", set(cfg.presets)),
+            ("plants", {q.name for q in cfg.plants}),
+        )
+    ):
+        missing = sorted({k[i] for k in extra} - here)
+        if missing:
+            diffs.append(f"{name} {missing[:6]}")
+    volts = sorted(
+        {(k[1], k[3]) for k in extra if k[1] in cfg.voltages}
+        - {(p, round(v, 9)) for p, vs in cfg.voltages.items() for v in vs}
+    )
+    if volts:
+        diffs.append(f"voltages {[f'{p} {v:g} V' for p, v in volts[:6]]}")
+    seeds = sorted({k[4] for k in extra} - set(cfg.seeds))
+    if seeds:
+        diffs.append(f"seeds {seeds[:6]}")
+    raise ValueError(
+        f"out: {out} holds a benchmark of another grid, with {'; '.join(diffs) or 'other runs'} that this one "
+        f"lacks ({len(extra)} runs); a benchmark resumes only its own grid (or a larger one): run it with the "
+        "grid of its benchmark_config.json, write elsewhere, or --fresh to start over"
+    )
 
 
 def _drop_partial_row(csv_path: Path) -> None:
@@ -162,7 +217,7 @@ class _Writer:
                     w.writeheader()
                     for row in df.to_dict("records"):
                         w.writerow({c: _fmt(row[c]) for c in COLUMNS})
-        self.f = open(path, "a", newline="")
+        self.f = open_append(path, newline="")  # never through a link out of the folder
         self.w = csv.DictWriter(self.f, fieldnames=list(COLUMNS))
         if new:
             self.w.writeheader()

@@ -1,0 +1,604 @@
+"""Hardening: output folders never mixed or rewritten by a subset, files never written through
+links, bounds on every count and size (refused before any work), Ctrl-C that stops, synth
+writing only what the loader reads, full time precision at a late t0, untrusted policies
+refused without a terminal. Each reproducer of the issue is a test here."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+import drill_env
+from drill_env.cli import app
+
+runner = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _one_error_line(res, code: int = 2) -> str:
+    assert res.exit_code == code, (res.exit_code, res.output)
+    assert "Traceback" not in res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1, res.output
+    return errors[0]
+
+
+def _digest(folder: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != ".drill-env.lock"
+    }
+
+
+# -- 1. output folders never mixed or rewritten --------------------------------------------------------
+
+SYNTH = ["synth", "--duration", "10", "--rate", "100", "--random-runs", "0"]
+
+
+def test_synth_refuses_a_folder_holding_a_dataset_and_fresh_replaces_it_whole(tmp_path):
+    d = tmp_path / "d"
+    res = runner.invoke(
+        app,
+        [
+            *SYNTH,
+            "--effect",
+            "none",
+            "--voltages",
+            "1,2",
+            "--out",
+            str(d),
+            "--answer",
+            str(tmp_path / "a1.json"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    before = _digest(d)
+    assert sorted(before) == ["dataset.json", "run01.csv", "run02.csv"]
+    # the reproducer: a second dataset into the same folder
+    again = [*SYNTH, "--effect", "position_friction_lower", "--magnitude", "0.3", "--voltages", "0.5"]
+    again += ["--out", str(d), "--answer", str(tmp_path / "a2.json")]
+    line = _one_error_line(runner.invoke(app, again))
+    assert "--out" in line and "not empty" in line and "--fresh" in line
+    assert _digest(d) == before and not (tmp_path / "a2.json").exists()
+    # --fresh: the new dataset alone
+    res = runner.invoke(app, [*again, "--fresh"])
+    assert res.exit_code == 0, res.output
+    assert sorted(_digest(d)) == ["dataset.json", "run01.csv"]
+    from drill_env.discrepancy.dataset import load_dataset
+
+    ds = load_dataset(d)
+    assert [r.name for r in ds.runs] == ["run01"] and np.allclose(ds.runs[0].u, 0.5)
+    # --fresh never removes what synth did not write
+    (d / "notes.txt").write_text("mine\n")
+    line = _one_error_line(runner.invoke(app, [*again, "--fresh"]))
+    assert "notes.txt" in line and (d / "notes.txt").read_text() == "mine\n"
+
+
+def test_synth_writes_what_the_loader_reads_at_the_shortest_duration(tmp_path):
+    # the reproducer: "synth --duration 10" was refused by the loader ("lasts 10 s; at least 10 s")
+    from drill_env.discrepancy.dataset import MIN_DURATION_S, load_dataset
+
+    for rate in ("100", "333", "1000"):
+        d = tmp_path / f"d{rate}"
+        args = ["synth", "--effect", "none", "--duration", str(MIN_DURATION_S), "--rate", rate]
+        args += [
+            "--voltages",
+            "1",
+            "--random-runs",
+            "0",
+            "--out",
+            str(d),
+            "--answer",
+            str(tmp_path / f"{rate}.json"),
+        ]
+        res = runner.invoke(app, args)
+        assert res.exit_code == 0, res.output
+        run = load_dataset(d).runs[0]
+        assert run.t[-1] - run.t[0] == pytest.approx(MIN_DURATION_S, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["--duration", "3100", "--rate", "10000"], ["duration", "GiB", "at most 1342 s"]),
+        (["--duration", "9.99"], ["duration", "[10, 3600]"]),
+        (["--rate", "20000"], ["sample_rate_hz", "[100, 10000]"]),
+        (["--angle-noise", "1e300"], ["angle_noise_std", "[0, 1] rad"]),
+        (["--random-runs", "1000000000"], ["random_runs", "at most 100"]),
+    ],
+)
+def test_synth_refuses_what_the_loader_would_refuse_before_any_run(tmp_path, args, words):
+    t = time.perf_counter()
+    res = runner.invoke(
+        app,
+        [
+            "synth",
+            "--effect",
+            "none",
+            "--out",
+            str(tmp_path / "d"),
+            "--answer",
+            str(tmp_path / "a.json"),
+            *args,
+        ],
+    )
+    line = _one_error_line(res)
+    for w in words:
+        assert w in line, line
+    assert time.perf_counter() - t < 10
+    assert not (tmp_path / "d").exists() or not any((tmp_path / "d").iterdir())
+
+
+def test_the_synth_bounds_follow_the_loader():
+    from drill_env.discrepancy import dataset
+    from drill_env.discrepancy.synth import CSV_ROW_BYTES, SynthConfig
+
+    SynthConfig(duration_s=dataset.MIN_DURATION_S, sample_rate_hz=dataset.MIN_RATE_HZ)
+    SynthConfig(duration_s=60.0, sample_rate_hz=dataset.MAX_RATE_HZ)
+    longest = (dataset.MAX_RUN_BYTES // CSV_ROW_BYTES - 1) / dataset.MAX_RATE_HZ
+    SynthConfig(duration_s=math.floor(longest), sample_rate_hz=dataset.MAX_RATE_HZ)
+    with pytest.raises(ValueError, match="duration_s"):
+        SynthConfig(duration_s=math.floor(longest) + 1, sample_rate_hz=dataset.MAX_RATE_HZ)
+    # a CSV row of synth's format never exceeds the bound the size check uses
+    row = ",".join(
+        [f"{v:.12g}" for v in (-3699.99999999, -4.99999999999, -123456.789012, -1.23456789012e-05)]
+    )
+    assert len(row) + 1 <= CSV_ROW_BYTES
+
+
+def test_discrepancy_refuses_its_own_data_folder_as_output(tmp_path):
+    d = tmp_path / "d"
+    res = runner.invoke(
+        app,
+        [
+            *SYNTH,
+            "--effect",
+            "none",
+            "--voltages",
+            "1",
+            "--out",
+            str(d),
+            "--answer",
+            str(tmp_path / "a.json"),
+        ],
+    )
+    assert res.exit_code == 0
+    before = _digest(d)
+    for out in (d, d / "analysis"):
+        line = _one_error_line(runner.invoke(app, ["discrepancy", str(d), "--out", str(out)]))
+        assert "--out" in line and "dataset folder" in line
+    assert _digest(d) == before
+
+
+BENCH = ["benchmark", "--preset", "brake", "--voltages", "1.0", "--seeds", "1", "--duration", "2"]
+BENCH += ["--window", "1", "--warmup", "0", "--backend", "sequential", "--no-timeseries"]
+
+
+def test_a_benchmark_resumes_only_its_own_grid(tmp_path):
+    out = tmp_path / "bench"
+    res = runner.invoke(app, [*BENCH, "--controllers", "open_loop,pi_upper", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    before = _digest(out)
+    # the reproducer: a subset resumed into the folder rewrote its config and summary
+    line = _one_error_line(runner.invoke(app, [*BENCH, "--controllers", "open_loop", "--out", str(out)]))
+    assert "another grid" in line and "controllers ['pi_upper']" in line and "--fresh" in line
+    # another grid: other voltages, other seeds
+    other = [a if a != "1.0" else "2.0" for a in BENCH]
+    line = _one_error_line(
+        runner.invoke(app, [*other, "--controllers", "open_loop,pi_upper", "--out", str(out)])
+    )
+    assert "voltages ['brake 1 V']" in line
+    assert _digest(out) == before
+    # the same grid resumes (nothing to run) and leaves the results as they were
+    res = runner.invoke(app, [*BENCH, "--controllers", "open_loop,pi_upper", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "2 resumed" in res.output
+    assert _digest(out)["benchmark.csv"] == before["benchmark.csv"]
+    cfg = json.loads((out / "benchmark_config.json").read_text())
+    assert cfg["controllers"] == ["open_loop", "pi_upper"]
+
+
+def test_benchmark_files_are_never_written_through_links(tmp_path):
+    out = tmp_path / "bench"
+    res = runner.invoke(app, [*BENCH, "--controllers", "open_loop", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    target = tmp_path / "elsewhere.csv"
+    shutil.move(out / "benchmark.csv", target)
+    (out / "benchmark.csv").symlink_to(target)
+    before = target.read_bytes()
+    line = _one_error_line(runner.invoke(app, [*BENCH, "--controllers", "open_loop", "--out", str(out)]))
+    assert "benchmark.csv is a symbolic link" in line
+    assert target.read_bytes() == before
+    # the appending writer itself never follows a link either
+    from drill_env.outputs import OutputFolderError, open_append
+
+    with pytest.raises(OutputFolderError, match="symbolic link"):
+        open_append(out / "benchmark.csv")
+    assert target.read_bytes() == before
+
+
+def test_discrepancy_study_by_default_writes_a_fresh_run_folder_not_the_committed_results(
+    tmp_path, monkeypatch
+):
+    """The reproducer: --paper-case-only in a checkout rewrote results/discrepancy/paper_case."""
+    import drill_env.discrepancy.study as study
+
+    written: list[Path] = []
+
+    def paper_case(out):  # where the command sends the paper's case (its content is tested elsewhere)
+        written.append(Path(out))
+        return {"verdict": "-", "confidence": 1.0}
+
+    monkeypatch.setattr(study, "paper_case", paper_case)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "results" / "discrepancy").mkdir(parents=True)
+    res = runner.invoke(app, ["discrepancy-study", "--paper-case-only"])
+    assert res.exit_code == 0, res.output
+    assert len(written) == 1 and written[0].parts[:2] == ("runs", "discrepancy-study")
+    assert not any((tmp_path / "results" / "discrepancy").iterdir())
+    # named explicitly, the committed folder is regenerated
+    res = runner.invoke(app, ["discrepancy-study", "--paper-case-only", "--out", "results/discrepancy"])
+    assert res.exit_code == 0 and written[-1] == Path("results/discrepancy/paper_case")
+
+
+# -- 3. bounds up front -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["benchmark", "--seeds", "1000000000"], ["--seeds", "1 to 1000"]),
+        (["benchmark", "--duration", "1e9"], ["--duration", "(0, 10000] s"]),
+        (["benchmark", "--warmup", "-1"], ["--warmup"]),
+        (["benchmark", "--workers", "0"], ["--workers", "1 to 256"]),
+        (["benchmark", "--seeds", "1000", "--plants", "family"], ["runs", "at most 1,000,000"]),
+        (["simulate", "--duration", "1e306", "--dt", "1e305"], ["--duration", "at most 1e+07"]),
+        (["simulate", "--duration", "1", "--dt", "1e-12"], ["--dt", "1e-09"]),
+        (["bifurcation", "--umax", "1e308", "--no-check"], ["--umax", "[-100, 100] V"]),
+        (["synth", "--effect", "none", "--seed", "-1", "--answer", "a.json"], ["--seed"]),
+        (["synth", "--effect", "none", "--angle-noise", "1e300", "--answer", "a.json"], ["angle_noise_std"]),
+    ],
+)
+def test_counts_and_sizes_are_refused_before_any_work(tmp_path, args, words):
+    t = time.perf_counter()
+    res = runner.invoke(app, [*args, "--out", str(tmp_path / "o")])
+    assert time.perf_counter() - t < 30
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    for w in words:
+        assert w in res.output, res.output
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        (dict(t_final=1e306), "t_final"),
+        (dict(t_final=1.0, dt=5e-324), "dt"),
+        (dict(t_final=1.0, dt=1e-300), "dt"),
+        (dict(t_final=1.0, u=[1.0] * 10, control_dt=5e-324), "control_dt"),
+        (dict(t_final=1.0, u=[1.0] * 10, control_dt=1e300), "control_dt"),
+        (dict(t_final=1.0, event_capacity=10**15), "event_capacity"),
+        (dict(t_final=1.0, event_capacity=0), "event_capacity"),
+        (dict(t_final=1.0, event_capacity=2.5), "event_capacity"),
+        (dict(t_final=1.0, max_steps=10**30), "max_steps"),
+        (dict(t_final=2e6, t0=1.5e6, dt=1e3, u=lambda t: 1.0), "t0"),
+        (dict(t_final=1e300, t0=1e299), "t_final"),
+    ],
+)
+def test_the_api_names_the_argument_of_an_extreme_number(kwargs, name):
+    kwargs = dict(kwargs)
+    u = kwargs.pop("u", 1.0)
+    t_final = kwargs.pop("t_final")
+    with pytest.raises(ValueError, match=rf"^{name}: "):
+        drill_env.simulate("brake", u, t_final, **kwargs)
+
+
+def test_batch_and_sensor_and_episode_bounds_name_the_argument():
+    from drill_env.agents.evaluation.episodes import EpisodeSettings
+    from drill_env.sensors import SensorConfig
+
+    with pytest.raises(ValueError, match="^t_final: "):
+        drill_env.simulate_batch("brake", [1.0, 2.0], 1e300)
+    with pytest.raises(ValueError, match="^sample_rate_hz: "):
+        SensorConfig(sample_rate_hz=1e9)
+    with pytest.raises(ValueError, match="^speed_noise_std: "):
+        SensorConfig(speed_noise_std=1e300)
+    with pytest.raises(ValueError, match="^angle_noise_std: "):
+        SensorConfig(angle_noise_std=1e300)
+    with pytest.raises(ValueError, match="^duration: "):
+        EpisodeSettings(duration=1e9)
+    import gymnasium as gym
+
+    with pytest.raises(ValueError, match="^control_dt: .*at most 100000 per control step"):
+        gym.make("DrillString-v1", control_dt=1.0, sensors={"sample_rate_hz": 1e6, "cutoff_rad_s": 200.0})
+
+
+_number_text = st.one_of(
+    st.sampled_from(
+        [
+            "0",
+            "-0",
+            "-1",
+            "1e-320",
+            "5e-324",
+            "1e-12",
+            "1e308",
+            "1e309",
+            "-1e308",
+            "nan",
+            "inf",
+            "-inf",
+            "1e7",
+            "1e9",
+        ]
+    ),
+    st.integers(-(10**6), 10**40).map(str),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.just("1" + "0" * 5000),
+)
+
+# (command line, option, whether a value is valid); a valid value is skipped (it would start work)
+_NUMERIC = {
+    "simulate --duration": (["simulate"], "--duration", lambda v: 1e-2 <= v <= 1e5 + 1),
+    "simulate --dt": (["simulate", "--duration", "1"], "--dt", lambda v: 9.9e-8 <= v <= 1),
+    "simulate --summary-window": (
+        ["simulate", "--duration", "1"],
+        "--summary-window",
+        lambda v: 0 < v <= 1e7,
+    ),
+    "bifurcation --umax": (["bifurcation", "--no-check"], "--umax", lambda v: 0 < v <= 100),
+    "benchmark --seeds": (["benchmark"], "--seeds", lambda v: v == int(v) and 1 <= v <= 1000),
+    "benchmark --duration": (["benchmark"], "--duration", lambda v: 0.05 <= v <= 1e4),
+    "benchmark --warmup": (["benchmark"], "--warmup", lambda v: 0 <= v <= 1e4),
+    "benchmark --workers": (["benchmark"], "--workers", lambda v: v == int(v) and 1 <= v <= 256),
+    "synth --duration": (["synth", "--effect", "none"], "--duration", lambda v: 10 <= v <= 3600),
+    "synth --rate": (["synth", "--effect", "none"], "--rate", lambda v: 100 <= v <= 10_000),
+    "synth --angle-noise": (["synth", "--effect", "none"], "--angle-noise", lambda v: 0 <= v <= 1),
+    "synth --random-runs": (
+        ["synth", "--effect", "none"],
+        "--random-runs",
+        lambda v: v == int(v) and 0 <= v <= 93,
+    ),
+    "synth --counts": (["synth", "--effect", "none"], "--counts", lambda v: v == int(v) and 1 <= v <= 2**26),
+    "discrepancy-study --seeds": (["discrepancy-study"], "--seeds", lambda v: v == int(v) and 1 <= v <= 100),
+    "discrepancy-study --workers": (
+        ["discrepancy-study"],
+        "--workers",
+        lambda v: v == int(v) and 0 <= v <= 256,
+    ),
+}
+
+
+def _valid(text: str, ok) -> bool:
+    try:
+        v = float(text)
+    except (ValueError, OverflowError):
+        return False
+    if not math.isfinite(v):
+        return False
+    try:
+        return bool(ok(v))
+    except (ValueError, OverflowError):
+        return False
+
+
+@settings(
+    max_examples=120,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(option=st.sampled_from(sorted(_NUMERIC)), text=_number_text)
+def test_fuzz_numeric_options_refuse_bad_numbers_in_one_line(tmp_path, option, text):
+    cmd, flag, ok = _NUMERIC[option]
+    assume(not _valid(text, ok))
+    args = [*cmd, f"{flag}={text}", "--out", str(tmp_path / "o")]
+    if cmd[0] == "synth":
+        args += ["--answer", str(tmp_path / "a.json")]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 2, (option, text, res.output)
+    assert "Traceback" not in res.output and (res.exception is None or isinstance(res.exception, SystemExit))
+    assert (
+        flag in res.output or flag.lstrip("-").replace("-", "_") in res.output or "voltage" in res.output
+    ), res.output
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    name=st.sampled_from(["dt", "control_dt", "event_capacity", "max_steps", "t_final", "t0"]),
+    value=st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.integers(-(10**30), 10**30),
+        st.sampled_from([5e-324, 1e-300, 1e300, 10**15, 0, -1]),
+    ),
+)
+def test_fuzz_the_api_numbers_give_a_result_or_a_value_error_naming_the_argument(name, value):
+    kwargs: dict = {"t0": 0.0, "dt": 0.05}
+    u: object = 1.0
+    t_final = 0.2
+    if isinstance(value, float) and math.isfinite(value) or isinstance(value, int):
+        # values that are valid but costly are not run: long runs, big allocations
+        assume(not (name == "t0" and -1e7 <= value < -10))
+        assume(not (name == "t_final" and 10 < value <= 1e7))
+        assume(not (name == "dt" and 1e-9 <= value < 1e-4))
+        assume(not (name == "event_capacity" and 1e4 < value <= 1e6))
+    if name == "control_dt":
+        u = [1.0] * 5
+        kwargs["control_dt"] = value
+    elif name == "t_final":
+        t_final = value
+    else:
+        kwargs[name] = value
+    try:
+        with np.errstate(all="ignore"):
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                res = drill_env.simulate("brake", u, t_final, **kwargs)
+    except ValueError as exc:
+        assert str(exc).startswith((f"{name}:", "t_final:", "u:")), str(exc)
+        return
+    assert res.t.size >= 1 and np.isfinite(res.x3).all()
+
+
+# -- 4. Ctrl-C ----------------------------------------------------------------------------------------
+
+
+def test_ctrl_c_stops_a_long_simulation_in_the_api_within_a_second():
+    drill_env.simulate("brake", 2.0, 60.0)  # compiled
+    sent: list[float] = []
+
+    def interrupt():
+        time.sleep(1.0)
+        sent.append(time.perf_counter())
+        os.kill(os.getpid(), signal.SIGINT)
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        drill_env.simulate("brake", 2.0, 1e7, dt=1e6)
+    assert time.perf_counter() - sent[0] < 1.0
+
+
+def test_ctrl_c_stops_the_simulate_command_and_says_so():
+    """The reproducer: `drill-env simulate --duration 1e9 --dt 1e8` kept running after SIGINT
+    (1e9 s is now refused; the longest run allowed, 1e7 s, takes hours)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    code = "import sys; from drill_env.cli import main; print('ready', flush=True); main()"
+    args = [sys.executable, "-c", code, "simulate", "--duration", "1e7", "--dt", "1e6"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == "ready"
+    time.sleep(4.0)  # in the run (or compiling it)
+    assert proc.poll() is None
+    t = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert time.perf_counter() - t < 5.0
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "interrupted (Ctrl-C): the simulation was stopped; nothing written"
+
+
+# -- 6. time precision at a late start ---------------------------------------------------------------------
+
+
+def test_a_late_start_gives_the_same_run_as_a_start_at_zero():
+    early = drill_env.simulate("brake", 2.0, 60.0, dt=0.01)
+    for t0 in (1e4, 1e9, 1e12):
+        late = drill_env.simulate("brake", 2.0, t0 + 60.0, dt=0.01, t0=t0)
+        np.testing.assert_array_equal(late.x3, early.x3)
+        np.testing.assert_allclose(late.events.t - t0, early.events.t, rtol=0, atol=1e-12 * t0)
+        assert late.t[0] == t0 and late.t[-1] == t0 + 60.0
+    # a held sequence too; with a function of time the clock is absolute and bounded
+    seq = [1.0, 2.0, 3.0] * 10
+    a = drill_env.simulate("brake", seq, 3.0, dt=0.01, control_dt=0.1)
+    b = drill_env.simulate("brake", seq, 1e9 + 3.0, dt=0.01, control_dt=0.1, t0=1e9)
+    np.testing.assert_array_equal(a.x3, b.x3)
+    # what the amplifier was asked for, before its limit, at the same instants
+    a = drill_env.simulate("brake", [1.0, 7.0, 3.0] * 10, 3.0, dt=0.01, control_dt=0.1, voltage_limit=5.0)
+    b = drill_env.simulate(
+        "brake", [1.0, 7.0, 3.0] * 10, 1e9 + 3.0, dt=0.01, control_dt=0.1, voltage_limit=5.0, t0=1e9
+    )
+    np.testing.assert_array_equal(a.u_requested, b.u_requested)
+    np.testing.assert_array_equal(a.u, b.u)
+    assert a.u_requested.max() == 7.0 and a.u.max() == 5.0
+    with pytest.raises(ValueError, match=r"^t0: .*full precision only up to 1e\+06 s"):
+        drill_env.simulate("brake", lambda t: 1.0, 1e7 + 1.0, t0=1e7)
+
+
+# -- 7. untrusted policies without a terminal -------------------------------------------------------------
+
+
+def test_a_run_without_a_terminal_refuses_an_untrusted_policy(tmp_path, monkeypatch):
+    from drill_env.agents.registry import policy_path
+
+    agents = tmp_path / "agents"
+    shutil.copytree(policy_path("ppo", "brake").parent, agents / "ppo")
+    args = [
+        *BENCH,
+        "--controllers",
+        "open_loop,ppo",
+        "--agents-dir",
+        str(agents),
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    monkeypatch.delenv("DRILL_ENV_TRUST_POLICIES", raising=False)
+    line = _one_error_line(runner.invoke(app, args))  # CliRunner: no terminal
+    assert "--agents-dir" in line and "--trust-policies" in line and "DRILL_ENV_TRUST_POLICIES" in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_policy_zip_that_inflates_beyond_the_bound_is_refused_before_reading(tmp_path):
+    from drill_env.agents.learning.rl import (
+        MAX_POLICY_INFLATED_BYTES,
+        load_policy,
+        policy_observation_version,
+    )
+
+    bomb = tmp_path / "ppo" / "policy.zip"
+    bomb.parent.mkdir()
+    with zipfile.ZipFile(bomb, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("data", "w", force_zip64=True) as f:
+            chunk = b"\0" * (1 << 20)
+            for _ in range(MAX_POLICY_INFLATED_BYTES // len(chunk) + 1):
+                f.write(chunk)
+    assert bomb.stat().st_size < 2 * 2**20
+    for call in (
+        lambda: load_policy(bomb, algo="ppo", trusted=True),
+        lambda: policy_observation_version(bomb),
+    ):
+        with pytest.raises(ValueError, match=r"^policy: .* inflates to 65 MiB; allowed: at most 64 MiB"):
+            call()
+    args = [*BENCH, "--controllers", "ppo", "--agents-dir", str(tmp_path), "--trust-policies"]
+    line = _one_error_line(runner.invoke(app, [*args, "--out", str(tmp_path / "o")]))
+    assert "inflates" in line
+
+
+# -- minor items -----------------------------------------------------------------------------------------
+
+
+def test_sb3_vec_env_names_a_foreign_env_id():
+    from drill_env.envs.sb3 import sb3_vec_env
+
+    with pytest.raises(ValueError, match=r"^env_id: 'CartPole-v1' is not a drill-env id"):
+        sb3_vec_env("CartPole-v1", 2)
+
+
+def test_negative_seeds_are_refused_naming_the_option(tmp_path):
+    for args in (
+        [
+            "synth",
+            "--effect",
+            "none",
+            "--seed",
+            "-1",
+            "--out",
+            str(tmp_path / "d"),
+            "--answer",
+            str(tmp_path / "a"),
+        ],
+        ["discrepancy", str(tmp_path), "--seed", "-1", "--out", str(tmp_path / "r")],
+        ["train", "--algo", "ppo", "--seed", "-1"],
+    ):
+        res = runner.invoke(app, args)
+        assert res.exit_code == 2 and "'--seed'" in res.output, res.output
