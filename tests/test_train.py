@@ -46,7 +46,9 @@ SUMMARY_KEYS = {
 
 
 def small_config(algo: str, steps: int) -> TrainConfig:
-    cfg = load_config(CONFIGS / f"{algo}.yaml").to_dict()
+    # PPO from scratch (the shipped ppo starts from a clone of the LQI)
+    name = {"ppo": "experiments/ppo_from_scratch", "sac": "sac"}[algo]
+    cfg = load_config(CONFIGS / f"{name}.yaml").to_dict()
     cfg.update(total_timesteps=steps, n_envs=2 if algo == "ppo" else 1)
     cfg["evaluation"] = {"every_steps": steps // 2, "episodes_per_regime": 1, "seed": 7}
     cfg["env_kwargs"] = {"warmup_time": 2.0, "warmup_jitter": 0.5}

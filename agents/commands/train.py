@@ -28,7 +28,10 @@ def config_names() -> list[str]:
     for d in _config_dirs():
         if d.is_dir():
             names.update(p.relative_to(d).with_suffix("").as_posix() for p in d.glob("**/*.yaml"))
-    return sorted(n for n in names if not n.startswith("rl_zoo3/") and n != "controllers")
+    # the recipes of the committed policies first, then those in subfolders (experiments/, v0/)
+    return sorted(
+        (n for n in names if not n.startswith("rl_zoo3/") and n != "controllers"), key=lambda n: ("/" in n, n)
+    )
 
 
 def resolve_config(config: Path) -> Path:
@@ -53,8 +56,9 @@ def register(app: typer.Typer) -> None:
         config: Path = typer.Option(
             ...,
             help="Training config: a YAML file, or the name of one shipped with the package "
-            "(from configs/agents/, works from any folder): ppo, sac, ppo_no_brake, sac_no_brake, "
-            "v0/ppo, ...",
+            "(from configs/agents/, works from any folder): the recipe of a committed policy by its "
+            "name (ppo, sac, ppo_robust, sac_no_brake, ...), a recipe tried and not kept "
+            "(experiments/ppo_from_scratch, ...) or an earlier one (v0/ppo, ...).",
         ),
         seed: int = typer.Option(0, help="Random seed of the training run (>= 0)."),
         out: Path | None = typer.Option(

@@ -1,7 +1,7 @@
 """Reinforcement learning with stable-baselines3: training configs, training, and trained
 policies behind the same ``predict`` as the classical controllers.
 
-A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping::
+A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML mapping::
 
     algo: ppo                       # ppo or sac
     env_id: DrillString-v1
