@@ -485,7 +485,9 @@ def test_every_shipped_policy_was_trained_with_the_config_of_its_name(folder):
     assert committed == load_config(CONFIGS / f"{folder}.yaml").to_dict()
     name = Path(folder).name
     if "/" not in folder:
-        base, preset = (name[: -len("_no_brake")], "no_brake") if name.endswith("_no_brake") else (name, "brake")
+        base, preset = (
+            (name[: -len("_no_brake")], "no_brake") if name.endswith("_no_brake") else (name, "brake")
+        )
         assert training_config(base, preset) == name
 
 

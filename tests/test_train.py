@@ -71,9 +71,19 @@ def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
         and summary["best_eval_return"] >= summary["final_eval_return"]
     )
     out = tmp_path / "out"
-    for name in ("policy.zip", "config.yaml", "training_summary.json", "eval.csv", "learning_curve.png"):
+    for name in (
+        "policy.zip",
+        "config.yaml",
+        "training_summary.json",
+        "eval.csv",
+        "learning_curve.png",
+        "policy.md",
+    ):
         assert (out / name).is_file(), name
     assert json.loads((out / "training_summary.json").read_text())["seed"] == 3
+    card = (out / "policy.md").read_text()
+    assert card.startswith(f"# `out`: {algo.upper()}, from scratch\n")
+    assert "| training config | none of the shipped configs" in card and "| training | seed 3," in card
     assert (tmp_path / "run" / "progress.csv").is_file()
     assert any(p.name.startswith("events.out.tfevents") for p in (tmp_path / "run").iterdir())
     policy = load_policy(out / "policy.zip", trusted=True)  # made by this test

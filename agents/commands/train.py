@@ -89,8 +89,9 @@ def register(app: typer.Typer) -> None:
 
         Writes OUT/policy.zip (the evaluation-best policy), OUT/config.yaml,
         OUT/training_summary.json (seed, steps, wall time, final/best evaluation return,
-        converged by the plateau criterion), OUT/eval.csv, OUT/progress.csv and
-        OUT/learning_curve.png; the run's progress.csv and TensorBoard events go to RUN_DIR.
+        converged by the plateau criterion), OUT/eval.csv, OUT/progress.csv,
+        OUT/learning_curve.png and OUT/policy.md (the policy's card: how it started, its
+        config, what it reached); the run's progress.csv and TensorBoard events go to RUN_DIR.
         """
         from drill_env.agents.learning.rl import ALGOS
 
@@ -161,7 +162,14 @@ def register(app: typer.Typer) -> None:
             _fail(str(exc))
         with held:
             summary = run_training(
-                cfg, seed, out, run_dir, progress_bar=progress, on_eval=on_eval, teacher=teacher
+                cfg,
+                seed,
+                out,
+                run_dir,
+                progress_bar=progress,
+                on_eval=on_eval,
+                teacher=teacher,
+                config_source=config,
             )
         verdict = "converged" if summary["converged"] else "NOT converged"
         typer.echo(
@@ -171,7 +179,7 @@ def register(app: typer.Typer) -> None:
         )
         refs = ", ".join(f"{k} {v:.2f}" for k, v in summary["reference_returns"].items())
         typer.echo(f"references on the same episodes: {refs}")
-        typer.echo(f"wrote {out}/policy.zip, training_summary.json, learning_curve.png")
+        typer.echo(f"wrote {out}/policy.zip, training_summary.json, learning_curve.png, policy.md")
         if agents_dir is not None:
             typer.echo(
                 f"benchmark it: drill-env benchmark --quick --agents-dir {agents_dir} --out {agents_dir}/benchmark"
