@@ -22,7 +22,6 @@ from drill_env.agents.learning.rl import (
     load_policy,
     renamed_objects,
     stored_policy_class,
-    train,
     upgrade_policy_file,
 )
 from drill_env.cli import app
@@ -118,8 +117,24 @@ def test_a_correction_file_without_the_config_of_its_base_is_refused(tmp_path):
 
 def test_a_residual_policy_is_saved_as_a_correction_that_sb3_refuses_alone(tmp_path):
     cfg = _tiny_robust_config(residual={"base": "lqi", "scale": 0.2})
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(cfg.to_dict()))
     out = tmp_path / "agents" / "ppo_robust"
-    train(cfg, 0, out, tmp_path / "logs", progress_bar=False)
+    res = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--algo",
+            "ppo",
+            "--config",
+            str(tmp_path / "tiny.yaml"),
+            "--out",
+            str(out),
+            "--no-progress",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    assert "policy.md" in res.output
+    (tmp_path / "logs").symlink_to(tmp_path / "agents" / "logs" / "ppo_robust")
     for path in (out / "policy.zip", tmp_path / "logs" / "final_policy.zip"):
         assert is_correction_file(path), path
     with pytest.raises(CorrectionOnlyError, match="load_policy"):

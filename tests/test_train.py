@@ -71,19 +71,9 @@ def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
         and summary["best_eval_return"] >= summary["final_eval_return"]
     )
     out = tmp_path / "out"
-    for name in (
-        "policy.zip",
-        "config.yaml",
-        "training_summary.json",
-        "eval.csv",
-        "learning_curve.png",
-        "policy.md",
-    ):
+    for name in ("policy.zip", "config.yaml", "training_summary.json", "eval.csv", "learning_curve.png"):
         assert (out / name).is_file(), name
     assert json.loads((out / "training_summary.json").read_text())["seed"] == 3
-    card = (out / "policy.md").read_text()
-    assert card.startswith(f"# `out`: {algo.upper()}, from scratch\n")
-    assert "| training config | none of the shipped configs" in card and "| training | seed 3," in card
     assert (tmp_path / "run" / "progress.csv").is_file()
     assert any(p.name.startswith("events.out.tfevents") for p in (tmp_path / "run").iterdir())
     policy = load_policy(out / "policy.zip", trusted=True)  # made by this test
@@ -218,6 +208,10 @@ def test_cli_train_and_tune_default_to_fresh_run_folders(tmp_path, monkeypatch):
     for run in runs:
         assert (run / "ppo" / "policy.zip").is_file() and (run / "logs").is_dir()
         assert f"--agents-dir {run.relative_to(tmp_path)}" in first.output + second.output
+        # the card of the new policy: how it started and the config it was trained with
+        card = (run / "ppo" / "policy.md").read_text()
+        assert card.startswith("# `ppo`: PPO, from scratch\n")
+        assert "| training config | `tiny.yaml` |" in card and "| training | seed 0, " in card
     assert not (tmp_path / "results").exists()
     # the run folder is laid out like results/agents: the benchmark finds the policy there
     from drill_env.agents.registry import policy_path

@@ -154,7 +154,12 @@ def _check_controllers_inside_the_package(names: list[str]) -> None:
     installed = {n.removeprefix("drill_env/agents/") for n in names if n.startswith("drill_env/agents/")}
     sources = {p.relative_to(ROOT / "agents").as_posix() for p in (ROOT / "agents").rglob("*.py")}
     assert installed == sources
-    assert {"__init__.py", "rl.py", "commands/train.py", "benchmark/__init__.py"} <= installed
+    assert {
+        "__init__.py",
+        "learning/rl.py",
+        "commands/train.py",
+        "evaluation/benchmark/__init__.py",
+    } <= installed
 
 
 @needs_hatchling

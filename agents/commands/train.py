@@ -169,8 +169,10 @@ def register(app: typer.Typer) -> None:
                 progress_bar=progress,
                 on_eval=on_eval,
                 teacher=teacher,
-                config_source=config,
             )
+            from drill_env.agents.learning.cards import write_policy_card
+
+            write_policy_card(out, config)  # how it started, its config, what it reached
         verdict = "converged" if summary["converged"] else "NOT converged"
         typer.echo(
             f"{algo}: {summary['total_timesteps']} steps in {summary['wall_time_s']:.0f} s; "

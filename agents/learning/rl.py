@@ -904,13 +904,12 @@ def train(
     progress_bar: bool = True,
     on_eval: Callable[[int, float], None] | None = None,
     teacher: Any = None,
-    config_source: str | Path | None = None,
 ) -> dict[str, Any]:
     """Train ``cfg.algo`` on ``cfg.env_id`` with ``seed``; write the run (CSV, TensorBoard,
-    checkpoints) to ``run_dir`` and the policy, config, summary, learning curve and card
-    (``policy.md``, :mod:`drill_env.agents.learning.cards`; ``config_source``: the config file
-    ``cfg`` was read from, named there) to ``out_dir``. Returns the summary. A config that
-    distils a trained policy (``warm_start.policy``) takes it loaded as ``teacher``
+    checkpoints) to ``run_dir`` and the policy, config, summary and learning curve to
+    ``out_dir`` (``drill-env train`` adds the card ``policy.md``,
+    :func:`drill_env.agents.learning.cards.write_policy_card`). Returns the summary. A config
+    that distils a trained policy (``warm_start.policy``) takes it loaded as ``teacher``
     (:func:`drill_env.agents.registry.teacher_policy`)."""
     import gymnasium as gym
     import stable_baselines3
@@ -1069,9 +1068,6 @@ def train(
     with open(out_dir / "config.yaml", "w") as f:
         yaml.safe_dump(cfg.to_dict(), f, sort_keys=False)
     plot_learning_curve(out_dir, summary)
-    from drill_env.agents.learning.cards import write_policy_card
-
-    write_policy_card(out_dir, config_source)
     eval_env.close()
     return summary
 
