@@ -61,8 +61,23 @@ app = typer.Typer(
 )
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            typer.echo(f"drill-env {version('drill-env')}")
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            _fail("--version: drill-env is not installed (no package metadata); pip install -e .")
+        raise typer.Exit()
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_print_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
     """drill-env: the torsional stick-slip rig of Mihajlovic et al. (2004)."""
 
 
