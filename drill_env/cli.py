@@ -168,7 +168,7 @@ def simulate(
     typer.echo(f"  mean {m.mean_speed:.5f}  min {m.min_speed:.5f}  max {m.max_speed:.5f}")
     typer.echo(f"  fraction of time stuck: lower disk {m.stick_fraction:.4f}, upper disk {stick_u:.4f}")
     typer.echo(f"  dominant period: {period}")
-    typer.echo(f"  switching events: {len(res.events)}")
+    typer.echo(f"  switching events: {len(res.events) if res.events is not None else 0}")
     if out is not None:
         typer.echo(f"wrote {out} ({res.t.size} rows)")
 

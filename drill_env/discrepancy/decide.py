@@ -659,6 +659,13 @@ class Decision:
         return self.effect not in NOT_AN_EFFECT
 
     @property
+    def named_winner(self) -> CandidateScore:
+        """The score of the named effect (a named decision has one)."""
+        if self.winner is None:
+            raise ValueError(f"decision {self.effect!r}: no winning candidate")
+        return self.winner
+
+    @property
     def recalibrated(self) -> list[ParameterFit]:
         return [f for f in self.parameters if f.moved]
 
