@@ -134,12 +134,13 @@ def run_statistics(eq: RunEquations, candidates: tuple[Candidate, ...] = CANDIDA
     st = RunStatistics(name=eq.run.name, n=int(z.size), ztz=float(z @ z))
     for c in candidates:
         if c.is_lag:
-            a = np.empty(c.tau_grid.size)
-            b = np.empty(c.tau_grid.size)
-            for i, tau in enumerate(c.tau_grid):
+            grid = c.lags
+            a = np.empty(grid.size)
+            b = np.empty(grid.size)
+            for k, tau in enumerate(grid):
                 x = _weighted(eq, *c.columns(eq, float(tau)))[:, 0]
-                a[i] = x @ z
-                b[i] = x @ x
+                a[k] = x @ z
+                b[k] = x @ x
             st.lag[c.name] = (a, b)
         else:
             X = _weighted(eq, *c.columns(eq))
@@ -188,8 +189,8 @@ class CalibrationSetup:
     prior: np.ndarray  # prior precision of every calibrated parameter (CALIBRATED order)
     nominal_ztz: dict[str, float]
     moved: list[int]
-    nominal: RigParams
-    base: RigParams  # the recalibrated model the statistics were computed at
+    nominal: RigParams | None  # None: no calibration (_no_calibration)
+    base: RigParams | None  # the recalibrated model the statistics were computed at
     rule: CalibrationRule = field(default_factory=CalibrationRule)
 
 
@@ -293,7 +294,7 @@ def _fit_lag_joint(train, held, cal: CalibrationSetup, c: Candidate, rule: Decis
     q_h = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in held))
     q_h += float(-2.0 * theta @ (atzh - atxh) + theta @ ath @ theta)
     q_h = _predictive(q_h, atzh - atxh - ath @ theta, ath, ata + np.diag(cal.prior[cal.free]))
-    return JointFit(theta, cov, q_tr, sum(s.n for s in train), q_h, tau=float(c.tau_grid[i]))
+    return JointFit(theta, cov, q_tr, sum(s.n for s in train), q_h, tau=float(c.lags[i]))
 
 
 # A lag whose best time constant is the shortest one tried is not resolved: for a small lag
@@ -309,17 +310,17 @@ def _score(c: Candidate, train, held, rule: DecisionRule, cal: CalibrationSetup,
     n_h = sum(s.n for s in held)
     nf = len(cal.free)
     if c.is_lag:
-        fits = [_fit_lag_joint(train, held, cal, c, rule, i) for i in range(c.tau_grid.size)]
+        fits = [_fit_lag_joint(train, held, cal, c, rule, i) for i in range(c.lags.size)]
         gain_train = np.array([ref.train_ss - f.train_ss for f in fits])
         i = int(np.argmax(gain_train))
-        tau = float(c.tau_grid[i])
-        if 0 < i < c.tau_grid.size - 1:
+        tau = float(c.lags[i])
+        if 0 < i < c.lags.size - 1:
             # parabola through the best grid point and its neighbours, in log tau
             y0, y1, y2 = gain_train[i - 1], gain_train[i], gain_train[i + 1]
             den = y0 - 2.0 * y1 + y2
             if den < 0.0:
-                step = math.log(c.tau_grid[i + 1] / c.tau_grid[i])
-                tau = float(c.tau_grid[i] * math.exp(0.5 * (y0 - y2) / den * step))
+                step = math.log(c.lags[i + 1] / c.lags[i])
+                tau = float(c.lags[i] * math.exp(0.5 * (y0 - y2) / den * step))
         fit = fits[i]
         raw = ref.heldout_ss - fit.heldout_ss
         params = c.to_parameters(np.array([1.0]), tau)
@@ -443,7 +444,7 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
     # a line common to the runs shows in most of them on its own, not in one or two
     # (an undithered encoder at constant speed can alias into a line of a single run)
     single = float(stats.chi2.isf(0.01, 2))
-    shown = {}
+    shown: dict[str, bool] = {}
     for g, (eq, _) in enumerate(groups):
         shown[eq.run.name] = shown.get(eq.run.name, False) or bool(red_g[g, i] > single)
     common = sum(shown.values()) >= rule.line_run_fraction * len(shown)
@@ -596,7 +597,7 @@ def line_signature(eqs: list[RunEquations], frequency_hz: float, alpha: float = 
         hyps.append("voltage")
     fits = {h: _fit_hypothesis(eqs, h, freq) for h in hyps}
     drops = {h: float(sum(d for run in f for d, _ in run.values())) for h, f in fits.items()}
-    best = max(drops, key=drops.get)
+    best = max(drops, key=lambda h: drops[h])
     per = 1 if best == "voltage" else 2
     single = float(stats.chi2.isf(0.01, per))
     dof = per * sum(len(run) for run in fits[best])
@@ -887,8 +888,8 @@ def final_parameters(
     then widen the intervals instead of hiding in them. Whether a parameter moved is
     judged on the per-window noise alone (the jackknife over a handful of runs is itself
     too noisy for a test)."""
-    if cal is None or fit is None or not cal.free or cal.nominal is None:
-        return []
+    if cal is None or fit is None or not cal.free or cal.nominal is None or cal.base is None:
+        return []  # no calibration (nominal and base are set together)
     nf = len(cal.free)
     cov = fit.cov[:nf, :nf] * fit.variance_scale
     sd_interval = None
@@ -927,7 +928,7 @@ def _refit_of(cal: CalibrationSetup, held, rule: DecisionRule, winner: Candidate
     if not cand.is_lag:
         return lambda tr: _fit_linear_joint(tr, held, cal, cand.name, rule)
     fit = winner.fit
-    i = int(np.argmin(np.abs(np.log(cand.tau_grid / fit.tau)))) if fit.tau else 0
+    i = int(np.argmin(np.abs(np.log(cand.lags / fit.tau)))) if fit.tau else 0
     return lambda tr: _fit_lag_joint(tr, held, cal, cand, rule, i)
 
 
@@ -1028,7 +1029,7 @@ def _select_parameters(
         trial = {j: v for j, v in trial.items() if math.isfinite(v)}
         if not trial:
             break
-        j = min(trial, key=trial.get)
+        j = min(trial, key=lambda k: trial[k])
         if current - trial[j] <= pen:
             break
         chosen.append(j)
@@ -1089,7 +1090,7 @@ def _lag_fit_between(
     interpolated in tau (quadratic over the three nearest grid points; exact where the lag
     is short and the column is linear in tau), and tau is the one that minimises the training sum of
     squares with the parameters refitted."""
-    grid = cand.tau_grid
+    grid = cand.lags
     i = int(np.argmin(np.abs(np.log(grid / tau_grid_best))))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
 
@@ -1191,9 +1192,9 @@ def marginal_sd(
             continue
         if not tau:
             continue  # a lag fitted at zero time constant is no column at all
-        i = int(np.argmin(np.abs(np.log(c.tau_grid / tau))))
+        i = int(np.argmin(np.abs(np.log(c.lags / tau))))
         off_keys.append((c.name, i))
-        free_keys += [(c.name, j) for j in (i - 1, i + 1) if 0 <= j < c.tau_grid.size]
+        free_keys += [(c.name, j) for j in (i - 1, i + 1) if 0 <= j < c.lags.size]
     theta, q_tr, _, cov = _gram_fit(tr, cal_all, free_keys, off_keys, ho, rule, with_cov=True)
     n_tr = sum(s.n for s in tr)
     scale = max(1.0, q_tr / max(n_tr - len(cov), 1))
@@ -1244,8 +1245,8 @@ def second_effect(
     n_h = sum(s.n for s in ho)
     first = next(c for c in candidates if c.name == decision.effect)
     if first.is_lag:
-        tau = decision.winner.fit.tau
-        i_w = int(np.argmin(np.abs(np.log(first.tau_grid / tau)))) if tau else 0
+        tau = decision.named_winner.fit.tau
+        i_w = int(np.argmin(np.abs(np.log(first.lags / tau)))) if tau else 0
         f_free, f_off = [], [(first.name, i_w)]
     else:
         f_free, f_off = [first.name], []
@@ -1260,13 +1261,11 @@ def second_effect(
     scores = []
     for c in rest:
         if c.is_lag:
-            fits = [
-                _gram_fit(tr, cal, f_free, f_off + [(c.name, i)], ho, rule) for i in range(c.tau_grid.size)
-            ]
+            fits = [_gram_fit(tr, cal, f_free, f_off + [(c.name, i)], ho, rule) for i in range(c.lags.size)]
             i = int(np.argmin([f[1] for f in fits]))
             raw = q_h0 - fits[i][2] if fits[i][1] < q_tr0 else 0.0
             edge = i == 0 and raw > 0.0
-            params = c.to_parameters(np.array([1.0]), float(c.tau_grid[i]) if fits[i][1] < q_tr0 else 0.0)
+            params = c.to_parameters(np.array([1.0]), float(c.lags[i]) if fits[i][1] < q_tr0 else 0.0)
         else:
             theta, _, q_h = _gram_fit(tr, cal, f_free + [c.name], f_off, ho, rule)
             raw = q_h0 - q_h
@@ -1301,7 +1300,7 @@ def second_effect(
         if c.name == best.name:
             if c.is_lag:
                 tau = best.parameters[next(iter(best.parameters))]
-                i = int(np.argmin(np.abs(np.log(c.tau_grid / tau)))) if tau else 0
+                i = int(np.argmin(np.abs(np.log(c.lags / tau)))) if tau else 0
                 keys = {"free": f_free, "off": f_off + [(c.name, i)]}
             else:
                 keys = {"free": f_free + [c.name], "off": f_off}
@@ -1321,7 +1320,7 @@ def second_effect(
     nf = len(cal_m.free)
     coef = theta[nf:]
     if first.is_lag:
-        first_params = dict(decision.winner.parameters)
+        first_params = dict(decision.named_winner.parameters)
     else:
         first_params = first.to_parameters(coef[: first.n_params])
         coef = coef[first.n_params :]
@@ -1337,13 +1336,13 @@ def second_effect(
     out["first_parameters"] = {k: float(v) for k, v in first_params.items()}
     out["heldout_ss"] = best.heldout_ss
     # the moved parameters refitted with both effects; those no longer significant stay nominal
-    if cal.moved and cal.nominal is not None:
+    if cal.moved and cal.nominal is not None and cal.base is not None:  # set together
         n_tr = sum(s_.n for s_ in tr)
         scale = max(1.0, q_tr / max(n_tr - theta.size, 1))
         # intervals at least as wide as with every calibrated parameter free under its prior
         # (see final_parameters): those held at nominal are known only to within it
         second_tau = best.parameters[next(iter(best.parameters))] if _is_lag(rest, best.name) else None
-        first_tau = decision.winner.fit.tau if first.is_lag else None
+        first_tau = decision.named_winner.fit.tau if first.is_lag else None
         both = [(first, first_tau), (second_c, second_tau)]
         marginal = marginal_sd(cal, tr, ho, rule, both, with_estimate=True)
         sd_own = np.sqrt(np.maximum(np.diag(cov[:nf, :nf]) * scale, 0.0))
@@ -1443,11 +1442,13 @@ def decide(
     ref_params: list[ParameterFit] = []
     params: list[ParameterFit] = []
     if calibration is not None and calibration.nominal is not None:
-        kw = {"identified": calibration.free, "moved_all": True}
         fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, None)
         marginal = marginal_sd(calibration, tr, ho, rule, [], with_estimate=True)
         ref_params = admissible_fits(
-            calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
+            calibration.nominal,
+            final_parameters(
+                cal_m, fit_m, refit_m, tr, marginal=marginal, identified=calibration.free, moved_all=True
+            ),
         )
         params = ref_params
         if named:
@@ -1460,7 +1461,10 @@ def decide(
                 )
             marginal = marginal_sd(calibration, tr, ho, rule, [(cand, fit_m.tau)], with_estimate=True)
             params = admissible_fits(
-                calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
+                calibration.nominal,
+                final_parameters(
+                    cal_m, fit_m, refit_m, tr, marginal=marginal, identified=calibration.free, moved_all=True
+                ),
             )
     if effect == "recalibrated" and not any(f.moved for f in params):
         effect, reason = (
