@@ -290,7 +290,7 @@ def _operating_regimes(params: RigParams, u_max: float, spacing: float) -> Opera
             us = [b[0], *inner[j], b[1]]
             cs = [b[2], *c, b[3]]
             k = next(k for k in range(8) if cs[k] != cs[k + 1])
-            brackets[j] = [pts[k], pts[k + 1], cs[k], cs[k + 1]]
+            brackets[j] = [us[k], us[k + 1], cs[k], cs[k + 1]]
     transitions = sorted(0.5 * (b[0] + b[1]) for b in brackets)
     # Assemble: within a stretch the class is constant between consecutive transitions.
     pieces: list[list[Any]] = []

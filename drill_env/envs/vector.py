@@ -240,8 +240,8 @@ class DrillStringVectorEnv(VectorEnv):
         if seed is None:
             return [None] * n
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
-            first = int(seed)
-            check_seed(first)
+            first = check_seed(seed)
+            assert first is not None  # an integer was given
             return [first + i for i in range(n)]
         if isinstance(seed, (str, bytes, Mapping)) or not isinstance(seed, (Sequence, np.ndarray)):
             raise ValueError(
