@@ -367,7 +367,11 @@ def test_a_zero_start_sac_residual_is_its_base_until_the_burn_in_ends(tmp_path):
     residual = ResidualConfig(base="lqi", zero_start=True, initial_log_std=-2.5, critic_burn_in=10_000)
     # through `train`: a run shorter than the burn-in leaves the policy at its start
     train(_tiny_sac_config(residual.to_dict()), 3, tmp_path / "sac", tmp_path / "logs", progress_bar=False)
-    model = SAC.load(str(tmp_path / "logs" / "final_policy.zip"), device="cpu")
+    # the file of a residual policy's correction loads only as stable-baselines3's own class
+    from drill_env.agents.learning.residual import correction_policy_class
+
+    sac_class = {"policy_class": correction_policy_class("sac", stable_baselines3=True)}
+    model = SAC.load(str(tmp_path / "logs" / "final_policy.zip"), device="cpu", custom_objects=sac_class)
     assert model.num_timesteps >= 256 and model._n_updates > 0  # the critics did learn
     obs = np.random.default_rng(0).normal(size=(50, model.observation_space.shape[0])).astype(np.float32)
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], 0.0)
