@@ -171,7 +171,7 @@ def test_the_wheel_has_the_controllers_as_drill_env_agents_and_no_top_level_agen
     with tarfile.open(sdist) as tf:
         members = tf.getnames()
         (top,) = {m.split("/")[0] for m in members}
-        assert f"{top}/agents/rl.py" in members and f"{top}/drill_env/agents" not in members
+        assert f"{top}/agents/learning/rl.py" in members and f"{top}/drill_env/agents" not in members
         tf.extractall(tmp_path / "unpacked", filter="data")
     wheel = _build(tmp_path / "unpacked" / top, "wheel", tmp_path / "wheel2")
     assert sorted(_wheel_files(wheel)) == sorted(names)
