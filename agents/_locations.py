@@ -13,3 +13,15 @@ import drill_env
 PACKAGE_DIR = Path(drill_env.__file__).resolve().parent
 # the folder holding it: the project's root (configs/, results/, pyproject.toml) in a checkout
 ROOT = PACKAGE_DIR.parent
+
+
+def shown_path(path: str | Path) -> str:
+    """``path`` as reports print it: relative to the project root when it lies inside it (an
+    absolute path into the checkout), else as given."""
+    p = Path(path)
+    if p.is_absolute():
+        try:
+            return p.resolve().relative_to(ROOT.resolve()).as_posix()
+        except ValueError:
+            return str(p)
+    return p.as_posix()

@@ -17,8 +17,8 @@ from their committed policies.
   beside the nominal ones as ``results/agents/ppo_robust[_<preset>]/policy.zip``; the
   committed ones are residual policies on ``lqi_angle_ff`` (:mod:`drill_env.agents.learning.residual`;
   a policy's ``config.yaml`` says which it is): with the brake trained from the base
-  (``configs/agents/ppo_residual.yaml``), without it started as the nominal ``ppo`` plus the
-  base's angle-locked feedforward (``configs/agents/ppo_robust_distilled_no_brake.yaml``,
+  (``configs/agents/ppo_robust.yaml``), without it started as the nominal ``ppo`` plus the
+  base's angle-locked feedforward (``configs/agents/ppo_robust_no_brake.yaml``,
   :mod:`drill_env.agents.learning.warm_start`);
 * ``sac_robust``: SAC trained with the same randomisation, kept as
   ``results/agents/sac_robust[_<preset>]/policy.zip``: residual policies on ``lqi_angle_ff``
@@ -64,11 +64,6 @@ CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi
 LEARNED = ("ppo", "sac", "ppo_robust", "sac_robust")
 # the algorithm of each learned controller
 _ALGO = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo", "sac_robust": "sac"}
-# the training config (configs/agents/<name>[_<preset>].yaml) of each
-_CONFIG = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo_residual", "sac_robust": "sac_robust"}
-# where a rig's policy comes from another recipe than configs/agents/<_CONFIG>_<preset>.yaml
-# (each rig keeps the better recipe on its plant family: README, *Robust and residual policies*)
-_CONFIG_OF_PRESET = {("ppo_robust", "no_brake"): "ppo_robust_distilled_no_brake"}
 CONTROLLERS = CLASSICAL + LEARNED
 
 
@@ -145,12 +140,12 @@ def default_agents_dir() -> Path:
 
 
 def training_config(algo: str, preset: str) -> str:
-    """The name of the shipped training config (``configs/agents/<name>.yaml``) of the
-    committed policy of learned controller ``algo`` for ``preset``."""
+    """The name of the shipped training config of the committed policy of learned controller
+    ``algo`` for ``preset``: the policy's own folder name (``configs/agents/<name>.yaml`` is
+    the recipe of ``results/agents/<name>/``)."""
     if algo not in LEARNED:
         raise ValueError(f"controller: {algo!r} is not one of {list(LEARNED)}")
-    default = _CONFIG[algo] if preset == "brake" else f"{_CONFIG[algo]}_{preset}"
-    return _CONFIG_OF_PRESET.get((algo, preset), default)
+    return algo if preset == "brake" else f"{algo}_{preset}"
 
 
 def policy_path(algo: str, preset: str, agents_dir: str | Path | None = None) -> Path:

@@ -3,7 +3,7 @@
 Baseline (the setup the version-0 policies were trained with, ``configs/agents/v0/ppo.yaml``
 and ``sac.yaml``): SB3's ``DummyVecEnv`` of 8 single ``DrillString-v0`` envs, PPO with
 n_steps 512, batch 256, 10 epochs, 64x64, one torch thread; SAC on one env, one gradient
-step per env-step. Against it: the shipped configs (``configs/agents/ppo.yaml``,
+step per env-step. Against it: the shipped configs (``configs/agents/experiments/ppo_from_scratch.yaml``,
 ``sac.yaml``: many rigs in the native batched env through ``drill_env.sb3_vec_env``; PPO
 learns each rollout of 128 x 128 steps in 5 epochs of minibatches of 1024, one torch thread).
 
@@ -15,9 +15,9 @@ Two measurements:
    (on a shared machine the best run is the least disturbed); ratio new / baseline.
    Target: PPO >= 5x (aim 10x).
 2. **Time to a suppressing policy** (``--time-to-policy``): PPO with the warm-start configs
-   of both rigs (``configs/agents/ppo_warm_start.yaml``, ``ppo_warm_start_no_brake.yaml``:
+   of both rigs (``configs/agents/ppo.yaml``, ``ppo_no_brake.yaml``:
    the policy cloned from the LQI, then PPO; ``--from-scratch``: the shipped configs
-   ``ppo.yaml``, ``ppo_no_brake.yaml``), the quick benchmark of the policy after the warm
+   ``experiments/ppo_from_scratch.yaml``, ``experiments/ppo_from_scratch_no_brake.yaml``), the quick benchmark of the policy after the warm
    start and every ``--check-every`` env-steps; reports the training wall time (warm start
    included, benchmark runs excluded) at which the mean suppression first reaches 0.99 in
    the Hopf-cycle and the stick-slip regime. Target: under 5 minutes per rig on 2 cores. A
@@ -199,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--from-scratch",
         action="store_true",
-        help="--time-to-policy with the shipped configs (ppo.yaml, ppo_no_brake.yaml) instead of the "
+        help="--time-to-policy with the shipped configs (experiments/ppo_from_scratch.yaml, experiments/ppo_from_scratch_no_brake.yaml) instead of the "
         "warm-start ones",
     )
     ap.add_argument("--quick", action="store_true", help="a smoke test: few steps")
@@ -230,9 +230,9 @@ def main(argv: list[str] | None = None) -> int:
         print(line, flush=True)
     if a.time_to_policy:
         names = (
-            ("ppo.yaml", "ppo_no_brake.yaml")
+            ("experiments/ppo_from_scratch.yaml", "experiments/ppo_from_scratch_no_brake.yaml")
             if a.from_scratch
-            else ("ppo_warm_start.yaml", "ppo_warm_start_no_brake.yaml")
+            else ("ppo.yaml", "ppo_no_brake.yaml")
         )
         print(
             f"time to a suppressing policy (training with {' and '.join(names)}, the quick benchmark "

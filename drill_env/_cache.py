@@ -90,7 +90,7 @@ def configure() -> Path:
     except OSError as exc:
         path = _private_cache(f"cannot use the numba cache directory {path} ({exc.strerror or exc})")
         _usable(path)
-    numba.config.CACHE_DIR = str(path)
+    numba.config.CACHE_DIR = str(path)  # type: ignore[attr-defined]  # set at runtime; numba's stubs omit it
     from numba.core import caching
 
     if (
@@ -105,4 +105,4 @@ def configure() -> Path:
 
 def cache_dir() -> Path:
     """The directory the compiled kernels of this process go to."""
-    return Path(numba.config.CACHE_DIR)
+    return Path(numba.config.CACHE_DIR)  # type: ignore[attr-defined]  # numba's stubs omit it

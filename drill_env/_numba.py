@@ -14,10 +14,16 @@ NumPy's rules for floating-point errors (1/0 is inf, not an exception).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from types import MappingProxyType
+from typing import Any
 
 __all__ = ["JIT_ALLOC", "JIT", "INLINE"]
 
-JIT_ALLOC = MappingProxyType(dict(cache=True, nogil=True, fastmath=False, error_model="numpy"))
-JIT = MappingProxyType(dict(JIT_ALLOC, _nrt=False))
-INLINE = MappingProxyType(dict(JIT, inline="always"))
+# keyword arguments of numba.njit, of several types each (``_nrt`` is one numba's own
+# signature does not name: it takes it through its **options)
+JIT_ALLOC: Mapping[str, Any] = MappingProxyType(
+    dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+)
+JIT: Mapping[str, Any] = MappingProxyType(dict(JIT_ALLOC, _nrt=False))
+INLINE: Mapping[str, Any] = MappingProxyType(dict(JIT, inline="always"))

@@ -86,8 +86,23 @@ app = typer.Typer(
 )
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            typer.echo(f"drill-env {version('drill-env')}")
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            _fail("--version: drill-env is not installed (no package metadata); pip install -e .")
+        raise typer.Exit()
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_print_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
     """drill-env: the torsional stick-slip rig of Mihajlovic et al. (2004)."""
 
 
@@ -191,7 +206,7 @@ def simulate(
     typer.echo(f"  mean {m.mean_speed:.5f}  min {m.min_speed:.5f}  max {m.max_speed:.5f}")
     typer.echo(f"  fraction of time stuck: lower disk {m.stick_fraction:.4f}, upper disk {stick_u:.4f}")
     typer.echo(f"  dominant period: {period}")
-    typer.echo(f"  switching events: {len(res.events)}")
+    typer.echo(f"  switching events: {len(res.events) if res.events is not None else 0}")
     if out is not None:
         typer.echo(f"wrote {out} ({res.t.size} rows)")
 

@@ -28,18 +28,38 @@ from drill_env._numba import INLINE
 
 class RigParams(Protocol):
     """The friction parameters these laws read (:class:`drill_env.params.RigParams` has them):
-    the laws are the lower layer, the validated parameter set is built on them."""
+    the laws are the lower layer, the validated parameter set is built on them. Read-only:
+    a frozen dataclass has them."""
 
-    upper_static_pos: float  # [N m] T_sup
-    upper_static_neg: float  # [N m] T_sun
-    upper_viscous_pos: float  # [N m s/rad] b_up
-    upper_viscous_neg: float  # [N m s/rad] b_un
-    lower_static: float  # [N m] T_sl
-    lower_viscous: float  # [N m s/rad] b_l
-    lower_hump_1: float  # [N m] T_1
-    lower_hump_rate_1: float  # [s/rad] beta_1
-    lower_hump_2: float  # [N m] T_2
-    lower_hump_rate_2: float  # [s/rad] beta_2
+    @property
+    def upper_static_pos(self) -> float: ...  # [N m] T_sup
+
+    @property
+    def upper_static_neg(self) -> float: ...  # [N m] T_sun
+
+    @property
+    def upper_viscous_pos(self) -> float: ...  # [N m s/rad] b_up
+
+    @property
+    def upper_viscous_neg(self) -> float: ...  # [N m s/rad] b_un
+
+    @property
+    def lower_static(self) -> float: ...  # [N m] T_sl
+
+    @property
+    def lower_viscous(self) -> float: ...  # [N m s/rad] b_l
+
+    @property
+    def lower_hump_1(self) -> float: ...  # [N m] T_1
+
+    @property
+    def lower_hump_rate_1(self) -> float: ...  # [s/rad] beta_1
+
+    @property
+    def lower_hump_2(self) -> float: ...  # [N m] T_2
+
+    @property
+    def lower_hump_rate_2(self) -> float: ...  # [s/rad] beta_2
 
 
 __all__ = [

@@ -299,8 +299,8 @@ def _is_stale(holder: dict[str, Any], folder_key: str) -> bool:
     if not holder or holder.get("host") != socket.gethostname():
         return False
     try:
-        pid = int(holder.get("pid"))
-    except (TypeError, ValueError):
+        pid = int(holder["pid"])
+    except (KeyError, TypeError, ValueError):
         return False
     if pid == os.getpid():
         # our pid: held by another thread of this process, or left by an earlier

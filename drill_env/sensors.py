@@ -127,7 +127,9 @@ class SensorConfig:
         _check_int("delay_samples", self.delay_samples, 0, MAX_DELAY_SAMPLES)
 
     @classmethod
-    def from_any(cls, value: SensorConfig | dict[str, Any] | None, *, name: str = "sensors") -> SensorConfig:
+    def from_any(
+        cls, value: SensorConfig | Mapping[str, Any] | None, *, name: str = "sensors"
+    ) -> SensorConfig:
         """A config from an instance, a mapping of field overrides, or None (defaults)."""
         return config_from_any(cls, value, name)
 

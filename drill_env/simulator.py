@@ -277,7 +277,7 @@ def _compile_input(u: Callable[[float], float], t0: float) -> Any:
             "t returning a float), or pass the voltage as a zero-order-hold sequence with "
             f"control_dt; numba said: {str(exc).strip().splitlines()[0]}"
         ) from exc
-    fn.drill_env_py_func = py  # for the error report
+    setattr(fn, "drill_env_py_func", py)  # for the error report (numba's CFunc takes attributes)  # noqa: B010
     return fn
 
 

@@ -385,7 +385,7 @@ def test_params_files_are_validated_like_presets(tmp_path, changes, field, comma
             "--algo",
             "ppo",
             "--config",
-            str(ROOT / "configs" / "agents" / "ppo.yaml"),
+            str(ROOT / "configs" / "agents" / "experiments" / "ppo_from_scratch.yaml"),
             "--params",
             str(bad),
         ]
@@ -410,7 +410,7 @@ def test_params_cli_rejects_missing_files_and_two_presets(tmp_path):
             "--algo",
             "ppo",
             "--config",
-            str(ROOT / "configs" / "agents" / "ppo.yaml"),
+            str(ROOT / "configs" / "agents" / "experiments" / "ppo_from_scratch.yaml"),
             "--params",
             str(tmp_path),
         ],
@@ -437,7 +437,7 @@ def test_cli_tune_params_writes_gains_designed_on_the_model(tmp_path):
 def test_cli_train_params_trains_on_the_model(tmp_path, monkeypatch):
     from drill_env.agents.learning.rl import load_config
 
-    cfg = load_config(ROOT / "configs" / "agents" / "ppo.yaml").to_dict()
+    cfg = load_config(ROOT / "configs" / "agents" / "experiments" / "ppo_from_scratch.yaml").to_dict()
     cfg.update(total_timesteps=128, n_envs=2)
     cfg["evaluation"] = {"every_steps": 64, "episodes_per_regime": 1, "seed": 7}
     cfg["env_kwargs"] = {"warmup_time": 2.0, "warmup_jitter": 0.5}

@@ -368,3 +368,46 @@ def test_cli_plant_errors_name_the_field(tmp_path):
         )
         assert res.exit_code == 2 and field in res.output, res.output
         assert "Traceback" not in res.output
+
+
+def test_the_report_names_each_learned_policy_by_its_path_and_how_it_started(
+    tmp_path, monkeypatch, sequential
+):
+    import shutil
+
+    from drill_env.agents.evaluation.benchmark.backends import _policies_used, _policy_starts
+    from drill_env.agents.evaluation.benchmark.report import summary_tables
+    from drill_env.agents.registry import AGENTS_DIR_ENV
+
+    monkeypatch.delenv(AGENTS_DIR_ENV, raising=False)
+    cfg = tiny(
+        controllers=("lqi", "ppo", "ppo_robust"),
+        presets=("brake", "no_brake"),
+        voltages={"brake": (1.0,), "no_brake": (1.0,)},
+    )
+    # the committed policies: relative to the project root, whatever the working folder
+    monkeypatch.chdir(tmp_path)
+    assert _policies_used(cfg) == {
+        "ppo/brake": "results/agents/ppo/policy.zip on DrillString-v1",
+        "ppo/no_brake": "results/agents/ppo_no_brake/policy.zip on DrillStringNoBrake-v1",
+        "ppo_robust/brake": "results/agents/ppo_robust/policy.zip on DrillString-v1",
+        "ppo_robust/no_brake": "results/agents/ppo_robust_no_brake/policy.zip on DrillStringNoBrake-v1",
+    }
+    assert _policy_starts(cfg) == {
+        "ppo/brake": "clone of lqi",
+        "ppo/no_brake": "clone of lqi",
+        "ppo_robust/brake": "residual on lqi_angle_ff",
+        "ppo_robust/no_brake": "residual on lqi_angle_ff, distilled from ppo",
+    }
+    # a folder of the user's: as given (absolute or relative), not relative to some parent of it
+    deep = tmp_path / "a" / "b" / "agents"
+    shutil.copytree(ROOT / "results" / "agents" / "ppo", deep / "ppo")
+    cfg = tiny(controllers=("ppo",), agents_dir=str(deep))
+    assert _policies_used(cfg) == {"ppo/brake": f"{deep}/ppo/policy.zip on DrillString-v1"}
+    cfg = tiny(controllers=("ppo",), agents_dir="a/b/agents")
+    assert _policies_used(cfg) == {"ppo/brake": "a/b/agents/ppo/policy.zip on DrillString-v1"}
+    assert _policy_starts(cfg) == {"ppo/brake": "clone of lqi"}
+    text = summary_tables(
+        load_results(sequential / "benchmark.csv"), _policies_used(cfg), None, _policy_starts(cfg)
+    )
+    assert "Learned policies: ppo: `a/b/agents/ppo/policy.zip` on `DrillString-v1` (clone of lqi).\n" in text

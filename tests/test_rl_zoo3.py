@@ -74,10 +74,15 @@ def test_every_file_covers_the_v1_ids_with_known_algorithms():
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_zoo_files_mirror_the_training_configs(algo):
-    # the same hyperparameters as drill-env train's configs/agents/<algo>.yaml
+    # the same hyperparameters as the drill-env train config each file names: sac.yml the
+    # shipped sac's (configs/agents/sac[_no_brake].yaml), ppo.yml PPO from scratch
+    # (configs/agents/experiments/ppo_from_scratch[_no_brake].yaml), not the shipped ppo's clone
     zoo = yaml.safe_load((ZOO / f"{algo}.yml").read_text())
+    recipe = {"ppo": "experiments/ppo_from_scratch", "sac": "sac"}[algo]
+    header = (ZOO / f"{algo}.yml").read_text().split("\nDrillString")[0]
+    assert f"configs/agents/{recipe}.yaml" in header
     for env_id, hp in zoo.items():
-        name = algo if ENV_IDS[env_id] == "brake" else f"{algo}_{ENV_IDS[env_id]}"
+        name = recipe if ENV_IDS[env_id] == "brake" else f"{recipe}_{ENV_IDS[env_id]}"
         cfg = load_config(ROOT / "configs" / "agents" / f"{name}.yaml")
         assert cfg.env_id == env_id
         assert hp["n_envs"] == cfg.n_envs and hp["n_timesteps"] == cfg.total_timesteps

@@ -86,7 +86,7 @@ def test_effects_are_drawn_within_their_ranges_after_the_factors():
     ],
 )
 def test_a_bad_randomisation_range_is_a_one_line_error_naming_the_field(tmp_path, effects, field):
-    cfg = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())
+    cfg = yaml.safe_load((CONFIGS / "experiments" / "ppo_robust_from_scratch.yaml").read_text())
     cfg["env_kwargs"]["domain_randomization"]["effects"] = effects
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(cfg))
@@ -133,7 +133,7 @@ def test_residual_config_validation():
     assert ResidualConfig.from_any(cfg.to_dict()) == cfg and cfg.observe_base
     assert "observe_base" not in ResidualConfig().to_dict()
     # the distillation labels the rig's observation alone: the two are refused together
-    distilled = load_config(CONFIGS / "ppo_robust_distilled_no_brake.yaml").to_dict()
+    distilled = load_config(CONFIGS / "ppo_robust_no_brake.yaml").to_dict()
     with pytest.raises(ValueError, match=r"^residual\.observe_base: not available with warm_start"):
         TrainConfig(**{**distilled, "residual": {**distilled["residual"], "observe_base": True}})
     # the base's own options: the feedforward's only, checked like a gains file's
@@ -150,13 +150,13 @@ def test_residual_config_validation():
     assert ResidualConfig.from_any(cfg.to_dict()) == cfg
     assert "base_options" not in ResidualConfig(base="lqi_angle_ff", base_options={}).to_dict()
     # a burn-in needs an off-policy critic: a PPO config with one is refused when it is loaded
-    ppo = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
+    ppo = load_config(CONFIGS / "experiments" / "ppo_robust_from_scratch.yaml").to_dict()
     with pytest.raises(ValueError, match=r"^residual\.critic_burn_in: allowed only with algo sac"):
         TrainConfig(**{**ppo, "residual": {"base": "lqi", "critic_burn_in": 100}})
 
 
 def _tiny_robust_config(residual=None) -> TrainConfig:
-    cfg = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
+    cfg = load_config(CONFIGS / "experiments" / "ppo_robust_from_scratch.yaml").to_dict()
     cfg.update(total_timesteps=512, n_envs=2, torch_threads=1)
     cfg["evaluation"] = {"every_steps": 256, "episodes_per_regime": 1, "seed": 5}
     cfg["env_kwargs"] = {
@@ -347,7 +347,7 @@ def test_a_residual_policy_that_observes_its_base_sees_what_the_training_rigs_sh
 
 
 def _tiny_sac_config(residual) -> TrainConfig:
-    cfg = load_config(CONFIGS / "sac_residual.yaml").to_dict()
+    cfg = load_config(CONFIGS / "experiments" / "sac_residual.yaml").to_dict()
     cfg.update(total_timesteps=256, n_envs=2, torch_threads=1, residual=residual)
     cfg["evaluation"] = {"every_steps": 128, "episodes_per_regime": 1, "seed": 5}
     cfg["env_kwargs"] = {"warmup_time": 2.0, "warmup_jitter": 0.5}
@@ -367,7 +367,11 @@ def test_a_zero_start_sac_residual_is_its_base_until_the_burn_in_ends(tmp_path):
     residual = ResidualConfig(base="lqi", zero_start=True, initial_log_std=-2.5, critic_burn_in=10_000)
     # through `train`: a run shorter than the burn-in leaves the policy at its start
     train(_tiny_sac_config(residual.to_dict()), 3, tmp_path / "sac", tmp_path / "logs", progress_bar=False)
-    model = SAC.load(str(tmp_path / "logs" / "final_policy.zip"), device="cpu")
+    # the file of a residual policy's correction loads only as stable-baselines3's own class
+    from drill_env.agents.learning.residual import correction_policy_class
+
+    sac_class = {"policy_class": correction_policy_class("sac", stable_baselines3=True)}
+    model = SAC.load(str(tmp_path / "logs" / "final_policy.zip"), device="cpu", custom_objects=sac_class)
     assert model.num_timesteps >= 256 and model._n_updates > 0  # the critics did learn
     obs = np.random.default_rng(0).normal(size=(50, model.observation_space.shape[0])).astype(np.float32)
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], 0.0)
@@ -400,14 +404,21 @@ def test_committed_robust_policies_were_trained_over_the_family(name, preset):
     the start and beat it."""
     from drill_env.agents.evaluation.plants import standard_family
 
-    shipped = yaml.safe_load((CONFIGS / "ppo_robust.yaml").read_text())["env_kwargs"]["domain_randomization"]
-    for config in ("ppo_residual", "ppo_residual_no_brake", "sac_residual", "sac_residual_no_brake"):
+    shipped = yaml.safe_load((CONFIGS / "experiments" / "ppo_robust_from_scratch.yaml").read_text())[
+        "env_kwargs"
+    ]["domain_randomization"]
+    for config in (
+        "ppo_robust",
+        "experiments/ppo_robust_residual_no_brake",
+        "experiments/sac_residual",
+        "experiments/sac_residual_no_brake",
+    ):
         assert (
             yaml.safe_load((CONFIGS / f"{config}.yaml").read_text())["env_kwargs"]["domain_randomization"]
             == shipped
         )
         cfg = load_config(CONFIGS / f"{config}.yaml")
-        assert (cfg.algo, cfg.residual.base) == (config.split("_")[0], "lqi_angle_ff")
+        assert (cfg.algo, cfg.residual.base) == (Path(config).name.split("_")[0], "lqi_angle_ff")
     dr = DomainRandomization.from_any(shipped)
     assert dr.effects["lower_position_amp_1"] == (0.0, 0.15)
     folder = name if preset == "brake" else f"{name}_{preset}"
@@ -448,6 +459,40 @@ def test_committed_robust_policies_were_trained_over_the_family(name, preset):
         env = make_env(preset, EpisodeSettings(), 1)
         policy = build_controller(name, env, preset)
     assert isinstance(policy, ResidualPolicy) == ("residual" in committed)
+
+
+# every committed policy folder (results/agents/<name>/ and the earlier results/agents/v0/<name>/)
+SHIPPED_POLICY_FOLDERS = sorted(
+    p.parent.relative_to(ROOT / "results" / "agents").as_posix()
+    for p in (ROOT / "results" / "agents").glob("**/policy.zip")
+)
+
+
+def test_the_shipped_policy_folders_are_the_benchmarks_and_the_earlier_ones():
+    from drill_env.agents.registry import LEARNED
+
+    current = {f"{c}{suffix}" for c in LEARNED for suffix in ("", "_no_brake")}
+    earlier = {f"v0/{c}{suffix}" for c in ("ppo", "sac") for suffix in ("", "_no_brake")}
+    assert set(SHIPPED_POLICY_FOLDERS) == current | earlier
+
+
+@pytest.mark.parametrize("folder", SHIPPED_POLICY_FOLDERS)
+def test_every_shipped_policy_was_trained_with_the_config_of_its_name(folder):
+    """configs/agents/<name>.yaml is the recipe of results/agents/<name>/: the config the
+    policy was trained with, as its folder records it, and the one the registry names."""
+    committed = yaml.safe_load((ROOT / "results" / "agents" / folder / "config.yaml").read_text())
+    summary = json.loads((ROOT / "results" / "agents" / folder / "training_summary.json").read_text())
+    assert summary["config"] == committed
+    if folder.startswith("v0/"):  # trained in SB3's DummyVecEnv before the config named it
+        assert "vec_env" not in committed
+        committed = {**committed, "vec_env": "dummy"}
+    assert committed == load_config(CONFIGS / f"{folder}.yaml").to_dict()
+    name = Path(folder).name
+    if "/" not in folder:
+        base, preset = (
+            (name[: -len("_no_brake")], "no_brake") if name.endswith("_no_brake") else (name, "brake")
+        )
+        assert training_config(base, preset) == name
 
 
 @pytest.mark.parametrize(

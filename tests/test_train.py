@@ -46,7 +46,9 @@ SUMMARY_KEYS = {
 
 
 def small_config(algo: str, steps: int) -> TrainConfig:
-    cfg = load_config(CONFIGS / f"{algo}.yaml").to_dict()
+    # PPO from scratch (the shipped ppo starts from a clone of the LQI)
+    name = {"ppo": "experiments/ppo_from_scratch", "sac": "sac"}[algo]
+    cfg = load_config(CONFIGS / f"{name}.yaml").to_dict()
     cfg.update(total_timesteps=steps, n_envs=2 if algo == "ppo" else 1)
     cfg["evaluation"] = {"every_steps": steps // 2, "episodes_per_regime": 1, "seed": 7}
     cfg["env_kwargs"] = {"warmup_time": 2.0, "warmup_jitter": 0.5}
@@ -206,6 +208,10 @@ def test_cli_train_and_tune_default_to_fresh_run_folders(tmp_path, monkeypatch):
     for run in runs:
         assert (run / "ppo" / "policy.zip").is_file() and (run / "logs").is_dir()
         assert f"--agents-dir {run.relative_to(tmp_path)}" in first.output + second.output
+        # the card of the new policy: how it started and the config it was trained with
+        card = (run / "ppo" / "policy.md").read_text()
+        assert card.startswith("# `ppo`: PPO, from scratch\n")
+        assert "| training config | `tiny.yaml` |" in card and "| training | seed 0, " in card
     assert not (tmp_path / "results").exists()
     # the run folder is laid out like results/agents: the benchmark finds the policy there
     from drill_env.agents.registry import policy_path

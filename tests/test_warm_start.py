@@ -90,7 +90,7 @@ def test_warm_start_config_names_the_field():
             WarmStartConfig.from_any(bad)
     with pytest.raises(ValueError, match="warm_start"):
         TrainConfig(algo="ppo", warm_start="lqi")
-    residual = load_config(CONFIGS / "ppo_residual.yaml").to_dict()
+    residual = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
     with pytest.raises(ValueError, match="warm_start"):
         TrainConfig(**{**residual, "warm_start": {"controller": "lqi"}})
 
@@ -148,8 +148,8 @@ def test_training_with_a_warm_start_records_it(tmp_path, one_torch_thread):
 
 @pytest.mark.parametrize("suffix", ["", "_no_brake"])
 def test_warm_start_configs_differ_from_the_shipped_ones_only_where_they_say(suffix):
-    warm = load_config(CONFIGS / f"ppo_warm_start{suffix}.yaml").to_dict()
-    scratch = load_config(CONFIGS / f"ppo{suffix}.yaml").to_dict()
+    warm = load_config(CONFIGS / f"ppo{suffix}.yaml").to_dict()
+    scratch = load_config(CONFIGS / "experiments" / f"ppo_from_scratch{suffix}.yaml").to_dict()
     assert warm.pop("warm_start")["controller"] == "lqi"
     assert warm.pop("ignored_observations") == ANGLES
     if suffix == "_no_brake":  # 90 s training episodes, as the benchmark runs (see the config)
@@ -212,8 +212,8 @@ def test_the_committed_no_brake_ppo_keeps_the_integral_action():
 # -- distillation of a trained policy into a residual policy ---------------------------------------
 
 DISTILLED = {
-    "DrillString-v1": "ppo_robust_distilled",
-    "DrillStringNoBrake-v1": "ppo_robust_distilled_no_brake",
+    "DrillString-v1": "experiments/ppo_robust_distilled",
+    "DrillStringNoBrake-v1": "ppo_robust_no_brake",
 }
 
 
@@ -230,7 +230,7 @@ def test_distillation_config_names_the_field():
         ):
             WarmStartConfig.from_any({"policy": bad})
     assert WarmStartConfig().controller == "lqi" and WarmStartConfig(policy="sac").controller is None
-    residual = load_config(CONFIGS / "ppo_residual.yaml").to_dict()
+    residual = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
     with pytest.raises(ValueError, match=r"^warm_start\.controller: a residual policy starts as its base"):
         TrainConfig(**{**residual, "warm_start": {"controller": "lqi"}})
     with pytest.raises(ValueError, match=r"^warm_start\.policy: allowed only with residual"):
@@ -252,9 +252,12 @@ def test_a_missing_teacher_policy_names_its_file(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("suffix", ["", "_no_brake"])
 def test_distilled_configs_differ_from_the_residual_ones_only_where_they_say(suffix):
-    distilled = load_config(CONFIGS / f"ppo_robust_distilled{suffix}.yaml").to_dict()
-    residual = load_config(CONFIGS / f"ppo_residual{suffix}.yaml").to_dict()
-    warm = load_config(CONFIGS / f"ppo_warm_start{suffix}.yaml").to_dict()
+    # brake: the distilled recipe was not kept; without the brake the residual one was not
+    distilled_name = {"": "experiments/ppo_robust_distilled", "_no_brake": "ppo_robust_no_brake"}[suffix]
+    residual_name = {"": "ppo_robust", "_no_brake": "experiments/ppo_robust_residual_no_brake"}[suffix]
+    distilled = load_config(CONFIGS / f"{distilled_name}.yaml").to_dict()
+    residual = load_config(CONFIGS / f"{residual_name}.yaml").to_dict()
+    warm = load_config(CONFIGS / f"ppo{suffix}.yaml").to_dict()
     ws = distilled.pop("warm_start")
     assert ws.pop("policy") == "ppo" and ws == {
         k: v for k, v in warm["warm_start"].items() if k != "controller"
@@ -354,7 +357,7 @@ def test_a_tiny_distillation_moves_the_residual_policy_to_the_teacher(one_torch_
     from drill_env.agents.learning.residual import ResidualPolicy
     from drill_env.agents.learning.rl import SB3Policy, ignore_observations
 
-    cfg = load_config(CONFIGS / "ppo_robust_distilled.yaml").to_dict()
+    cfg = load_config(CONFIGS / "experiments" / "ppo_robust_distilled.yaml").to_dict()
     cfg.update(n_envs=4)
     cfg["hyperparameters"].update(batch_size=512)  # one rollout of 4 rigs x 128 steps
     cfg["warm_start"].update(steps=400, rounds=2, epochs=30, batch_size=128)
@@ -417,7 +420,7 @@ def _labeller(cfg):
 
 
 def test_training_with_a_distillation_records_it(tmp_path, one_torch_thread):
-    cfg = load_config(CONFIGS / "ppo_robust_distilled.yaml").to_dict()
+    cfg = load_config(CONFIGS / "experiments" / "ppo_robust_distilled.yaml").to_dict()
     cfg.update(n_envs=2, total_timesteps=128)
     cfg["hyperparameters"].update(n_steps=64, batch_size=64, n_epochs=1)
     cfg["evaluation"] = {"every_steps": 128, "episodes_per_regime": 1, "seed": 7}
@@ -442,7 +445,7 @@ def test_train_command_refuses_a_bad_or_missing_teacher_before_training(tmp_path
     from drill_env.agents.registry import AGENTS_DIR_ENV
     from drill_env.cli import app
 
-    config = (CONFIGS / "ppo_robust_distilled_no_brake.yaml").read_text()
+    config = (CONFIGS / "ppo_robust_no_brake.yaml").read_text()
     bad = tmp_path / "bad.yaml"
     bad.write_text(config.replace("  policy: ppo ", "  policy: ppo_robust "))
     runner = CliRunner()
@@ -451,7 +454,7 @@ def test_train_command_refuses_a_bad_or_missing_teacher_before_training(tmp_path
     assert res.exit_code == 2 and "warm_start.policy: 'ppo_robust' is not one of" in res.output
     assert "Traceback" not in res.output
     monkeypatch.setenv(AGENTS_DIR_ENV, str(tmp_path / "agents"))
-    res = runner.invoke(app, [*args, "--config", str(CONFIGS / "ppo_robust_distilled_no_brake.yaml")])
+    res = runner.invoke(app, [*args, "--config", str(CONFIGS / "ppo_robust_no_brake.yaml")])
     assert res.exit_code == 2 and "Traceback" not in res.output
     assert (
         f"no trained ppo policy for preset 'no_brake' at {tmp_path}/agents/ppo_no_brake/policy.zip"

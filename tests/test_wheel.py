@@ -95,6 +95,10 @@ def test_config_names_resolve_to_the_shipped_configs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert resolve_config(Path("ppo")) == ROOT / "configs" / "agents" / "ppo.yaml"
     assert resolve_config(Path("v0/sac_no_brake")) == ROOT / "configs" / "agents" / "v0" / "sac_no_brake.yaml"
+    assert (
+        resolve_config(Path("experiments/ppo_from_scratch"))
+        == ROOT / "configs" / "agents" / "experiments" / "ppo_from_scratch.yaml"
+    )
     # a file of that name in the current folder is the user's own config
     (tmp_path / "ppo").write_text("algo: ppo\n")
     assert resolve_config(Path("ppo")) == Path("ppo")

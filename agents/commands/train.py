@@ -29,7 +29,10 @@ def config_names() -> list[str]:
     for d in _config_dirs():
         if d.is_dir():
             names.update(p.relative_to(d).with_suffix("").as_posix() for p in d.glob("**/*.yaml"))
-    return sorted(n for n in names if not n.startswith("rl_zoo3/") and n != "controllers")
+    # the recipes of the committed policies first, then those in subfolders (experiments/, v0/)
+    return sorted(
+        (n for n in names if not n.startswith("rl_zoo3/") and n != "controllers"), key=lambda n: ("/" in n, n)
+    )
 
 
 def resolve_config(config: Path) -> Path:
@@ -54,8 +57,9 @@ def register(app: typer.Typer) -> None:
         config: Path = typer.Option(
             ...,
             help="Training config: a YAML file, or the name of one shipped with the package "
-            "(from configs/agents/, works from any folder): ppo, sac, ppo_no_brake, sac_no_brake, "
-            "v0/ppo, ...",
+            "(from configs/agents/, works from any folder): the recipe of a committed policy by its "
+            "name (ppo, sac, ppo_robust, sac_no_brake, ...), a recipe tried and not kept "
+            "(experiments/ppo_from_scratch, ...) or an earlier one (v0/ppo, ...).",
         ),
         seed: int = typer.Option(0, min=0, help="Random seed of the training run (>= 0)."),
         out: Path | None = typer.Option(
@@ -93,8 +97,9 @@ def register(app: typer.Typer) -> None:
 
         Writes OUT/policy.zip (the evaluation-best policy), OUT/config.yaml,
         OUT/training_summary.json (seed, steps, wall time, final/best evaluation return,
-        converged by the plateau criterion), OUT/eval.csv, OUT/progress.csv and
-        OUT/learning_curve.png; the run's progress.csv and TensorBoard events go to RUN_DIR.
+        converged by the plateau criterion), OUT/eval.csv, OUT/progress.csv,
+        OUT/learning_curve.png and OUT/policy.md (the policy's card: how it started, its
+        config, what it reached); the run's progress.csv and TensorBoard events go to RUN_DIR.
         """
         from drill_env.agents.learning.rl import ALGOS
 
@@ -176,6 +181,9 @@ def register(app: typer.Typer) -> None:
                 teacher=teacher,
                 max_wall_time_s=max_wall_time,
             )
+            from drill_env.agents.learning.cards import write_policy_card
+
+            write_policy_card(out, config)  # how it started, its config, what it reached
         verdict = "converged" if summary["converged"] else "NOT converged"
         typer.echo(
             f"{algo}: {summary['total_timesteps']} steps in {summary['wall_time_s']:.0f} s"
@@ -185,7 +193,7 @@ def register(app: typer.Typer) -> None:
         )
         refs = ", ".join(f"{k} {v:.2f}" for k, v in summary["reference_returns"].items())
         typer.echo(f"references on the same episodes: {refs}")
-        typer.echo(f"wrote {out}/policy.zip, training_summary.json, learning_curve.png")
+        typer.echo(f"wrote {out}/policy.zip, training_summary.json, learning_curve.png, policy.md")
         if agents_dir is not None:
             typer.echo(
                 f"benchmark it: drill-env benchmark --quick --agents-dir {agents_dir} --out {agents_dir}/benchmark"

@@ -39,12 +39,22 @@ The base is built with the tuned gains of
 randomisation changes the plant, never the design), during training by
 :class:`ResidualVecEnv` and at inference by :class:`ResidualPolicy`, both the same function
 of the observation and of the base's state.
+
+A residual policy's ``policy.zip`` holds the correction only: stable-baselines3's
+``PPO.load`` / ``SAC.load`` of it alone would give a controller that applies the correction
+without its base (about 0 V). Its zip therefore names, as its policy class, one of
+:data:`CORRECTION_POLICY_CLASSES`: subclasses of stable-baselines3's classes whose
+construction raises :class:`CorrectionOnlyError`, naming
+:func:`drill_env.agents.learning.rl.load_policy`, which loads the file with stable-baselines3's
+own class and adds the base from the ``config.yaml`` beside it.
 """
 
 from __future__ import annotations
 
+import importlib
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,6 +64,10 @@ from drill_env.agents.learning._config import config_section
 
 __all__ = [
     "BASE_OBSERVATIONS",
+    "CORRECTION_POLICY_CLASSES",
+    "CorrectionOnlyError",
+    "correction_policy_class",
+    "saved_as_correction",
     "RESIDUAL_BASES",
     "ResidualConfig",
     "ResidualPolicy",
@@ -72,6 +86,85 @@ RESIDUAL_BASES = ("lqi", "lqi_angle_ff", "torque_feedback")
 # What an ``observe_base`` correction sees after the rig's observation: the base's action and
 # its adaptive feedforward's share, both normalised (1 = 5 V).
 BASE_OBSERVATIONS = ("base_action", "base_feedforward")
+
+
+# -- the policy class a residual policy's zip names ----------------------------------------------
+
+# algorithm -> (the class a residual policy's zip names, the stable-baselines3 class it stands
+# for: the MlpPolicy of that algorithm, which drill-env train builds)
+CORRECTION_POLICY_CLASSES = {
+    "ppo": ("ResidualCorrectionActorCriticPolicy", "stable_baselines3.common.policies", "ActorCriticPolicy"),
+    "sac": ("ResidualCorrectionSACPolicy", "stable_baselines3.sac.policies", "SACPolicy"),
+}
+
+
+class CorrectionOnlyError(TypeError):
+    """A residual policy's correction was loaded as if it were a whole controller."""
+
+
+CORRECTION_ONLY_MESSAGE = (
+    "this stable-baselines3 file holds only the learned correction of a residual policy "
+    "(drill_env.agents.learning.residual), not a whole controller: loaded on its own it would apply "
+    "the correction without its base controller (about 0 V). Load it with "
+    "drill_env.agents.learning.rl.load_policy(path), which adds the base named in the config.yaml "
+    "beside the file"
+)
+
+
+def _refuse_correction_only(self: Any, *args: Any, **kwargs: Any) -> None:
+    raise CorrectionOnlyError(CORRECTION_ONLY_MESSAGE)
+
+
+def _correction_class(name: str) -> type:
+    """The class ``name`` of :data:`CORRECTION_POLICY_CLASSES`, built once on first use (so
+    that importing this module does not import torch) and kept as a module attribute, under
+    which pickle finds it."""
+    for class_name, module, base_name in CORRECTION_POLICY_CLASSES.values():
+        if class_name == name:
+            base = getattr(importlib.import_module(module), base_name)
+            cls = type(
+                name,
+                (base,),
+                {
+                    "__init__": _refuse_correction_only,
+                    "__module__": __name__,
+                    "__qualname__": name,
+                    "__doc__": f"Names a residual policy's correction in its zip; constructing it raises "
+                    f"CorrectionOnlyError (load the file with load_policy, as {base_name}).",
+                },
+            )
+            globals()[name] = cls
+            return cls
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __getattr__(name: str) -> Any:  # the classes of CORRECTION_POLICY_CLASSES, built on demand
+    return _correction_class(name)
+
+
+def correction_policy_class(algo: str, *, stable_baselines3: bool = False) -> type:
+    """The policy class a residual ``algo`` policy's zip names, or (``stable_baselines3=True``)
+    the stable-baselines3 class it is loaded as."""
+    if algo not in CORRECTION_POLICY_CLASSES:
+        raise ValueError(f"algo: {algo!r} is not one of {list(CORRECTION_POLICY_CLASSES)}")
+    name, module, base_name = CORRECTION_POLICY_CLASSES[algo]
+    if stable_baselines3:
+        return getattr(importlib.import_module(module), base_name)
+    return globals().get(name) or _correction_class(name)
+
+
+@contextmanager
+def saved_as_correction(model: Any, algo: str) -> Iterator[None]:
+    """While open, ``model.save`` writes the policy class of a residual policy's correction
+    (:func:`correction_policy_class`) instead of stable-baselines3's; the model is unchanged."""
+    sb3_class = correction_policy_class(algo, stable_baselines3=True)
+    if model.policy_class is not sb3_class:
+        raise ValueError(f"model: its policy class {model.policy_class.__name__} is not {sb3_class.__name__}")
+    model.policy_class = correction_policy_class(algo)
+    try:
+        yield
+    finally:
+        model.policy_class = sb3_class
 
 
 @dataclass(frozen=True)

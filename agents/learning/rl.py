@@ -1,7 +1,7 @@
 """Reinforcement learning with stable-baselines3: training configs, training, and trained
 policies behind the same ``predict`` as the classical controllers.
 
-A training config (``configs/agents/ppo.yaml``, ``sac.yaml``) is a YAML mapping::
+A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML mapping::
 
     algo: ppo                       # ppo or sac
     env_id: DrillString-v1
@@ -90,6 +90,9 @@ __all__ = [
     "load_config",
     "load_policy",
     "renamed_objects",
+    "is_correction_file",
+    "stored_policy_class",
+    "upgrade_policy_file",
     "COMMITTED_POLICY_DIR",
     "PACKAGED_POLICY_DIR",
     "UntrustedPolicyWarning",
@@ -541,6 +544,103 @@ def renamed_objects(path: str | Path) -> dict[str, Any]:
     return out
 
 
+def _read_data(path: str | Path) -> dict[str, Any] | None:
+    """The JSON ``data`` of a stable-baselines3 zip, or None for a file that is no model."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            data = json.loads(zf.read("data"))
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _pickled_global(pickled: bytes) -> tuple[str, str] | None:
+    """``(module, name)`` of a pickle that is a reference to a class or function, read from
+    its opcodes (nothing is unpickled); None for any other pickle."""
+    strings: list[str] = []
+    try:
+        for op, arg, _ in pickletools.genops(pickled):
+            if op.name == "GLOBAL" and isinstance(arg, str):
+                module, _, name = arg.partition(" ")
+                return module, name
+            if op.name == "STACK_GLOBAL" and len(strings) >= 2:
+                return strings[-2], strings[-1]
+            if isinstance(arg, str) and op.name not in ("MEMOIZE", "PUT", "BINPUT", "LONG_BINPUT"):
+                strings.append(arg)
+    except ValueError:
+        return None
+    return None
+
+
+def stored_policy_class(path: str | Path) -> tuple[str, str] | None:
+    """``(module, name)`` of the policy class a saved model names, read without unpickling it
+    (None if the file is no model or the entry is not a class reference)."""
+    data = _read_data(path)
+    entry = (data or {}).get("policy_class")
+    if not isinstance(entry, dict) or not isinstance(entry.get(":serialized:"), str):
+        return None
+    return _pickled_global(base64.b64decode(entry[":serialized:"]))
+
+
+def is_correction_file(path: str | Path) -> bool:
+    """Whether the saved model in ``path`` is tagged as a residual policy's correction
+    (:data:`drill_env.agents.learning.residual.CORRECTION_POLICY_CLASSES`): stable-baselines3's
+    ``load`` of it alone raises, naming :func:`load_policy`."""
+    from drill_env.agents.learning import residual
+
+    names = {(residual.__name__, c[0]) for c in residual.CORRECTION_POLICY_CLASSES.values()}
+    return stored_policy_class(path) in names
+
+
+def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
+    """Rewrite the stored objects of a policy saved by :func:`train` in their present form,
+    the weights and every other entry of the zip byte for byte as they were: the objects
+    pickled under a former module path (:func:`renamed_objects`) as their present selves, and
+    for a residual policy (``config.yaml`` beside it with ``residual``) the policy class as the
+    one that refuses to load without its base
+    (:func:`drill_env.agents.learning.residual.correction_policy_class`). Returns the entries
+    rewritten (empty: the file was up to date and is untouched). Unpickles the file's former
+    objects: for trusted files only, as :func:`load_policy`."""
+    from stable_baselines3.common.save_util import data_to_json
+
+    from drill_env.agents.learning.residual import correction_policy_class
+
+    path = Path(path)
+    data = _read_data(path)
+    if data is None:
+        raise ValueError(f"policy: {path} is not a stable-baselines3 model")
+    if algo is None:
+        summary = path.parent / "training_summary.json"
+        algo = json.loads(summary.read_text()).get("algo") if summary.is_file() else None
+    if algo not in ALGOS:
+        raise ValueError(f"algo: unknown for {path}; pass one of {list(ALGOS)}")
+    config = path.parent / "config.yaml"
+    residual = (yaml.safe_load(config.read_text()) or {}).get("residual") if config.is_file() else None
+    present: dict[str, Any] = dict(renamed_objects(path))
+    if residual is not None and not is_correction_file(path):
+        sb3_class = correction_policy_class(algo, stable_baselines3=True)
+        if stored_policy_class(path) != (sb3_class.__module__, sb3_class.__qualname__):
+            raise ValueError(
+                f"policy: {path} names the policy class {stored_policy_class(path)}, not "
+                f"stable-baselines3's {sb3_class.__qualname__}; not rewritten"
+            )
+        present["policy_class"] = correction_policy_class(algo)
+    if not present:
+        return []
+    rewritten = json.loads(data_to_json(present))
+    new = {key: rewritten.get(key, value) for key, value in data.items()}
+    with zipfile.ZipFile(path) as zf:
+        items = [(info, zf.read(info.filename)) for info in zf.infolist()]
+    tmp = path.with_suffix(".zip.tmp")
+    with zipfile.ZipFile(tmp, "w") as zf:
+        for info, content in items:
+            if info.filename == "data":
+                content = json.dumps(new, indent=4).encode()  # as stable-baselines3 writes it
+            zf.writestr(info, content)
+    tmp.replace(path)
+    return sorted(present)
+
+
 def load_policy(
     path: str | Path, algo: str | None = None, name: str | None = None, *, trusted: bool = False
 ) -> SB3Policy:
@@ -564,11 +664,22 @@ def load_policy(
         raise ValueError(f"algo: unknown for {path}; pass one of {list(ALGOS)}")
     import torch
 
-    torch.set_num_threads(1)
-    model = _algo_class(algo).load(str(path), device="cpu", custom_objects=renamed_objects(path))
-    policy = SB3Policy(model, name or algo, str(path))
+    from drill_env.agents.learning.residual import correction_policy_class
+
     config = path.parent / "config.yaml"
     residual = _policy_config(config).get("residual") if config.is_file() else None
+    custom_objects = renamed_objects(path)
+    if is_correction_file(path) or residual is not None:
+        if residual is None:
+            raise ValueError(
+                f"policy: {path} holds the correction of a residual policy, but no config.yaml beside it "
+                "names its base controller (residual: {base: ...})"
+            )
+        # the file names the class that refuses to load alone: stable-baselines3's own instead
+        custom_objects["policy_class"] = correction_policy_class(algo, stable_baselines3=True)
+    torch.set_num_threads(1)
+    model = _algo_class(algo).load(str(path), device="cpu", custom_objects=custom_objects)
+    policy = SB3Policy(model, name or algo, str(path))
     if residual is None:
         return policy
     from drill_env.agents.learning.residual import ResidualPolicy, base_controller
@@ -841,8 +952,9 @@ def train(
 ) -> dict[str, Any]:
     """Train ``cfg.algo`` on ``cfg.env_id`` with ``seed``; write the run (CSV, TensorBoard,
     checkpoints) to ``run_dir`` and the policy, config, summary and learning curve to
-    ``out_dir``. Returns the summary. A config that distils a trained policy
-    (``warm_start.policy``) takes it loaded as ``teacher``
+    ``out_dir`` (``drill-env train`` adds the card ``policy.md``,
+    :func:`drill_env.agents.learning.cards.write_policy_card`). Returns the summary. A config
+    that distils a trained policy (``warm_start.policy``) takes it loaded as ``teacher``
     (:func:`drill_env.agents.registry.teacher_policy`).
 
     ``max_wall_time_s``: stop once this many wall-clock seconds have passed since the start
@@ -892,6 +1004,15 @@ def train(
         if burn_in is not None:
             callbacks.append(burn_in)
 
+    def save(path: Path) -> None:
+        if cfg.residual is None:
+            model.save(str(path))
+            return
+        from drill_env.agents.learning.residual import saved_as_correction
+
+        with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
+            model.save(str(path))
+
     def current_policy() -> Any:
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
         # moment, and the learner updates them in place
@@ -925,7 +1046,7 @@ def train(
         model.logger.dump(step)
         if row["mean_return"] > best["return"]:
             best.update({"return": row["mean_return"], "step": step})
-            model.save(str(out_dir / "policy.zip"))
+            save(out_dir / "policy.zip")
             strip_machine_info(out_dir / "policy.zip")
         if on_eval is not None:
             on_eval(step, row["mean_return"])
@@ -961,7 +1082,7 @@ def train(
     if not rows or rows[-1]["timesteps"] != model.num_timesteps:
         run_eval(model.num_timesteps)
     wall = time.perf_counter() - t_start
-    model.save(str(run_dir / "final_policy.zip"))
+    save(run_dir / "final_policy.zip")
     venv.close()
 
     import pandas as pd

@@ -160,7 +160,7 @@ def _first_orbit(
     d = d_un / np.linalg.norm(d_un)
     xi_h = np.array([hopf.x_eq[0], hopf.x_eq[2]])
     radius = eps / (2.0 * np.linalg.norm(d_un))
-    du = hopf.amplitude_offset(radius)
+    du = hopf.amplitude_offset(float(radius))
     normal = np.array([d[0], d[1], 0.0])
     anchor = np.array([xi_h[0] + eps * d[0], xi_h[1] + eps * d[1], hopf.u])
     X0 = anchor.copy()
@@ -179,7 +179,8 @@ def _bisect(
     """Bisection along the chord Xa -> Xb for the change of ``side_of`` (False at a, True at b)."""
     chord = Xb - Xa
     a, b = 0.0, 1.0
-    Xbest, rbest = None, None
+    Xbest: np.ndarray | None = None
+    rbest: SectionReturn | None = None
     for _ in range(80):
         m = 0.5 * (a + b)
         anchor = Xa + m * chord
@@ -194,7 +195,7 @@ def _bisect(
             a = m
         if abs(chord[2]) * (b - a) <= tol_u and np.linalg.norm(chord) * (b - a) <= 1e3 * tol_u:
             break
-    if Xbest is None:
+    if Xbest is None or rbest is None:  # set together
         anchor = Xa + b * chord
         Xbest, rbest = solver.correct(anchor, chord, anchor)
     return Xbest, rbest
@@ -390,7 +391,7 @@ def _detect(
 def cycles_at(params: RigParams, p: np.ndarray, branch: PeriodicBranch, u: float) -> list[LimitCycle]:
     """All orbits of the branch at voltage u, each solved by Newton from the nearest orbit."""
     us = branch.u
-    out = []
+    out: list[LimitCycle] = []
     for i in range(len(us) - 1):
         lo, hi = sorted((us[i], us[i + 1]))
         if not (lo <= u <= hi) or hi == lo:

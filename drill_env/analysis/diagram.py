@@ -33,6 +33,7 @@ from drill_env.analysis.continuation import (
     cycles_at,
 )
 from drill_env.analysis.equilibria import (
+    Equilibrium,
     HopfPoint,
     critical_friction_slope,
     hopf_points,
@@ -171,7 +172,11 @@ class BifurcationDiagram:
         return [b.name for b in self.equilibrium_branches] + [s.name for s in self.periodic_segments]
 
     def segment(self, name: str) -> PeriodicSegment | EquilibriumBranch:
-        for b in [*self.equilibrium_branches, *self.periodic_segments]:
+        stretches: list[PeriodicSegment | EquilibriumBranch] = [
+            *self.equilibrium_branches,
+            *self.periodic_segments,
+        ]
+        for b in stretches:
             if b.name == name:
                 return b
         raise KeyError(name)
@@ -257,7 +262,7 @@ def _equilibrium_branches(
     lo, hi = max(u_min, params.uc1_neg), min(u_max, params.uc1)
     if lo <= hi:
         us = np.linspace(lo, hi, max(3, n // 8))
-        sets = [stick_set(params, u) for u in us]
+        sets = [_stick_band(params, u) for u in us]
         out.append(
             EquilibriumBranch(
                 name="e1",
@@ -288,7 +293,7 @@ def _equilibrium_branches(
                 uu = params.uc1 + 1e-12 * max(1.0, abs(params.uc1))
             if direction < 0 and u >= params.uc1_neg:
                 uu = params.uc1_neg - 1e-12 * max(1.0, abs(params.uc1_neg))
-            eqs.append(slip_equilibrium(params, uu))
+            eqs.append(_slip(params, uu))
         stable = np.array([e.stable for e in eqs])
         # A Hopf point belongs to both neighbouring stretches.
         bounds = [0]
@@ -367,8 +372,22 @@ def _event_point(name: str, ev: BranchEvent) -> SpecialPoint:
     return SpecialPoint(name=name, u=ev.u, type=_EVENT_TYPES[ev.kind], detail=detail)
 
 
+def _stick_band(params: RigParams, u: float) -> tuple[float, float]:
+    """The stick set at a voltage inside its range (25)."""
+    band = stick_set(params, u)
+    assert band is not None, u
+    return band
+
+
+def _slip(params: RigParams, u: float) -> Equilibrium:
+    """The slip equilibrium at a voltage outside the stick range."""
+    eq = slip_equilibrium(params, u)
+    assert eq is not None, u
+    return eq
+
+
 def _hopf_point(params: RigParams, name: str, h: HopfPoint, branches: list[PeriodicBranch]) -> SpecialPoint:
-    detail = {
+    detail: dict[str, Any] = {
         "x1": float(h.x_eq[0]),
         "x3": float(h.x_eq[2]),
         "omega": h.omega,
@@ -386,7 +405,7 @@ def _hopf_point(params: RigParams, name: str, h: HopfPoint, branches: list[Perio
         elif br.end_hopf_u is not None and abs(br.end_hopf_u - h.u) < 1e-9 and len(br.cycles) > 1:
             side = br.cycles[-1].u
     if side is not None and side != h.u:
-        eq = slip_equilibrium(params, side)
+        eq = _slip(params, side)
         by_branch = "hopf_supercritical" if not eq.stable else "hopf_subcritical"
         detail["type_from_branch"] = by_branch
         detail["branch_agrees_with_l1"] = by_branch == h.kind
@@ -435,7 +454,7 @@ def bifurcation_diagram(
     points: dict[str, SpecialPoint] = {}
     other: list[SpecialPoint] = []
     if u_min <= params.uc1 <= u_max:
-        s = stick_set(params, params.uc1)
+        s = _stick_band(params, params.uc1)
         points["A"] = SpecialPoint(
             name="A",
             u=params.uc1,
@@ -458,9 +477,9 @@ def bifurcation_diagram(
         other.append(_hopf_point(params, f"H-{i + 1}", h, branches))
     for br in branches:
         for ev in br.events:
-            name = {"stick_onset": "D", "stick_end": "E", "fold": "F"}.get(ev.kind)
-            if name is not None and name not in points:
-                points[name] = _event_point(name, ev)
+            letter = {"stick_onset": "D", "stick_end": "E", "fold": "F"}.get(ev.kind)
+            if letter is not None and letter not in points:
+                points[letter] = _event_point(letter, ev)
             else:
                 other.append(_event_point(ev.kind, ev))
     order = "ABCDEF"

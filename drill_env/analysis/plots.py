@@ -16,7 +16,7 @@ attributes named by the protocols below, so that the result objects' ``.plot()``
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -42,12 +42,19 @@ __all__ = [
 
 
 class LimitCycle(Protocol):
-    """A periodic orbit (:class:`drill_env.analysis.shooting.LimitCycle`)."""
+    """A periodic orbit (:class:`drill_env.analysis.shooting.LimitCycle`); read-only."""
 
-    u: float  # [V]
-    period: float  # [s]
-    x3_min: float  # [rad/s]
-    x3_max: float  # [rad/s]
+    @property
+    def u(self) -> float: ...  # [V]
+
+    @property
+    def period(self) -> float: ...  # [s]
+
+    @property
+    def x3_min(self) -> float: ...  # [rad/s]
+
+    @property
+    def x3_max(self) -> float: ...  # [rad/s]
 
     @property
     def stable(self) -> bool: ...
@@ -59,10 +66,14 @@ class LimitCycle(Protocol):
 
 
 class PeriodicSegment(Protocol):
-    """A stretch of a periodic branch (:class:`drill_env.analysis.diagram.PeriodicSegment`)."""
+    """A stretch of a periodic branch (:class:`drill_env.analysis.diagram.PeriodicSegment`);
+    read-only, as the plots use it."""
 
-    name: str
-    cycles: list[LimitCycle]
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def cycles(self) -> Sequence[LimitCycle]: ...
 
     @property
     def u(self) -> np.ndarray: ...
@@ -72,18 +83,34 @@ class PeriodicSegment(Protocol):
 
 
 class BifurcationDiagram(Protocol):
-    """A bifurcation diagram (:class:`drill_env.analysis.diagram.BifurcationDiagram`)."""
+    """A bifurcation diagram (:class:`drill_env.analysis.diagram.BifurcationDiagram`);
+    read-only, as the plots use it."""
 
-    preset: str
-    u_min: float  # [V]
-    u_max: float  # [V]
-    equilibrium_branches: list[Any]
-    periodic_segments: list[PeriodicSegment]
-    points: dict[str, Any]
-    hopf: list[Any]
-    branches: list[Any]
+    @property
+    def preset(self) -> str: ...
 
-    def cycles_at(self, u: float) -> list[LimitCycle]: ...
+    @property
+    def u_min(self) -> float: ...  # [V]
+
+    @property
+    def u_max(self) -> float: ...  # [V]
+
+    @property
+    def equilibrium_branches(self) -> Sequence[Any]: ...
+
+    @property
+    def periodic_segments(self) -> Sequence[PeriodicSegment]: ...
+
+    @property
+    def points(self) -> Mapping[str, Any]: ...
+
+    @property
+    def hopf(self) -> Sequence[Any]: ...
+
+    @property
+    def branches(self) -> Sequence[Any]: ...
+
+    def cycles_at(self, u: float) -> Sequence[LimitCycle]: ...
 
     def plot(self, kind: str = "fig8", ax: Any = None, **kwargs: Any) -> Any: ...
 
@@ -568,7 +595,7 @@ def plot_bifurcation(
         _room_for_labels(ax)
     if own or legend or annotate:
         _finish(ax, handles if legend else [], labels if annotate else [], own)
-    if inset is not None:
+    if inset is not None and zoom is not None:
         place_labels(inset, [lab for lab in in_labels if lab.x <= zoom[0][1]])
     return ax
 

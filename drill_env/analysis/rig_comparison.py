@@ -290,6 +290,7 @@ def rig_comparison(params: RigParams | str | Path = "brake", *, method: str = "a
         c = cycle_at(u)
         eq = equilibria(params, u)[0]
         if quantity == "torsional vibration":
+            assert isinstance(rig, str)  # a qualitative measurement
             if c is not None:
                 desc = "limit cycle" + (" with stick-slip" if c.stick_slip else " (no stick-slip)")
                 desc += f", x3 in [{c.x3_min:.3f}, {c.x3_max:.3f}] rad/s"
@@ -360,6 +361,7 @@ def _by_simulation(params: RigParams, active: dict[str, float]) -> RigComparison
             states[u] = simulated_steady_state(params, u)
         s = states[u]
         if quantity == "torsional vibration":
+            assert isinstance(rig, str)  # a qualitative measurement
             if s.oscillating:
                 desc = "oscillation" + (" with stick-slip" if s.stick_slip else " (no stick-slip)")
                 desc += f" at {s.frequency_hz:.4f} Hz, x3 in [{s.x3_min:.3f}, {s.x3_max:.3f}] rad/s"

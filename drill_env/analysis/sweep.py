@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drill_env.analysis.diagram import BifurcationDiagram
+from drill_env.analysis.diagram import BifurcationDiagram, EquilibriumBranch, PeriodicSegment
 from drill_env.analysis.equilibria import equilibria
 from drill_env.analysis.shooting import LimitCycle
 
@@ -139,12 +139,17 @@ class BruteForceCheck:
         return diagram.plot("fig8", ax=ax, check=self)
 
 
+def _stretches(diagram: BifurcationDiagram) -> list[EquilibriumBranch | PeriodicSegment]:
+    """The diagram's equilibrium branches and periodic segments, each with ``u`` and ``stable``."""
+    return [*diagram.equilibrium_branches, *diagram.periodic_segments]
+
+
 def _default_grid(diagram: BifurcationDiagram, n: int, settle: float) -> np.ndarray:
     lo, hi = diagram.u_min, diagram.u_max
     step = (hi - lo) / n
     grid = list(lo + step * (np.arange(n) + 0.5))
     # At least two voltages inside every stable stretch of a branch.
-    for seg in [*diagram.equilibrium_branches, *diagram.periodic_segments]:
+    for seg in _stretches(diagram):
         stable = np.asarray(seg.stable)
         if stable.size and stable.mean() > 0.5:
             a, b = float(np.min(seg.u)), float(np.max(seg.u))
@@ -283,7 +288,7 @@ def brute_force_check(
     report("matching", 1.0)
     # Every stable branch reached at every grid voltage inside its range.
     confirmed: dict[str, list[float]] = {}
-    for seg in [*diagram.equilibrium_branches, *diagram.periodic_segments]:
+    for seg in _stretches(diagram):
         if not np.mean(np.asarray(seg.stable)) > 0.5:
             continue
         a, b = float(np.min(seg.u)), float(np.max(seg.u))

@@ -256,10 +256,14 @@ def discrepancy_study(
                 # (a live display holds back everything printed while it runs)
                 live = sys.stdout.isatty()
                 with _progress() if live else contextlib.nullcontext() as prog:
-                    task = prog.add_task("hidden-effect study (datasets)", total=None) if live else None
+                    task = (
+                        prog.add_task("hidden-effect study (datasets)", total=None)
+                        if prog is not None
+                        else None
+                    )
 
                     def progress(i: int, n: int) -> None:
-                        if live:
+                        if prog is not None:  # live
                             prog.update(task, completed=i, total=n)
                         elif i == n or i % max(1, n // 20) == 0:
                             typer.echo(f"{i}/{n} datasets, {time.perf_counter() - t0:.0f} s")

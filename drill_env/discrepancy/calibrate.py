@@ -49,7 +49,10 @@ training runs (errors common to a run's windows are not in the per-window noise 
 
 from __future__ import annotations
 
+import functools
 import math
+import operator
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -153,6 +156,7 @@ class CalibrationStatistics:
         """Sums over neighbouring windows of r_i r_j, r_i^2 and r_j^2 for the residual
         ``r = z - A d`` after the parameter change ``d`` (every calibrated parameter)."""
         v = np.concatenate([[1.0], -np.asarray(d, dtype=float)])
+        assert self.neighbour is not None  # set by calibration_statistics
         ab, aa, bb = (float(v @ m @ v) for m in self.neighbour)
         return ab, aa, bb
 
@@ -172,12 +176,12 @@ def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatis
     for c in candidates:
         if c.is_lag:
             cols = np.empty((a.shape[1], c.tau_grid.size))
-            for i, tau in enumerate(c.tau_grid):
+            for k, tau in enumerate(c.tau_grid):
                 cu, cl = c.columns(eq, float(tau))
                 x = np.concatenate([cu[:, 0] / eq.upper.sigma, cl[:, 0] / eq.lower.sigma])
-                cols[:, i] = a.T @ x
+                cols[:, k] = a.T @ x
                 blocks.append(x[:, None])
-                index[(c.name, i)] = np.array([pos])
+                index[(c.name, k)] = np.array([pos])
                 pos += 1
             st.cross_lag[c.name] = cols
         else:
@@ -191,6 +195,11 @@ def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatis
     st.gram = d.T @ d
     st.index = index
     return st
+
+
+def _total(arrays: Iterable[np.ndarray]) -> np.ndarray:
+    """The sum of ``arrays``, added in order (as the built-in ``sum``, typed as an array)."""
+    return functools.reduce(operator.add, arrays)
 
 
 def prior_precision(params: RigParams, rule: CalibrationRule) -> np.ndarray:
@@ -363,8 +372,8 @@ def identify(
     """Fit every parameter on the training statistics: the identified ones, their changes and
     unscaled posterior covariance (refitted with the unidentified ones fixed at nominal)."""
     prior = prior_precision(nominal, rule)
-    ata = sum(s.ata for s in train)
-    atz = sum(s.atz for s in train)
+    ata = _total(s.ata for s in train)
+    atz = _total(s.atz for s in train)
     _, cov = solve_joint(ata, atz, prior)
     prior_sd = 1.0 / np.sqrt(prior)
     post_sd = np.sqrt(np.maximum(np.diag(cov), 0.0))

@@ -72,14 +72,14 @@ class RunComparison:
     floors: dict[str, float]
     stopped_simulations: int  # simulations the simulator stopped early (e.g. chattering)
     # arrays kept for the figures
-    t: np.ndarray = field(repr=False, default=None)
-    measured_speed: np.ndarray = field(repr=False, default=None)
-    short_speed: np.ndarray = field(repr=False, default=None)
-    free_speed: np.ndarray = field(repr=False, default=None)
-    freqs: np.ndarray = field(repr=False, default=None)
-    psd_measured: np.ndarray = field(repr=False, default=None)
-    psd_model: np.ndarray = field(repr=False, default=None)
-    psd_short_residual: np.ndarray = field(repr=False, default=None)
+    t: np.ndarray | None = field(repr=False, default=None)
+    measured_speed: np.ndarray | None = field(repr=False, default=None)
+    short_speed: np.ndarray | None = field(repr=False, default=None)
+    free_speed: np.ndarray | None = field(repr=False, default=None)
+    freqs: np.ndarray | None = field(repr=False, default=None)
+    psd_measured: np.ndarray | None = field(repr=False, default=None)
+    psd_model: np.ndarray | None = field(repr=False, default=None)
+    psd_short_residual: np.ndarray | None = field(repr=False, default=None)
 
     def summary(self) -> dict[str, Any]:
         out = {
@@ -92,7 +92,7 @@ class RunComparison:
             "noise_floor": self.floors,
             "stopped_simulations": self.stopped_simulations,
         }
-        if self.features_measured is not None:
+        if self.features_measured is not None and self.features_model is not None:  # set together
             out["steady_measured"] = self.features_measured.as_dict()
             out["steady_model"] = self.features_model.as_dict()
         return out
@@ -231,7 +231,7 @@ def compare_run(
     # short horizons
     step = max(2, int(round(cfg.horizon_s / dt)))
     short_speed = np.full(n, np.nan)
-    ang_err = []
+    ang_errs: list[np.ndarray] = []
     stopped = 0
     for k0 in range(0, n - 1, step):
         k1 = min(n, k0 + step + 1)
@@ -242,8 +242,8 @@ def compare_run(
         _, qa, sp = sensor_speed(eq, thu, thl, counts=counts, noise=sigma_pre, initial=(v2, v3), seed=k0)
         m = thl.size
         short_speed[k0 : k0 + m] = sp
-        ang_err.append(qa - run.theta_l[k0 : k0 + m] - (qa[0] - run.theta_l[k0]))
-    ang_err = np.concatenate(ang_err) if ang_err else np.array([np.nan])
+        ang_errs.append(qa - run.theta_l[k0 : k0 + m] - (qa[0] - run.theta_l[k0]))
+    ang_err = np.concatenate(ang_errs) if ang_errs else np.array([np.nan])
     short_speed_rms = float(np.sqrt(np.nanmean((short_speed - meas_speed) ** 2)))
     # free run from the first sample
     thu, thl, v2, v3, stop = _simulate(params, eq, 0, n)
@@ -308,26 +308,26 @@ def aggregate(comparisons: list[RunComparison]) -> dict[str, float]:
         "short_horizon_speed_rms_rad_s": float(np.mean([c.short_speed_rms for c in comparisons])),
         "spectrum_distance_db": float(np.mean([c.spectrum_distance_db for c in comparisons])),
     }
-    const = [c for c in comparisons if c.features_measured is not None]
+    # (model, measured) steady features of the constant-voltage runs (both or neither are set)
+    const = [
+        (c.features_model, c.features_measured)
+        for c in comparisons
+        if c.features_model is not None and c.features_measured is not None
+    ]
     if const:
         for key in ("mean_speed", "min_speed", "max_speed", "stick_fraction"):
             out[f"steady_{key}_abs_error"] = float(
-                np.mean(
-                    [abs(getattr(c.features_model, key) - getattr(c.features_measured, key)) for c in const]
-                )
+                np.mean([abs(getattr(model, key) - getattr(measured, key)) for model, measured in const])
             )
         per = [
-            abs(c.features_model.period - c.features_measured.period)
-            for c in const
-            if math.isfinite(c.features_model.period) and math.isfinite(c.features_measured.period)
+            abs(model.period - measured.period)
+            for model, measured in const
+            if math.isfinite(model.period) and math.isfinite(measured.period)
         ]
         out["steady_period_abs_error_s"] = float(np.mean(per)) if per else 0.0
         out["steady_period_presence_mismatch"] = float(
             np.mean(
-                [
-                    math.isfinite(c.features_model.period) != math.isfinite(c.features_measured.period)
-                    for c in const
-                ]
+                [math.isfinite(model.period) != math.isfinite(measured.period) for model, measured in const]
             )
         )
     return out

@@ -54,6 +54,13 @@ class Candidate:
     def is_lag(self) -> bool:
         return self.tau_grid is not None
 
+    @property
+    def lags(self) -> np.ndarray:
+        """The time constants tried [s] (``tau_grid`` of a lag effect)."""
+        if self.tau_grid is None:
+            raise ValueError(f"{self.name}: not a lag effect (no tau_grid)")
+        return self.tau_grid
+
 
 def _zeros(n: int, k: int) -> np.ndarray:
     return np.zeros((n, k))

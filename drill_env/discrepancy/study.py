@@ -478,11 +478,11 @@ def _summarise(rows: list[dict]) -> dict:
     by_name: dict[str, list[bool]] = {}
     for p in fits:
         by_name.setdefault(p["name"], []).append(p["inside"])
-    mag: dict[str, dict[str, float]] = {}
+    mag: dict[str, dict[str, list[bool]]] = {}
     for r in rows:
         if r["part"].startswith("magnitude:"):
             f = r["part"].split(":")[1]
-            mag.setdefault(r["truth"], {}).setdefault(f, []).append(r["correct"])  # type: ignore[arg-type]
+            mag.setdefault(r["truth"], {}).setdefault(f, []).append(r["correct"])
     two = [r for r in grid if len(r["truth_effects"]) == 2]
     return {
         "n_datasets": len(grid),
@@ -776,7 +776,9 @@ def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
     for ax, name in zip(axes, held, strict=False):
         run = next(r for r in syn.runs if r.name == name)
         plot_spectra(ax, res.nominal[name], res.after.get(name), f"{run.voltage:g} V (held out)")
-        rot = float(np.mean(res.nominal[name].measured_speed)) / (2 * math.pi)
+        speed = res.nominal[name].measured_speed
+        assert speed is not None  # kept for the figures
+        rot = float(np.mean(speed)) / (2 * math.pi)
         ax.axvline(rot, color="gray", lw=0.6, ls=":")
         ax.text(rot, ax.get_ylim()[1], " rotation rate", fontsize=7, va="top", color="gray")
     axes[0].legend(fontsize=7)

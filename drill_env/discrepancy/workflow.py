@@ -213,7 +213,7 @@ class DiscrepancyResult:
             return f"verdict: {d.effect} (confidence {d.confidence:.2f}): {d.reason}{extra}{cal}"
         if d.effect == "recalibrated":
             return f"verdict: recalibrated (confidence {d.confidence:.2f}): {moved}"
-        par = ", ".join(f"{k}={v:.4g}" for k, v in d.winner.parameters.items())
+        par = ", ".join(f"{k}={v:.4g}" for k, v in d.named_winner.parameters.items())
         plus = ""
         if len(self.effects) > 1:
             par2 = ", ".join(f"{k}={v:.4g}" for k, v in self.second["parameters"].items())
@@ -373,7 +373,7 @@ def analyse(
         p = calibrated_params(params, decision_.parameters)
         if decision_.named:
             cand = next(c for c in CANDIDATES if c.name == decision_.effect)
-            p = p.replace(**cand.to_model_effects(decision_.winner.parameters))
+            p = p.replace(**cand.to_model_effects(decision_.named_winner.parameters))
             return p.replace(
                 name=f"{params.name}+{decision_.effect}",
                 description=f"{params.description}; plus {cand.title} identified from measured data"
@@ -385,6 +385,12 @@ def analyse(
                 description=f"{params.description}; parameters recalibrated on measured data",
             )
         return None
+
+    def named_model(decision_: Decision) -> RigParams:
+        """The model of a decision that names an effect (never the nominal one)."""
+        model = model_of(decision_)
+        assert model is not None, decision_.effect
+        return model
 
     t2 = time.perf_counter()
     nominal: dict[str, RunComparison] = {}
@@ -417,7 +423,7 @@ def analyse(
             }
             with_effect = {
                 eq.run.name: compare_run(
-                    model_of(decision),
+                    named_model(decision),
                     eq,
                     dataset.encoder_counts_per_rev,
                     compare_config,
@@ -450,7 +456,7 @@ def analyse(
                 if second.get("named"):
                     kept = decision.parameters, decision.winner
                     _second_parameters(decision, second)  # the parameters refitted with both
-                    both = _with_second(model_of(decision), second)
+                    both = _with_second(named_model(decision), second)
                     decision.parameters, decision.winner = kept
                     with_both = {
                         eq.run.name: compare_run(
@@ -471,7 +477,7 @@ def analyse(
                         _second_parameters(decision, second)
         corrected = model_of(decision)
         if len(effects) > 1:
-            corrected = _with_second(corrected, second)
+            corrected = _with_second(named_model(decision), second)
         if corrected is not None and not after:
             for i, eq in enumerate(held_eqs):
                 after[eq.run.name] = compare_run(
@@ -487,7 +493,7 @@ def analyse(
             if second.get("named"):
                 effects.append(second["named"])
                 _second_parameters(decision, second)
-                corrected = _with_second(model_of(decision), second)
+                corrected = _with_second(named_model(decision), second)
     second.pop("parameter_fits", None)  # in decision.parameters now
     timings["simulate"] = time.perf_counter() - t2
     where = _where_table(eqs, nominal, rule)
@@ -496,7 +502,11 @@ def analyse(
     gap_before = {"equation_error_ss_per_window": decision.excess["heldout_ss_per_window_nominal"]}
     gap_before.update(aggregate(held_nom))
     if corrected is not None:
-        chosen = decision.winner.heldout_ss if decision.named else decision.reference.heldout_ss
+        if decision.named:
+            chosen = decision.named_winner.heldout_ss
+        else:  # recalibrated: the recalibration alone is the model
+            assert decision.reference is not None
+            chosen = decision.reference.heldout_ss
         if len(effects) > 1:
             chosen = second["heldout_ss"]
         gap_after = {"equation_error_ss_per_window": chosen / max(n_h, 1)}

@@ -17,6 +17,8 @@ call.
 
 from __future__ import annotations
 
+from typing import Any
+
 __all__ = ["register_envs", "ENV_IDS", "ENV_VERSIONS", "MAX_EPISODE_STEPS"]
 
 # Every registered id -> its rig preset; ENV_VERSIONS gives its observation version.
@@ -37,7 +39,7 @@ def register_envs() -> None:
     for env_id, preset in ENV_IDS.items():
         if env_id in gymnasium.registry:
             continue
-        kwargs = {"params": preset}  # v0: exactly as before v1 existed
+        kwargs: dict[str, Any] = {"params": preset}  # v0: exactly as before v1 existed
         if ENV_VERSIONS[env_id] != 0:
             kwargs["observation_version"] = ENV_VERSIONS[env_id]
         gymnasium.register(

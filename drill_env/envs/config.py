@@ -515,12 +515,12 @@ class EnvSettings:
                 raise ValueError(
                     f"target_speed: expected a number in (0, {s.speed_max:.6g}] rad/s, got {v!r}"
                 )
-            out["point"] = s.point_from_speed(v)
+            out["point"] = s.point_from_speed(float(v))
         elif "nominal_voltage" in options:
             v = options["nominal_voltage"]
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
                 raise ValueError(f"nominal_voltage: expected a number in ({s.uc1:.6g}, 5] V, got {v!r}")
-            out["point"] = s.point_from_voltage(v)
+            out["point"] = s.point_from_voltage(float(v))
         elif "regime" in options:
             if options["regime"] not in REGIMES:
                 raise ValueError(f"regime: {options['regime']!r} is not one of {REGIMES}")

@@ -493,6 +493,7 @@ class DrillStringEnv(gym.Env):
         return self._obs.astype(np.float64) * self._ecfg[C.EC_SCALE : C.EC_SCALE + self.settings.n_obs]
 
     def _record_history(self) -> None:
+        assert self._history is not None  # recorded only while rendering
         phys = self._physical_obs()
         self._history.append(
             (

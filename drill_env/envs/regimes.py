@@ -265,14 +265,14 @@ def _operating_regimes(params: RigParams, u_max: float, spacing: float) -> Opera
     # Grid points inside each stretch of constant linear stability, kept away from its
     # ends (a decaying oscillation near a Hopf point decays arbitrarily slowly).
     stretches = []
-    grid = []
+    points: list[float] = []
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
         margin = min(0.02, 0.25 * (hi - lo))
         n = max(2, int(math.ceil((hi - lo - 2 * margin) / spacing)) + 1)
         pts = np.linspace(lo + margin, hi - margin, n)
-        stretches.append((lo, hi, len(grid), len(grid) + n))
-        grid.extend(pts)
-    grid = np.array(grid)
+        stretches.append((lo, hi, len(points), len(points) + n))
+        points.extend(pts.tolist())
+    grid = np.array(points)
     cls = _classify(params, grid)
     # Brackets of class changes within a stretch, refined by subdivision.
     brackets = []
@@ -287,10 +287,10 @@ def _operating_regimes(params: RigParams, u_max: float, spacing: float) -> Opera
         flat = _classify(params, np.concatenate(inner))
         for j, b in enumerate(brackets):
             c = flat[7 * j : 7 * j + 7]
-            pts = [b[0], *inner[j], b[1]]
+            us = [b[0], *inner[j], b[1]]
             cs = [b[2], *c, b[3]]
             k = next(k for k in range(8) if cs[k] != cs[k + 1])
-            brackets[j] = [pts[k], pts[k + 1], cs[k], cs[k + 1]]
+            brackets[j] = [us[k], us[k + 1], cs[k], cs[k + 1]]
     transitions = sorted(0.5 * (b[0] + b[1]) for b in brackets)
     # Assemble: within a stretch the class is constant between consecutive transitions.
     pieces: list[list[Any]] = []

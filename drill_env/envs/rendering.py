@@ -34,12 +34,13 @@ class RigRenderer:
             from matplotlib.figure import Figure
 
             self.fig = Figure(figsize=(_WIDTH / _DPI, _HEIGHT / _DPI), dpi=_DPI)
-            FigureCanvasAgg(self.fig)
+            self._agg: Any = FigureCanvasAgg(self.fig)  # the canvas rgb_array reads its pixels from
             self._plt = None
         else:
             import matplotlib.pyplot as plt
 
             self._plt = plt
+            self._agg = None
             plt.ion()
             self.fig = plt.figure(figsize=(_WIDTH / _DPI, _HEIGHT / _DPI), dpi=_DPI)
         self._matplotlib = matplotlib
@@ -111,14 +112,14 @@ class RigRenderer:
             pad = 0.08 * (hi - lo)
             self.ax_tr.set_ylim(lo - pad, hi + pad)
         if self.mode == "rgb_array":
-            self.fig.canvas.draw()
-            buf = np.asarray(self.fig.canvas.buffer_rgba())
+            self._agg.draw()
+            buf = np.asarray(self._agg.buffer_rgba())
             return buf[:, :, :3].copy()
         self.fig.canvas.draw_idle()
+        assert self._plt is not None  # human mode
         self._plt.pause(1.0 / self.fps)
         return None
 
     def close(self) -> None:
         if self._plt is not None:
-            self._plt.close(self.fig)
-        self.fig = None
+            self._plt.close(self.fig)  # the renderer is dropped after this (DrillStringEnv.close)

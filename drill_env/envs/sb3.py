@@ -120,14 +120,15 @@ class DrillStringSB3VecEnv(VecEnv):
                 groups.append((opts, mask))
         if len(groups) == 1:
             opts = groups[0][0]
-            obs, info = self.vector_env.reset(seed=seeds, options=dict(opts) if opts else None)
+            # a seed per rig: VectorEnv.reset is annotated int | None, its implementations take lists
+            obs, info = self.vector_env.reset(seed=seeds, options=dict(opts) if opts else None)  # type: ignore[arg-type]
             infos = _split_info(info, n)
         else:
             infos = [{} for _ in range(n)]
             for opts, mask in groups:
-                obs, info = self.vector_env.reset(seed=seeds, options={**opts, "reset_mask": mask})
+                obs, info = self.vector_env.reset(seed=seeds, options={**opts, "reset_mask": mask})  # type: ignore[arg-type]
                 part = _split_info(info, n)
-                for i in np.flatnonzero(mask):
+                for i in np.flatnonzero(mask).tolist():
                     infos[i] = part[i]
         self.reset_infos = infos
         self._actions = None

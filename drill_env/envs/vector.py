@@ -241,6 +241,7 @@ class DrillStringVectorEnv(VectorEnv):
             return [None] * n
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
             first = check_seed(seed)
+            assert first is not None  # an integer was given
             return [first + i for i in range(n)]
         if isinstance(seed, (str, bytes, Mapping)) or not isinstance(seed, (Sequence, np.ndarray)):
             raise ValueError(
@@ -286,17 +287,21 @@ class DrillStringVectorEnv(VectorEnv):
         s = self.settings
         idx = np.flatnonzero(mask)
         setups = {}
-        for i in idx:
-            setup = s.draw_episode(self._rngs[i], opts)
+        for i in idx.tolist():
+            rng = self._rngs[i]
+            assert rng is not None  # every rig's generator is made at its first reset
+            setup = s.draw_episode(rng, opts)
             setups[i] = setup
             self._load(i, setup)
         self._batch_reset(mask)
         # Same retry rule as the single env: a failed warm-up is redrawn from the rig's generator.
-        for i in idx:
+        for i in idx.tolist():
+            rng = self._rngs[i]
+            assert rng is not None
             for _ in range(MAX_WARMUP_RETRIES):
                 if self._EP[i, C.EP_STATUS] == 0:
                     break
-                self._WARM[i] = s.draw_warm_ticks(self._rngs[i])
+                self._WARM[i] = s.draw_warm_ticks(rng)
                 self._RNG[i] = setups[i].rng
                 one = np.zeros(self.num_envs, dtype=bool)
                 one[i] = True

@@ -95,6 +95,7 @@ def _run_benchmark(
         voltages={p: list(v) for p, v in cfg.voltages.items()},
         seeds=list(cfg.seeds),
         policies=_policies_used(cfg),
+        policy_starts=_policy_starts(cfg),
         plant_notes=[
             {
                 "name": q.name,
@@ -149,10 +150,11 @@ def _run_benchmark(
 
 
 def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
-    """Which trained policy each learned controller runs per preset (for the report)."""
-    from drill_env.agents.registry import LEARNED, default_agents_dir, policy_path
+    """Which trained policy each learned controller runs per preset (for the report): its
+    path (relative to the project root when inside it, else as given) and env id."""
+    from drill_env.agents._locations import shown_path
+    from drill_env.agents.registry import LEARNED, policy_path
 
-    root = Path(cfg.agents_dir) if cfg.agents_dir is not None else default_agents_dir()
     out = {}
     for c in cfg.controllers:
         if c not in LEARNED:
@@ -160,11 +162,7 @@ def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
         for p in cfg.presets:
             try:
                 path = policy_path(c, p, cfg.agents_dir)
-                shown = (
-                    str(path.relative_to(root.parent.parent))
-                    if root.parent.parent in path.parents
-                    else str(path)
-                )
+                shown = shown_path(path)
                 try:
                     from drill_env.agents.evaluation.episodes import env_id_of
                     from drill_env.agents.learning.rl import policy_observation_version
@@ -175,6 +173,29 @@ def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
                 out[f"{c}/{p}"] = shown
             except ValueError as exc:
                 out[f"{c}/{p}"] = f"missing ({exc})"
+    return out
+
+
+def _policy_starts(cfg: BenchmarkConfig) -> dict[str, str]:
+    """How each learned controller's policy per preset started (from scratch, clone of X,
+    residual on X, ...; :func:`drill_env.agents.learning.cards.policy_start`), read from the
+    ``config.yaml`` beside it; a policy without one is left out."""
+    import yaml
+
+    from drill_env.agents.learning.cards import policy_start
+    from drill_env.agents.registry import LEARNED, policy_path
+
+    out = {}
+    for c in cfg.controllers:
+        if c not in LEARNED:
+            continue
+        for p in cfg.presets:
+            try:
+                config = policy_path(c, p, cfg.agents_dir).parent / "config.yaml"
+            except ValueError:
+                continue
+            if config.is_file():
+                out[f"{c}/{p}"] = policy_start(yaml.safe_load(config.read_text()) or {})
     return out
 
 

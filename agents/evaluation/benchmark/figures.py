@@ -366,7 +366,7 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     ax.set_xlim(*xlim)
     ax.grid(alpha=0.3, which="both")
     ax.set_xlabel("nominal voltage u [V]")
-    ax.set_ylabel("worst amplitude / open-loop amplitude = 1 - suppression [-] (log)")
+    ax.set_ylabel("1 - suppression = worst amplitude\n/ open-loop amplitude [-] (log)")
     ax.set_title(f"{preset}: worst run over {n_plants} plants and every seed, at each voltage", fontsize=10)
     handles, _ = ax.get_legend_handles_labels()
     handles += [
@@ -374,7 +374,10 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
         Line2D([], [], color="gray", lw=0.8, ls="--", label="0.1: suppression 0.9"),
         *_regime_handles(preset),
     ]
-    fig.legend(handles=handles, loc="lower center", ncol=6, fontsize=8, frameon=False)
+    # one panel (no robust policy with its counterpart) is narrower: fewer legend columns
+    ncol = 6 if pairs else 3
+    fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
+    n_legend = len(handles)
     if pairs:
         from drill_env.agents.evaluation.robustness import worst_case_verdict
 
@@ -411,7 +414,7 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
         if any(m < 0 for m in margins):
             handles.append(Line2D([], [], color="tab:red", marker="x", ls="none", mew=2, label="behind"))
         ax.legend(handles=handles, fontsize=8, loc="upper right")
-    legend_rows = -(-(len(worst) + 2) // 6)
+    legend_rows = -(-(len(worst) + 2) // 6) if pairs else -(-n_legend // ncol)
     fig.tight_layout(rect=(0, (0.15 + 0.22 * legend_rows) / fig.get_figheight(), 1, 1))
     p = out / f"worst_case_{preset}.png"
     fig.savefig(p, dpi=110)

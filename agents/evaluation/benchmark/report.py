@@ -78,9 +78,14 @@ def _plant_heading(preset: str, plant: str, info: Mapping[str, Any] | None) -> l
 
 
 def summary_tables(
-    df, notes: Mapping[str, str] | None = None, plants: Mapping[str, Mapping[str, Any]] | None = None
+    df,
+    notes: Mapping[str, str] | None = None,
+    plants: Mapping[str, Mapping[str, Any]] | None = None,
+    starts: Mapping[str, str] | None = None,
 ) -> str:
-    """The markdown of ``summary.md`` from the results DataFrame."""
+    """The markdown of ``summary.md`` from the results DataFrame; ``notes``: the policy each
+    learned controller ran per preset (``"<controller>/<preset>"`` -> ``"path on ENV-ID"``),
+    ``starts``: how each started (same keys)."""
     lines = [
         "# Controller benchmark",
         "",
@@ -124,7 +129,11 @@ def summary_tables(
         used = {k.split("/")[0]: v for k, v in (notes or {}).items() if k.endswith(f"/{preset}")}
         if used:
             lines.append(
-                "Learned policies: " + "; ".join(f"{c}: {_policy_note(v)}" for c, v in used.items()) + "."
+                "Learned policies: "
+                + "; ".join(
+                    f"{c}: {_policy_note(v, (starts or {}).get(f'{c}/{preset}'))}" for c, v in used.items()
+                )
+                + "."
             )
             lines.append("")
         for regime, title in REGIME_TITLES.items():
@@ -202,15 +211,16 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
     """``summary.md`` and the figures from a benchmark CSV."""
     df = load_results(csv_path)
     out = Path(out_dir)
-    notes = None
+    notes = starts = None
     plants: dict[str, dict[str, Any]] = {}
     cfg_path = Path(csv_path).parent / "benchmark_config.json"
     if cfg_path.is_file():
         rec = json.loads(cfg_path.read_text())
         notes = rec.get("policies")
+        starts = rec.get("policy_starts")
         plants = {p["name"]: p for p in rec.get("plant_notes", [])}
     paths = [out / "summary.md"]
-    atomic_write_text(paths[0], summary_tables(df, notes, plants) + "\n")
+    atomic_write_text(paths[0], summary_tables(df, notes, plants, starts) + "\n")
     for preset in [p for p in PRESETS if p in set(df["preset"])]:
         names = _plants_in(df[df["preset"] == preset])
         others = [q for q in names if q != NOMINAL]
@@ -233,7 +243,8 @@ def _plants_in(df) -> list[str]:
     return sorted(names, key=lambda n: n != NOMINAL)
 
 
-def _policy_note(text: str) -> str:
-    """``path on ENV-ID`` -> ```path``` on ``ENV-ID`` (markdown)."""
+def _policy_note(text: str, start: str | None = None) -> str:
+    """``path on ENV-ID`` -> ```path``` on ``ENV-ID`` (markdown), with how it started."""
     path, _, env_id = text.partition(" on ")
-    return f"`{path}` on `{env_id}`" if env_id else f"`{path}`"
+    note = f"`{path}` on `{env_id}`" if env_id else f"`{path}`"
+    return f"{note} ({start})" if start else note
