@@ -504,9 +504,9 @@ def simulate(
         ev_to = np.empty(cap, dtype=np.int64)
         ev_y = np.empty((cap, L.NY))
         stats = np.zeros(N_STATS + 1)  # the last slot: a stop request (Ctrl-C)
-        args = (p, y, modes, seg_t, seg_u, fn, use_func, lim, t_run, rtol, atol, 0.0, max_steps)
-        args += (Y, M, U, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
-        status = _run_stoppable(args, stats, duration >= _INTERRUPTIBLE_S)
+        inputs = (p, y, modes, seg_t, seg_u, fn, use_func, lim, t_run, rtol, atol, 0.0, max_steps)
+        outputs = (Y, M, U, ev_t, ev_disk, ev_from, ev_to, ev_y, stats)
+        status = _run_stoppable(inputs + outputs, stats, duration >= _INTERRUPTIBLE_S)
         if stats[ST_EVENTS] <= cap:
             break
         cap = int(stats[ST_EVENTS]) + 16

@@ -634,17 +634,18 @@ def load_dataset(folder: str | Path) -> MeasuredDataset:
     rate = meta.get("sample_rate_hz")
     counts = int(meta["encoder_counts_per_rev"])
     split = bool(meta.get("split_at_gaps", False))
-    runs = tuple(
-        r for f in files for r in _load_csv(f, float(rate) if rate is not None else None, counts, split)
-    )
-    seen: dict[str, MeasuredRun] = {}
-    for r in runs:
+    loaded = [
+        (f, r) for f in files for r in _load_csv(f, float(rate) if rate is not None else None, counts, split)
+    ]
+    runs = tuple(r for _, r in loaded)
+    seen: dict[str, Path] = {}  # each run's file
+    for f, r in loaded:
         if r.name in seen:  # a part of a run split at its gaps named like another file
             raise DatasetError(
-                f"{folder}: two runs named {r.name!r} ({seen[r.name].path.name}, {r.path.name}): the parts "
+                f"{folder}: two runs named {r.name!r} ({seen[r.name].name}, {f.name}): the parts "
                 "of a run split at its gaps are named <file>@1, <file>@2, ...; rename the other file"
             )
-        seen[r.name] = r
+        seen[r.name] = f
     _check_common_divisor(runs, counts, folder / "dataset.json")
     return MeasuredDataset(
         preset=str(meta["preset"]),

@@ -118,8 +118,8 @@ def final_parameters(
     then widen the intervals instead of hiding in them. Whether a parameter moved is
     judged on the per-window noise alone (the jackknife over a handful of runs is itself
     too noisy for a test)."""
-    if cal is None or fit is None or not cal.free or cal.nominal is None:
-        return []
+    if cal is None or fit is None or not cal.free or cal.nominal is None or cal.base is None:
+        return []  # no calibration (nominal and base are set together)
     nf = len(cal.free)
     cov = fit.cov[:nf, :nf] * fit.variance_scale
     sd_interval = None
@@ -158,7 +158,7 @@ def _refit_of(cal: CalibrationSetup, held, rule: DecisionRule, winner: Candidate
     if not cand.is_lag:
         return lambda tr: _fit_linear_joint(tr, held, cal, cand.name, rule)
     fit = winner.fit
-    i = int(np.argmin(np.abs(np.log(cand.tau_grid / fit.tau)))) if fit.tau else 0
+    i = int(np.argmin(np.abs(np.log(cand.lags / fit.tau)))) if fit.tau else 0
     return lambda tr: _fit_lag_joint(tr, held, cal, cand, rule, i)
 
 
@@ -228,7 +228,7 @@ def _select_parameters(
         trial = {j: v for j, v in trial.items() if math.isfinite(v)}
         if not trial:
             break
-        j = min(trial, key=trial.get)
+        j = min(trial, key=lambda k: trial[k])
         if current - trial[j] <= pen:
             break
         chosen.append(j)
@@ -289,7 +289,7 @@ def _lag_fit_between(
     interpolated in tau (quadratic over the three nearest grid points; exact where the lag
     is short and the column is linear in tau), and tau is the one that minimises the training sum of
     squares with the parameters refitted."""
-    grid = cand.tau_grid
+    grid = cand.lags
     i = int(np.argmin(np.abs(np.log(grid / tau_grid_best))))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
 
@@ -391,9 +391,9 @@ def marginal_sd(
             continue
         if not tau:
             continue  # a lag fitted at zero time constant is no column at all
-        i = int(np.argmin(np.abs(np.log(c.tau_grid / tau))))
+        i = int(np.argmin(np.abs(np.log(c.lags / tau))))
         off_keys.append((c.name, i))
-        free_keys += [(c.name, j) for j in (i - 1, i + 1) if 0 <= j < c.tau_grid.size]
+        free_keys += [(c.name, j) for j in (i - 1, i + 1) if 0 <= j < c.lags.size]
     theta, q_tr, _, cov = _gram_fit(tr, cal_all, free_keys, off_keys, ho, rule, with_cov=True)
     n_tr = sum(s.n for s in tr)
     scale = max(1.0, q_tr / max(n_tr - len(cov), 1))

@@ -74,12 +74,13 @@ def run_statistics(eq: RunEquations, candidates: tuple[Candidate, ...] = CANDIDA
     st = RunStatistics(name=eq.run.name, n=int(z.size), ztz=float(z @ z))
     for c in candidates:
         if c.is_lag:
-            a = np.empty(c.tau_grid.size)
-            b = np.empty(c.tau_grid.size)
-            for i, tau in enumerate(c.tau_grid):
+            grid = c.lags
+            a = np.empty(grid.size)
+            b = np.empty(grid.size)
+            for k, tau in enumerate(grid):
                 x = _weighted(eq, *c.columns(eq, float(tau)))[:, 0]
-                a[i] = x @ z
-                b[i] = x @ x
+                a[k] = x @ z
+                b[k] = x @ x
             st.lag[c.name] = (a, b)
         else:
             X = _weighted(eq, *c.columns(eq))
@@ -128,8 +129,8 @@ class CalibrationSetup:
     prior: np.ndarray  # prior precision of every calibrated parameter (CALIBRATED order)
     nominal_ztz: dict[str, float]
     moved: list[int]
-    nominal: RigParams
-    base: RigParams  # the recalibrated model the statistics were computed at
+    nominal: RigParams | None  # None: no calibration (_no_calibration)
+    base: RigParams | None  # the recalibrated model the statistics were computed at
     rule: CalibrationRule = field(default_factory=CalibrationRule)
 
 
@@ -233,7 +234,7 @@ def _fit_lag_joint(train, held, cal: CalibrationSetup, c: Candidate, rule: Decis
     q_h = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in held))
     q_h += float(-2.0 * theta @ (atzh - atxh) + theta @ ath @ theta)
     q_h = _predictive(q_h, atzh - atxh - ath @ theta, ath, ata + np.diag(cal.prior[cal.free]))
-    return JointFit(theta, cov, q_tr, sum(s.n for s in train), q_h, tau=float(c.tau_grid[i]))
+    return JointFit(theta, cov, q_tr, sum(s.n for s in train), q_h, tau=float(c.lags[i]))
 
 
 # A lag whose best time constant is the shortest one tried is not resolved: for a small lag
@@ -249,17 +250,17 @@ def _score(c: Candidate, train, held, rule: DecisionRule, cal: CalibrationSetup,
     n_h = sum(s.n for s in held)
     nf = len(cal.free)
     if c.is_lag:
-        fits = [_fit_lag_joint(train, held, cal, c, rule, i) for i in range(c.tau_grid.size)]
+        fits = [_fit_lag_joint(train, held, cal, c, rule, i) for i in range(c.lags.size)]
         gain_train = np.array([ref.train_ss - f.train_ss for f in fits])
         i = int(np.argmax(gain_train))
-        tau = float(c.tau_grid[i])
-        if 0 < i < c.tau_grid.size - 1:
+        tau = float(c.lags[i])
+        if 0 < i < c.lags.size - 1:
             # parabola through the best grid point and its neighbours, in log tau
             y0, y1, y2 = gain_train[i - 1], gain_train[i], gain_train[i + 1]
             den = y0 - 2.0 * y1 + y2
             if den < 0.0:
-                step = math.log(c.tau_grid[i + 1] / c.tau_grid[i])
-                tau = float(c.tau_grid[i] * math.exp(0.5 * (y0 - y2) / den * step))
+                step = math.log(c.lags[i + 1] / c.lags[i])
+                tau = float(c.lags[i] * math.exp(0.5 * (y0 - y2) / den * step))
         fit = fits[i]
         raw = ref.heldout_ss - fit.heldout_ss
         params = c.to_parameters(np.array([1.0]), tau)

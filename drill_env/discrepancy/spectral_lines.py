@@ -94,7 +94,7 @@ def line_scan(eqs: list[RunEquations], rule: DecisionRule, n_freq: int = 240) ->
     # a line common to the runs shows in most of them on its own, not in one or two
     # (an undithered encoder at constant speed can alias into a line of a single run)
     single = float(stats.chi2.isf(0.01, 2))
-    shown = {}
+    shown: dict[str, bool] = {}
     for g, (eq, _) in enumerate(groups):
         shown[eq.run.name] = shown.get(eq.run.name, False) or bool(red_g[g, i] > single)
     common = sum(shown.values()) >= rule.line_run_fraction * len(shown)
@@ -255,7 +255,7 @@ def line_signature(eqs: list[RunEquations], frequency_hz: float, alpha: float = 
         hyps.append("voltage")
     fits = {h: _fit_hypothesis(eqs, h, freq) for h in hyps}
     drops = {h: float(sum(d for run in f for d, _ in run.values())) for h, f in fits.items()}
-    best = max(drops, key=drops.get)
+    best = max(drops, key=lambda h: drops[h])
     per = 1 if best == "voltage" else 2
     single = float(stats.chi2.isf(0.01, per))
     dof = per * sum(len(run) for run in fits[best])

@@ -129,6 +129,13 @@ class Decision:
         return self.effect not in NOT_AN_EFFECT
 
     @property
+    def named_winner(self) -> CandidateScore:
+        """The score of the named effect (a named decision has one)."""
+        if self.winner is None:
+            raise ValueError(f"decision {self.effect!r}: no winning candidate")
+        return self.winner
+
+    @property
     def recalibrated(self) -> list[ParameterFit]:
         return [f for f in self.parameters if f.moved]
 
@@ -338,8 +345,8 @@ def second_effect(
     n_h = sum(s.n for s in ho)
     first = next(c for c in candidates if c.name == decision.effect)
     if first.is_lag:
-        tau = decision.winner.fit.tau
-        i_w = int(np.argmin(np.abs(np.log(first.tau_grid / tau)))) if tau else 0
+        tau = decision.named_winner.fit.tau
+        i_w = int(np.argmin(np.abs(np.log(first.lags / tau)))) if tau else 0
         f_free, f_off = [], [(first.name, i_w)]
     else:
         f_free, f_off = [first.name], []
@@ -354,13 +361,11 @@ def second_effect(
     scores = []
     for c in rest:
         if c.is_lag:
-            fits = [
-                _gram_fit(tr, cal, f_free, f_off + [(c.name, i)], ho, rule) for i in range(c.tau_grid.size)
-            ]
+            fits = [_gram_fit(tr, cal, f_free, f_off + [(c.name, i)], ho, rule) for i in range(c.lags.size)]
             i = int(np.argmin([f[1] for f in fits]))
             raw = q_h0 - fits[i][2] if fits[i][1] < q_tr0 else 0.0
             edge = i == 0 and raw > 0.0
-            params = c.to_parameters(np.array([1.0]), float(c.tau_grid[i]) if fits[i][1] < q_tr0 else 0.0)
+            params = c.to_parameters(np.array([1.0]), float(c.lags[i]) if fits[i][1] < q_tr0 else 0.0)
         else:
             theta, _, q_h = _gram_fit(tr, cal, f_free + [c.name], f_off, ho, rule)
             raw = q_h0 - q_h
@@ -395,7 +400,7 @@ def second_effect(
         if c.name == best.name:
             if c.is_lag:
                 tau = best.parameters[next(iter(best.parameters))]
-                i = int(np.argmin(np.abs(np.log(c.tau_grid / tau)))) if tau else 0
+                i = int(np.argmin(np.abs(np.log(c.lags / tau)))) if tau else 0
                 keys = {"free": f_free, "off": f_off + [(c.name, i)]}
             else:
                 keys = {"free": f_free + [c.name], "off": f_off}
@@ -415,7 +420,7 @@ def second_effect(
     nf = len(cal_m.free)
     coef = theta[nf:]
     if first.is_lag:
-        first_params = dict(decision.winner.parameters)
+        first_params = dict(decision.named_winner.parameters)
     else:
         first_params = first.to_parameters(coef[: first.n_params])
         coef = coef[first.n_params :]
@@ -431,13 +436,13 @@ def second_effect(
     out["first_parameters"] = {k: float(v) for k, v in first_params.items()}
     out["heldout_ss"] = best.heldout_ss
     # the moved parameters refitted with both effects; those no longer significant stay nominal
-    if cal.moved and cal.nominal is not None:
+    if cal.moved and cal.nominal is not None and cal.base is not None:  # set together
         n_tr = sum(s_.n for s_ in tr)
         scale = max(1.0, q_tr / max(n_tr - theta.size, 1))
         # intervals at least as wide as with every calibrated parameter free under its prior
         # (see final_parameters): those held at nominal are known only to within it
         second_tau = best.parameters[next(iter(best.parameters))] if _is_lag(rest, best.name) else None
-        first_tau = decision.winner.fit.tau if first.is_lag else None
+        first_tau = decision.named_winner.fit.tau if first.is_lag else None
         both = [(first, first_tau), (second_c, second_tau)]
         marginal = marginal_sd(cal, tr, ho, rule, both, with_estimate=True)
         sd_own = np.sqrt(np.maximum(np.diag(cov[:nf, :nf]) * scale, 0.0))
@@ -537,11 +542,13 @@ def decide(
     ref_params: list[ParameterFit] = []
     params: list[ParameterFit] = []
     if calibration is not None and calibration.nominal is not None:
-        kw = {"identified": calibration.free, "moved_all": True}
         fit_m, refit_m, cal_m = moved_fit(calibration, tr, ho, rule, None)
         marginal = marginal_sd(calibration, tr, ho, rule, [], with_estimate=True)
         ref_params = admissible_fits(
-            calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
+            calibration.nominal,
+            final_parameters(
+                cal_m, fit_m, refit_m, tr, marginal=marginal, identified=calibration.free, moved_all=True
+            ),
         )
         params = ref_params
         if named:
@@ -554,7 +561,10 @@ def decide(
                 )
             marginal = marginal_sd(calibration, tr, ho, rule, [(cand, fit_m.tau)], with_estimate=True)
             params = admissible_fits(
-                calibration.nominal, final_parameters(cal_m, fit_m, refit_m, tr, marginal=marginal, **kw)
+                calibration.nominal,
+                final_parameters(
+                    cal_m, fit_m, refit_m, tr, marginal=marginal, identified=calibration.free, moved_all=True
+                ),
             )
     if effect == "recalibrated" and not any(f.moved for f in params):
         effect, reason = (
