@@ -190,6 +190,7 @@ class SynthConfig:
     hold_max_s: float = 2.0
     hold_quantum_s: float = 0.1
     level_max_v: float = 5.0
+    level_min_v: float = 0.0  # quasi-random levels are uniform in [level_min_v, level_max_v]
     param_error: float = 0.0  # [-] relative error of every identified parameter (uniform +-)
 
     def __post_init__(self) -> None:
@@ -214,6 +215,8 @@ class SynthConfig:
             raise ValueError(f"param_error: {self.param_error!r} is outside [0, 0.3]")
         if not 0.0 < self.level_max_v <= 5.0:
             raise ValueError(f"level_max_v: {self.level_max_v!r} is outside (0, 5] V")
+        if not -5.0 <= self.level_min_v < self.level_max_v:
+            raise ValueError(f"level_min_v: {self.level_min_v!r} is outside [-5, level_max_v) V")
 
 
 @dataclass
@@ -282,7 +285,7 @@ def _random_levels(cfg: SynthConfig, total_s: float, rng: np.random.Generator) -
     hi = int(round(cfg.hold_max_s / cfg.hold_quantum_s))
     while i < n:
         k = int(rng.integers(lo, hi + 1))
-        out[i : i + k] = rng.uniform(0.0, cfg.level_max_v)
+        out[i : i + k] = rng.uniform(cfg.level_min_v, cfg.level_max_v)
         i += k
     return out
 
