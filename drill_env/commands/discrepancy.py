@@ -55,6 +55,18 @@ def synth(
         "0.2,0.5,0.7,1.0,2.0,3.0,4.5", help="Constant-voltage runs [V], comma-separated ('' for none)."
     ),
     random_runs: int = typer.Option(3, help="Quasi-random voltage runs."),
+    plan: str | None = typer.Option(
+        None,
+        "--plan",
+        help="Record on an identification plan of `drill-env identify --plan` (full, minimum): its "
+        "voltages, random-level runs in [-5, 5] V and durations, instead of --voltages/--random-runs/--duration.",
+    ),
+    params: Path | None = typer.Option(
+        None,
+        "--params",
+        help="Truth rig from a YAML file (the preset format, e.g. an identified rig.yaml) instead of the "
+        "preset's parameters; --preset then only names the structure written to dataset.json.",
+    ),
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
     parameters off by a few percent)."""
@@ -74,20 +86,34 @@ def synth(
         volts = tuple(float(v) for v in voltages.split(",") if v.strip())
     except ValueError:
         _fail(f"--voltages: expected comma-separated numbers, got {voltages!r}")
+    truth = preset
+    if params is not None:
+        from drill_env.params import available_presets, load_params
+
+        if params.suffix.lower() not in (".yaml", ".yml"):
+            _fail(f"--params {params}: expected a rig YAML file (.yaml or .yml)")
+        load_params(params)  # a bad file ends here, naming its field
+        if preset not in available_presets():
+            _fail(f"--preset: with --params the structure, one of {available_presets()}; got {preset!r}")
+        truth = str(params)
     try:
-        cfg = SynthConfig(
-            preset=preset,
-            voltages=volts,
-            random_runs=random_runs,
-            duration_s=duration,
+        design = dict(voltages=volts, random_runs=random_runs, duration_s=duration)
+        if plan is not None:
+            from drill_env.identify.plan import PLANS, synth_config
+
+            if plan not in PLANS:
+                _fail(f"--plan: {plan!r}; allowed: {', '.join(PLANS)}")
+            design = {k: v for k, v in vars(synth_config(plan, truth)).items() if k != "preset"}
+        design.update(
             sample_rate_hz=rate,
             encoder_counts_per_rev=counts,
             angle_noise_std=angle_noise,
             param_error=param_error,
         )
+        cfg = SynthConfig(preset=truth, **design)
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:
-                task = prog.add_task("simulating runs", total=len(volts) + random_runs)
+                task = prog.add_task("simulating runs", total=len(cfg.voltages) + cfg.random_runs)
                 res = make_dataset(
                     effect,
                     seed=seed,
@@ -109,12 +135,30 @@ def discrepancy(
     ),
     seed: int = typer.Option(0, help="Seed of the bootstrap."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
+    params: Path | None = typer.Option(
+        None,
+        "--params",
+        help="The nominal model as a rig YAML (e.g. the rig.yaml of `drill-env identify`); default: the "
+        "preset named in dataset.json.",
+    ),
 ) -> None:
     """Find where and why measured data disagree with the nominal model; name the missing effect."""
     from drill_env.discrepancy.dataset import DatasetError
     from drill_env.discrepancy.workflow import run_discrepancy
     from drill_env.outputs import check_output_folder
 
+    nominal = None
+    if params is not None:
+        from drill_env.params import load_params
+
+        if params.suffix.lower() not in (".yaml", ".yml"):
+            _fail(f"--params {params}: expected a rig YAML file (.yaml or .yml)")
+        nominal = load_params(params)
+        if nominal.effects.active:
+            _fail(
+                f"--params {params}: switches on {list(nominal.effects.active)}; the nominal model of the "
+                "discrepancy workflow has no effects (effects are what it looks for)"
+            )
     check_output_folder(out, "--out")
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout else None
     try:
@@ -127,7 +171,13 @@ def discrepancy(
                 prog.update(tasks[stage], completed=i)
 
             res = run_discrepancy(
-                data_dir, out, heldout=held, figures=not no_figures, seed=seed, progress=progress
+                data_dir,
+                out,
+                heldout=held,
+                figures=not no_figures,
+                seed=seed,
+                progress=progress,
+                params=nominal,
             )
     except (DatasetError, ValueError) as exc:
         _fail(str(exc))

@@ -70,7 +70,12 @@ class ParameterResult:
     needs: str = ""  # the run that would identify it, when it is not
 
     def as_dict(self) -> dict[str, Any]:
-        d = {"value": self.value, "ci95": list(self.ci95), "method": self.method, "identified": self.identified}
+        d = {
+            "value": self.value,
+            "ci95": list(self.ci95),
+            "method": self.method,
+            "identified": self.identified,
+        }
         if self.note:
             d["note"] = self.note
         if self.needs:
@@ -102,7 +107,7 @@ class Identification:
 
     @property
     def not_identifiable(self) -> list[ParameterResult]:
-        return [p for p in self.parameters.values() if not p.identified and p.method != "fixed by the user"]
+        return [p for p in self.parameters.values() if not p.identified and p.name != self.scale[0]]
 
     @property
     def blocking(self) -> list[ParameterResult]:
@@ -388,7 +393,9 @@ def identify(
         f"({len(dataset.runs)} runs) by drill-env identify; scale: {scale[0]} = {scale[1]:g}"
         + (" (assumed, the paper's)" if assumed else " (given)")
     )
-    blocking = [p for p in parameters.values() if not p.identified and p.name in ESSENTIAL and p.name != scale[0]]
+    blocking = [
+        p for p in parameters.values() if not p.identified and p.name in ESSENTIAL and p.name != scale[0]
+    ]
     params = None
     if not blocking:
         try:

@@ -71,15 +71,16 @@ class RunRows:
 
     def hump_rate(self, beta: float) -> np.ndarray:
         """dH/dbeta on every row [N m per (N m s/rad)]."""
-        a = 0.5 * beta * self.speed_l
+        e = np.exp(-beta * self.speed_l)  # sech^2(b w / 2) = 4 e / (1 + e)^2, without overflow
         out = np.zeros(self.sigma.size)
-        out[self.lower] = self.sign_l * ((0.5 * self.speed_l / np.cosh(a) ** 2) @ self.kernel)
+        out[self.lower] = self.sign_l * ((2.0 * self.speed_l * e / (1.0 + e) ** 2) @ self.kernel)
         return out
 
 
 def run_rows(eq: RunEquations) -> RunRows:
     """The rows of one run's equation error, built on the calibration columns."""
-    xu, xl = calibration_columns(eq)
+    with np.errstate(over="ignore"):  # cosh of a steep Stribeck rate: its columns are not used here
+        xu, xl = calibration_columns(eq)
     h2 = eq.h**2
     cal = {n: i for i, n in enumerate(CALIBRATED)}
     nu, nl = len(eq.upper), len(eq.lower)
@@ -123,7 +124,9 @@ class JointFit:
     dof: int
     scale: tuple[str, float]
     negative_side: bool  # the upper disk turned backwards in enough windows
-    info_constant: dict[str, float] = field(default_factory=dict)  # share of information from constant-voltage runs
+    info_constant: dict[str, float] = field(
+        default_factory=dict
+    )  # share of information from constant-voltage runs
     relative_sd: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -345,9 +348,7 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
     if not negative:
         values["upper_static_neg"] = values["upper_static_pos"]
         values["upper_viscous_neg"] = values["upper_viscous_pos"]
-    rel = {
-        n: float(sd[i] / abs(values[n])) if values[n] != 0.0 else math.inf for i, n in enumerate(names)
-    }
+    rel = {n: float(sd[i] / abs(values[n])) if values[n] != 0.0 else math.inf for i, n in enumerate(names)}
     return JointFit(
         values=values,
         free=names,

@@ -23,7 +23,9 @@ def draw_rig(
     rng = np.random.default_rng([seed, 33])
     for _ in range(max_tries):
         f = np.exp(rng.uniform(math.log(low), math.log(high), len(IDENTIFIED_PARAMETERS)))
-        values = {n: float(getattr(base, n)) * float(k) for n, k in zip(IDENTIFIED_PARAMETERS, f, strict=True)}
+        values = {
+            n: float(getattr(base, n)) * float(k) for n, k in zip(IDENTIFIED_PARAMETERS, f, strict=True)
+        }
         try:
             return base.replace(
                 **values,

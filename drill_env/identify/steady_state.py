@@ -38,7 +38,9 @@ class SteadyState:
     run: str
     voltage: float  # [V]
     mean_speed: float  # mean lower-disk speed x3 [rad/s]
-    mean_upper_speed: float  # mean upper-disk speed x2 [rad/s] (differs from x3's by the twist's change / length)
+    mean_upper_speed: (
+        float  # mean upper-disk speed x2 [rad/s] (differs from x3's by the twist's change / length)
+    )
     min_speed: float  # min of the lower speed over 0.1 s windows [rad/s]
     max_speed: float  # max [rad/s]
     mean_twist: float  # mean x1 = theta_u - theta_l [rad]
@@ -118,7 +120,9 @@ class UpperBalance:
         return asdict(self)
 
 
-def upper_balance(states: list[SteadyState], scale: tuple[str, float], direction: int = 1) -> UpperBalance | None:
+def upper_balance(
+    states: list[SteadyState], scale: tuple[str, float], direction: int = 1
+) -> UpperBalance | None:
     """Least squares over the runs whose upper disk never stops, in one direction.
 
     ``scale`` is the parameter whose value is known, ``("string_stiffness", k)`` or
