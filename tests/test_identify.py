@@ -133,12 +133,14 @@ def rig_dataset(tmp_path_factory):
     return rig, root / "data"
 
 
-def test_cli_writes_a_usable_rig_file(rig_dataset, tmp_path):
+@pytest.mark.parametrize("bifurcation", [pytest.param(True, marks=pytest.mark.slow), False])
+def test_cli_writes_a_usable_rig_file(rig_dataset, tmp_path, bifurcation):
     rig, data = rig_dataset
     out = tmp_path / "id"
     r = CliRunner().invoke(
         app,
-        ["identify", str(data), "--out", str(out), "--known", f"string_stiffness={rig.string_stiffness!r}"],
+        ["identify", str(data), "--out", str(out), "--known", f"string_stiffness={rig.string_stiffness!r}"]
+        + ([] if bifurcation else ["--no-bifurcation"]),
     )
     assert r.exit_code == 0, r.output
     ident = json.loads((out / "identification.json").read_text())
@@ -151,9 +153,10 @@ def test_cli_writes_a_usable_rig_file(rig_dataset, tmp_path):
     assert ident["scale"]["source"] == "given by the user"
     report = (out / "report.md").read_text()
     assert "fixed by the user" in report.splitlines()[2]
-    for fig in ("friction.png", "heldout.png", "bifurcation.png"):
+    for fig in ("friction.png", "heldout.png") + (("bifurcation.png",) if bifurcation else ()):
         assert (out / fig).stat().st_size > 10_000, fig
-    assert "![bifurcation diagram](bifurcation.png)" in report
+    assert ("![bifurcation diagram](bifurcation.png)" in report) == bifurcation
+    assert "| run02 (0.3 V) |" in report  # a held-out run simulated against its measurement
     # rig.yaml: the preset format, read by every entry point
     params = load_params(out / "rig.yaml")
     assert params.lower_inertia == pytest.approx(rig.lower_inertia, rel=0.03)

@@ -199,7 +199,10 @@ def _grid_search(prob: _Problem, terms: int) -> tuple[tuple[float, ...], float]:
     g_aa, g_ay = a.T @ a, a.T @ y
     g_ah, g_hh, g_hy = a.T @ h, h.T @ h, h.T @ y
     yy = float(y @ y)
+    # the best pair whose linear parameters are all >= 0 (a negative viscous slope can mimic a slow
+    # Stribeck term on the grid, and would be clipped away afterwards); the best of all if none is
     best: tuple[tuple[float, ...], float] = ((), math.inf)
+    best_any: tuple[tuple[float, ...], float] = ((), math.inf)
     k = a.shape[1]
     pairs = (
         [(i,) for i in range(BETA_GRID.size)]
@@ -219,9 +222,12 @@ def _grid_search(prob: _Problem, terms: int) -> tuple[tuple[float, ...], float]:
         except np.linalg.LinAlgError:
             continue
         ss = yy - float(coef @ b)
-        if ss < best[1]:
-            best = (tuple(float(BETA_GRID[i]) for i in sel), ss)
-    return best
+        here = (tuple(float(BETA_GRID[i]) for i in sel), ss)
+        if ss < best_any[1]:
+            best_any = here
+        if ss < best[1] and not np.any(coef[:k] < 0.0):
+            best = here
+    return best if best[0] else best_any
 
 
 def _residual(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
@@ -240,15 +246,24 @@ def _jacobian(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
     return np.hstack(cols)
 
 
-def _refine(prob: _Problem, betas: tuple[float, ...]) -> tuple[np.ndarray, float]:
-    """Every free parameter together from the grid's best rates (bounded Gauss-Newton)."""
+def _refine(
+    prob: _Problem, betas: tuple[float, ...], start: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
+    """Every free parameter together from the grid's best rates, or from ``start`` (bounded
+    Gauss-Newton)."""
     terms = len(betas)
-    coef, _ = prob.lstsq([prob.hump(b) for b in betas])
     k = prob.a.shape[1]
     lo = np.concatenate([np.zeros(k), np.full(terms, -np.inf), np.full(terms, BETA_BOUNDS[0])])
     hi = np.concatenate([np.full(k, np.inf), np.full(terms, np.inf), np.full(terms, BETA_BOUNDS[1])])
-    x0 = np.concatenate([coef, np.asarray(betas, dtype=float)])
-    x0 = np.clip(x0, lo + 1e-12 * np.abs(lo).clip(max=1.0), hi)
+    if start is None:
+        coef, _ = prob.lstsq([prob.hump(b) for b in betas])
+        x0 = np.concatenate([coef, np.asarray(betas, dtype=float)])
+    else:
+        x0 = np.asarray(start, dtype=float)
+    x0 = np.clip(x0, lo, hi)
+    if start is None and np.any(x0[:k] == 0.0):
+        # a linear parameter clipped to its bound: start from the bounded linear fit at these rates
+        x0[: k + terms] = _bounded_linear(prob, [prob.hump(b) for b in betas], k)
     sol = optimize.least_squares(
         lambda th: _residual(prob, th, terms),
         x0,
@@ -256,10 +271,20 @@ def _refine(prob: _Problem, betas: tuple[float, ...]) -> tuple[np.ndarray, float
         bounds=(lo, hi),
         x_scale="jac",
         method="trf",
-        max_nfev=200,
+        max_nfev=500,
     )
     r = sol.fun
+    r0 = _residual(prob, x0, terms)
+    if float(r0 @ r0) < float(r @ r):  # never worse than where it started
+        return x0, float(r0 @ r0)
     return sol.x, float(r @ r)
+
+
+def _bounded_linear(prob: _Problem, extra: list[np.ndarray], k: int) -> np.ndarray:
+    """The linear parameters (>= 0) and hump amplitudes (free) at fixed rates."""
+    a = np.column_stack([prob.a, *extra]) if extra else prob.a
+    lo = np.concatenate([np.zeros(k), np.full(len(extra), -np.inf)])
+    return optimize.lsq_linear(a, prob.y, bounds=(lo, np.inf), method="bvls").x
 
 
 def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int | None = None) -> JointFit:
@@ -274,11 +299,20 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
     for terms in (0, 1, 2) if hump_terms is None else (hump_terms,):
         betas, _ = _grid_search(prob, terms)
         if terms == 0:
-            coef, ss = prob.lstsq([])
-            coef = np.clip(coef, 0.0, None)
+            coef = _bounded_linear(prob, [], k)
             fits[0] = (coef, float(np.sum(_residual(prob, coef, 0) ** 2)))
         else:
             fits[terms] = _refine(prob, betas)
+            if terms == 2 and 1 in fits:
+                # also grow the one-term fit by a second term (so that two terms never fit worse than
+                # one): its rate the best on the grid with the first term held
+                one = fits[1][0]
+                b1 = float(one[k + 1])
+                best = min(BETA_GRID, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
+                start = np.concatenate([one[:k], [one[k], 0.0], [b1, best]])
+                grown = _refine(prob, (b1, float(best)), start=start)
+                if grown[1] < fits[2][1]:
+                    fits[2] = grown
     tests: dict[str, float] = {}
     if hump_terms is None:
         n_top = k + 4
