@@ -9,7 +9,8 @@ The steps, in the rig's order (Sec. 2.3 of the paper did them by hand on its rig
    hence a first lower inertia; these first values only weight the equation error's
    windows of the first pass.
 3. **Joint fit** (:mod:`.joint`) of every parameter on the filtered equation error of all
-   runs, twice: the second time with each window's noise weighted at the first fit.
+   runs, twice: first with a cheap model of each window's noise, then with the full one
+   (the discrepancy workflow's) weighted at the first fit.
 4. **Identifiable or not**: a parameter the data do not fix (its 95 % interval wider than
    its value) is named with the run that would fix it (:data:`.plan.RUN_THAT_IDENTIFIES`);
    when one the model needs is among them, no rig file is offered. The negative side of
@@ -34,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
+from drill_env.discrepancy.equation_error import EquationErrorConfig, RunEquations, estimate_angle_noise
 from drill_env.identify.dynamics import oscillation_frequency
 from drill_env.identify.joint import HUMP_AMPLITUDES, HUMP_RATES, JointFit, fitted_params, joint_fit, run_rows
 from drill_env.identify.plan import RUN_THAT_IDENTIFIES
@@ -54,6 +55,7 @@ ESSENTIAL = (
     "upper_viscous_pos",
     "lower_static",
 )
+FIRST_PASS_NOISE = EquationErrorConfig(quantisation_harmonics=16, rate_span_factors=(1,))
 MAX_RELATIVE_HALF_WIDTH = 1.0  # a 95 % half-width above |value| x this: not identifiable
 
 
@@ -372,8 +374,12 @@ def identify(
     for pass_ in (1, 2):
         t1 = time.perf_counter()
         weights_at = p0 if fit is None else _weights_params(fit, p0)
+        # the first pass only finds the parameters the second weights its windows at: a cheap
+        # noise model (16 harmonics of the quantisation error, the count rate over one support)
+        # does; the windows are the same
+        config = FIRST_PASS_NOISE if fit is None else None
         for i, r in enumerate(dataset.runs):
-            eqs[r.name] = RunEquations(r, weights_at, noise)
+            eqs[r.name] = RunEquations(r, weights_at, noise, config)
             rows[r.name] = run_rows(eqs[r.name])
             if progress:
                 progress(f"equation error, pass {pass_}", i + 1, len(dataset.runs))
