@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import shlex
 import subprocess
 import sys
@@ -82,9 +81,7 @@ def controllers_on_truth(out: Path, identified: Path, truth: Path) -> list[dict]
         env = make_env("brake", settings, params=str(truth))
         spec = dataclasses.replace(ControllerSpec.from_env(env), params=model)
         open_loop = classical_controller("open_loop", spec, "brake")
-        ref = evaluate(
-            open_loop, "brake", u, seed=0, settings=settings, env=env, open_loop_amplitude=math.nan
-        )
+        ref = evaluate(open_loop, "brake", u, seed=0, settings=settings, env=env, open_loop_amplitude=0.0)
         for name in CONTROLLERS:
             ctrl = classical_controller(name, spec, "brake", gains_file=out / "controllers.yaml")
             m = evaluate(
