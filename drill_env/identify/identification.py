@@ -11,8 +11,8 @@ The steps, in the rig's order (Sec. 2.3 of the paper did them by hand on its rig
 3. **Joint fit** (:mod:`.joint`) of every parameter on the filtered equation error of all
    runs, twice: first with a cheap model of each window's noise, then with the full one
    (the discrepancy workflow's) weighted at the first fit.
-4. **Identifiable or not**: a parameter the data do not fix (its 95 % interval wider than
-   its value) is named with the run that would fix it (:data:`.plan.RUN_THAT_IDENTIFIES`);
+4. **Identifiable or not**: a parameter the runs do not excite (the 95 % interval from the
+   window noise alone wider than its value) is named with the run that would fix it (:data:`.plan.RUN_THAT_IDENTIFIES`);
    when one the model needs is among them, no rig file is offered. The negative side of
    the upper friction without a run that turns the upper disk backwards, and hump terms
    that a hump-free friction curve does not need, are set to stated values (the positive
@@ -299,7 +299,9 @@ def _results(
         lo, hi = v - 1.96 * sd, v + 1.96 * sd
         if name not in HUMP_AMPLITUDES:
             lo = max(lo, 0.0)
-        identified = 1.96 * sd <= MAX_RELATIVE_HALF_WIDTH * abs(v)
+        # identifiable: the runs excite it (a misfit, e.g. a missing effect, widens the interval
+        # but is named in the report, not taken for a lack of excitation)
+        identified = 1.96 * fit.sd_excited(name) <= MAX_RELATIVE_HALF_WIDTH * abs(v)
         note = needs = ""
         if not identified:
             needs = RUN_THAT_IDENTIFIES[name]

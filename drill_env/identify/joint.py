@@ -117,6 +117,7 @@ class JointFit:
     cov: np.ndarray  # covariance of the free parameters (interval scale)
     sd_model: np.ndarray  # standard deviations from the window noise alone
     sd_jackknife: np.ndarray  # one-step jackknife over the runs
+    sd_information: np.ndarray  # from the window noise alone, unscaled by the misfit: what the data excite
     hump_terms: int  # 0, 1 or 2
     hump_tests: dict[str, float]  # chi2 of each added hump term, and the threshold
     ss: float  # weighted sum of squares at the optimum
@@ -132,6 +133,13 @@ class JointFit:
     @property
     def residual_variance(self) -> float:
         return self.ss / max(self.dof, 1)
+
+    def sd_excited(self, name: str) -> float:
+        """Standard deviation from the window noise alone: how well the runs excite ``name``
+        (a model the data contradict widens the interval, not this)."""
+        if name not in self.free:
+            return math.inf
+        return float(self.sd_information[self.free.index(name)])
 
     def sd(self, name: str) -> float:
         if name not in self.free:
@@ -348,7 +356,8 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
     norms = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
     jn = jtj / np.outer(norms, norms)
     cov_n = np.linalg.inv(jn + 1e-10 * np.eye(p))
-    cov_model = cov_n / np.outer(norms, norms) * s2
+    cov_info = cov_n / np.outer(norms, norms)
+    cov_model = cov_info * s2
     # one-step jackknife over the runs
     runs = np.unique(prob.run_of_row)
     g = jac.T @ res
@@ -389,6 +398,7 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
         cov=cov,
         sd_model=sd_model,
         sd_jackknife=sd_jk,
+        sd_information=np.sqrt(np.maximum(np.diag(cov_info), 0.0)),
         hump_terms=chosen,
         hump_tests=tests,
         ss=ss,

@@ -15,6 +15,8 @@ from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
 
 __all__ = ["identification_json", "write_outputs", "UNITS"]
 
+MISFIT_WARN = 10.0  # residual variance (noise floor 1) above which the report names a misfit
+
 UNITS = {
     "motor_constant": "N m/V",
     "upper_inertia": "kg m^2",
@@ -358,6 +360,14 @@ def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | Non
                 f"- `{p.name}`: {p.note or 'interval wider than the value'}; identified by: {p.needs}"
             )
         lines.append("")
+    if res.fit.residual_variance > MISFIT_WARN:
+        lines += [
+            f"**The fit leaves {res.fit.residual_variance:.3g} times the noise floor** (1 for a model that "
+            "explains the data): the rig does something the model lacks (an effect such as position-"
+            "dependent friction, or another structure). The intervals are widened by it. Run `drill-env "
+            "discrepancy DATASET --params rig.yaml` to name it.",
+            "",
+        ]
     lines += [
         f"Dataset `{ds.path.name if ds.path else 'in memory'}`: {len(ds.runs)} runs, "
         f"{ds.encoder_counts_per_rev} encoder counts per revolution, {ds.sample_rate_hz:g} Hz. "
