@@ -182,7 +182,10 @@ def stick_set(params: RigParams | str, u: float) -> tuple[float, float] | None:
     lo = max(-params.lower_static / k, (params.motor_constant * u - params.upper_static_pos) / k)
     hi = min(params.lower_static / k, (params.motor_constant * u + params.upper_static_neg) / k)
     if lo > hi:
-        return None
+        # at the ends of range (25) the set is one point; rounding may put lo an ulp above hi
+        if lo - hi > 1e-12 * max(1.0, abs(lo)):
+            return None
+        lo = hi = 0.5 * (lo + hi)
     return lo, hi
 
 

@@ -79,6 +79,18 @@ def synth(
         help="Replace the dataset already in --out whole (only a folder holding a dataset: dataset.json "
         "and run CSVs); without it --out must be new or empty.",
     ),
+    plan: str | None = typer.Option(
+        None,
+        "--plan",
+        help="Record on an identification plan of `drill-env identify --plan` (full, minimum): its "
+        "voltages, random-level runs in [-5, 5] V and durations, instead of --voltages/--random-runs/--duration.",
+    ),
+    params: Path | None = typer.Option(
+        None,
+        "--params",
+        help="Truth rig from a YAML file (the preset format, e.g. an identified rig.yaml) instead of the "
+        "preset's parameters; --preset then only names the structure written to dataset.json.",
+    ),
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
     parameters off by a few percent)."""
@@ -99,18 +111,32 @@ def synth(
         volts = tuple(float(v) for v in voltages.split(",") if v.strip())
     except ValueError:
         _fail(f"--voltages: expected comma-separated numbers, got {voltages!r}")
+    truth = preset
+    if params is not None:
+        from drill_env.params import available_presets, load_params
+
+        if params.suffix.lower() not in (".yaml", ".yml"):
+            _fail(f"--params {params}: expected a rig YAML file (.yaml or .yml)")
+        load_params(params)  # a bad file ends here, naming its field
+        if preset not in available_presets():
+            _fail(f"--preset: with --params the structure, one of {available_presets()}; got {preset!r}")
+        truth = str(params)
     try:
-        cfg = SynthConfig(
-            preset=preset,
-            voltages=volts,
-            random_runs=random_runs,
-            duration_s=duration,
+        design = dict(voltages=volts, random_runs=random_runs, duration_s=duration)
+        if plan is not None:
+            from drill_env.identify.plan import PLANS, synth_config
+
+            if plan not in PLANS:
+                _fail(f"--plan: {plan!r}; allowed: {', '.join(PLANS)}")
+            design = {k: v for k, v in vars(synth_config(plan, truth)).items() if k != "preset"}
+        design.update(
             sample_rate_hz=rate,
             encoder_counts_per_rev=counts,
             angle_noise_std=angle_noise,
             param_error=param_error,
             time_jitter=time_jitter,
         )
+        cfg = SynthConfig(preset=truth, **design)
     except (ValueError, ParameterError) as exc:
         _fail(str(exc))
     # a dataset is never mixed with the runs of another one
@@ -124,7 +150,7 @@ def synth(
     try:
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:
-                task = prog.add_task("simulating runs", total=len(volts) + random_runs)
+                task = prog.add_task("simulating runs", total=len(cfg.voltages) + cfg.random_runs)
                 res = make_dataset(
                     effect,
                     seed=seed,
@@ -147,12 +173,30 @@ def discrepancy(
     ),
     seed: int = typer.Option(0, min=0, help="Seed of the bootstrap."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
+    params: Path | None = typer.Option(
+        None,
+        "--params",
+        help="The nominal model as a rig YAML (e.g. the rig.yaml of `drill-env identify`); default: the "
+        "preset named in dataset.json.",
+    ),
 ) -> None:
     """Find where and why measured data disagree with the nominal model; name the missing effect."""
     from drill_env.discrepancy.dataset import DatasetError
     from drill_env.discrepancy.workflow import run_discrepancy
     from drill_env.outputs import check_output_folder
 
+    nominal = None
+    if params is not None:
+        from drill_env.params import load_params
+
+        if params.suffix.lower() not in (".yaml", ".yml"):
+            _fail(f"--params {params}: expected a rig YAML file (.yaml or .yml)")
+        nominal = load_params(params)
+        if nominal.effects.active:
+            _fail(
+                f"--params {params}: switches on {list(nominal.effects.active)}; the nominal model of the "
+                "discrepancy workflow has no effects (effects are what it looks for)"
+            )
     check_output_folder(out, "--out")
     if data_dir.exists() and (
         out.resolve() == data_dir.resolve() or data_dir.resolve() in out.resolve().parents
@@ -169,7 +213,13 @@ def discrepancy(
                 prog.update(tasks[stage], completed=i)
 
             res = run_discrepancy(
-                data_dir, out, heldout=held, figures=not no_figures, seed=seed, progress=progress
+                data_dir,
+                out,
+                heldout=held,
+                figures=not no_figures,
+                seed=seed,
+                progress=progress,
+                params=nominal,
             )
     except (DatasetError, ValueError) as exc:
         _fail(str(exc))

@@ -591,6 +591,9 @@ class RunEquations:
         keep = sign != 0.0
         c = centers[keep]
         s = sign[keep]
+        if c.size == 0:  # the disk never turns one way for a whole window (a stuck run)
+            empty = np.zeros(0)
+            return DiskWindows(disk, c, empty, s, empty, empty, int(centers.size), empty)
         h2 = self.h**2
         off = self.offsets
         if disk == "lower":

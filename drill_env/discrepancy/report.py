@@ -435,7 +435,8 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
         f"Dataset: {len(ds.runs)} runs, preset `{ds.preset}`, {ds.encoder_counts_per_rev} encoder counts "
         f"per revolution, {ds.sample_rate_hz:g} Hz. Angle noise estimated from the data: "
         f"upper {res.noise.upper:.3g} rad, lower {res.noise.lower:.3g} rad "
-        f"(quantisation alone {res.noise.quantisation:.3g} rad).",
+        f"(quantisation alone {res.noise.quantisation:.3g} rad)."
+        + ("" if res.params.name == ds.preset else f" Nominal model: `{res.params.name}` (--params)."),
         "",
         f"Training runs: {', '.join(d.train_runs)}. Held-out runs: {', '.join(d.heldout_runs)}.",
         "",

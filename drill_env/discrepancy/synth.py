@@ -227,6 +227,7 @@ class SynthConfig:
     hold_max_s: float = 2.0
     hold_quantum_s: float = 0.1
     level_max_v: float = 5.0
+    level_min_v: float = 0.0  # quasi-random levels are uniform in [level_min_v, level_max_v]
     param_error: float = 0.0  # [-] relative error of every identified parameter (uniform +-)
     time_jitter: float = 0.0  # [periods] time-stamp error, uniform +-, of a jittered DAQ clock
 
@@ -279,6 +280,8 @@ class SynthConfig:
             raise ValueError(f"time_jitter: {self.time_jitter!r} is outside [0, 0.1] periods")
         if not 0.0 < self.level_max_v <= 5.0:
             raise ValueError(f"level_max_v: {self.level_max_v!r} is outside (0, 5] V")
+        if not -5.0 <= self.level_min_v < self.level_max_v:
+            raise ValueError(f"level_min_v: {self.level_min_v!r} is outside [-5, level_max_v) V")
 
 
 # The longest run synth records [s] (about an hour, as the rig's recordings), and the most
@@ -358,7 +361,7 @@ def _random_levels(cfg: SynthConfig, total_s: float, rng: np.random.Generator) -
     hi = int(round(cfg.hold_max_s / cfg.hold_quantum_s))
     while i < n:
         k = int(rng.integers(lo, hi + 1))
-        out[i : i + k] = rng.uniform(0.0, cfg.level_max_v)
+        out[i : i + k] = rng.uniform(cfg.level_min_v, cfg.level_max_v)
         i += k
     return out
 

@@ -118,7 +118,7 @@ class DiscrepancyResult:
     def validity_warnings(self) -> list[str]:
         """Where the data leave the range the preset's model was identified on (the loader
         already refuses voltages beyond the rig's +-5 V): one sentence each."""
-        return validity_warnings(self.dataset.preset, max_speed=self.max_lower_speed)
+        return validity_warnings(self.params.name, max_speed=self.max_lower_speed)
 
     def result_json(self) -> dict[str, Any]:
         d = self.decision
@@ -273,16 +273,19 @@ def analyse(
     simulate_gaps: bool = True,
     seed: int = 0,
     progress: Callable[[str, int, int], None] | None = None,
+    params: RigParams | None = None,
 ) -> DiscrepancyResult:
     """Run the whole workflow in memory (no files); see :func:`run_discrepancy`.
 
     ``calibrate=False`` scores the effects as additions to the nominal model (the
-    parameters are taken as exact)."""
+    parameters are taken as exact). ``params`` is the nominal model (default: the preset
+    named by the dataset), e.g. a rig identified by ``drill-env identify``; its effects, if
+    any, are part of it."""
     rule = rule or DecisionRule()
     cal_rule = calibration_rule or CalibrationRule()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    params = load_params(dataset.preset)
+    params = load_params(dataset.preset) if params is None else params
     noise = estimate_angle_noise(dataset.runs, dataset.encoder_step, eq_config)
     eqs = []
     stats = {}
@@ -583,6 +586,7 @@ def run_discrepancy(
     seed: int = 0,
     progress: Callable[[str, int, int], None] | None = None,
     rule: DecisionRule | None = None,
+    params: RigParams | None = None,
 ) -> DiscrepancyResult:
     """Run the workflow on a dataset folder and write ``report.md``, ``result.json``,
     the figures and the chosen model under ``out``, which is held for this run alone
@@ -594,7 +598,7 @@ def run_discrepancy(
     dataset = load_dataset(data_dir)
     out = Path(out)
     with output_lock(out, "discrepancy"):
-        res = analyse(dataset, heldout=heldout, seed=seed, progress=progress, rule=rule)
+        res = analyse(dataset, heldout=heldout, seed=seed, progress=progress, rule=rule, params=params)
         if res.corrected is not None and res.model_rejected:
             worse = ", ".join(res.model_check["worse"])
             res.corrected.replace(

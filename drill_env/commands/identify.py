@@ -1,0 +1,112 @@
+"""``drill-env identify``: every parameter of the rig model from a lab's recordings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def identify(
+    data_dir: Path | None = typer.Argument(
+        None, help="Dataset folder (CSV runs t,u,theta_u,theta_l + dataset.json), as for discrepancy."
+    ),
+    out: Path | None = typer.Option(
+        None, help="Output folder: rig.yaml, identification.json, report.md, figures."
+    ),
+    structure: str | None = typer.Option(
+        None, help="Rig structure: brake or no_brake (default: dataset.json's 'preset')."
+    ),
+    known: list[str] = typer.Option(
+        [],
+        "--known",
+        help="The one value the data cannot fix: string_stiffness=VALUE [N m/rad] (k = G pi d^4/(32 L)) or "
+        "motor_constant=VALUE [N m/V]. Default: the paper's string stiffness, said so in the report.",
+    ),
+    heldout: str | None = typer.Option(
+        None, help="Comma-separated runs held out for validation (default: every third run by voltage)."
+    ),
+    plan: bool = typer.Option(False, "--plan", help="Print the experiments that identify a rig, and exit."),
+    no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
+    no_bifurcation: bool = typer.Option(
+        False, "--no-bifurcation", help="Skip the identified model's bifurcation diagram."
+    ),
+) -> None:
+    """Identify every parameter of the rig model (friction curves, inertias, motor constant, string)
+    from constant-voltage and random-level runs; write rig.yaml usable by every command."""
+    if plan:
+        from drill_env.identify.plan import plan_text
+
+        typer.echo(plan_text())
+        return
+    if data_dir is None:
+        _fail("DATA_DIR: missing; give a dataset folder (or --plan for the experiments to record)")
+    if out is None:
+        _fail("--out: missing; give the output folder")
+    from drill_env.discrepancy.dataset import load_dataset
+    from drill_env.identify.identification import identify as run_identify
+    from drill_env.identify.identification import parse_known
+    from drill_env.identify.report import write_outputs
+    from drill_env.outputs import check_output_folder, output_lock
+    from drill_env.params import available_presets
+
+    if structure is not None and structure not in available_presets():
+        _fail(f"--structure: {structure!r}; allowed: {', '.join(available_presets())}")
+    try:
+        known_values = parse_known(known)
+    except ValueError as exc:
+        _fail(f"--{exc}")
+    check_output_folder(out, "--out")
+    held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout is not None else None
+    dataset = load_dataset(data_dir)
+    from drill_env.commands.discrepancy import _progress
+
+    with output_lock(out, "identify"):
+        try:
+            with _progress() as prog:
+                tasks: dict[str, int] = {}
+
+                def progress(stage: str, i: int, n: int) -> None:
+                    if stage not in tasks:
+                        tasks[stage] = prog.add_task(stage, total=n)
+                    prog.update(tasks[stage], completed=i)
+
+                res = run_identify(
+                    dataset, structure=structure, known=known_values, heldout=held, progress=progress
+                )
+        except ValueError as exc:
+            _fail(str(exc))
+        typer.echo(
+            "drawing the figures and the bifurcation diagram" if not no_figures else "writing the files"
+        )
+        written = write_outputs(res, out, figures=not no_figures, bifurcation=not no_bifurcation)
+    if res.scale_assumed:
+        typer.secho(f"warning: {res.scale_sentence()}", fg=typer.colors.YELLOW, err=True)
+    for p in res.not_identifiable:
+        typer.secho(
+            f"warning: {p.name} is not identifiable from these data"
+            + (f" ({p.note})" if p.note else "")
+            + f"; the run that identifies it: {p.needs}",
+            fg=typer.colors.YELLOW,
+            err=True,
+        )
+    files = ", ".join(k for k in ("rig.yaml", "identification.json", "report.md") if written.get(k))
+    typer.echo(f"wrote {files} to {out} ({res.timings.get('total', 0):.0f} s)")
+    if res.params is None:
+        typer.secho(
+            "error: no rig.yaml: the data do not identify "
+            + ", ".join(p.name for p in res.blocking)
+            + "; record the runs named in report.md (drill-env identify --plan)",
+            fg=typer.colors.RED,
+            err=True,
+        )
+        raise typer.Exit(code=1)
+
+
+def register(app: typer.Typer) -> None:
+    app.command(name="identify")(identify)

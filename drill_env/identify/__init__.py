@@ -1,0 +1,42 @@
+"""Identify every parameter of the rig model from a lab's recordings ("bring your own rig").
+
+* :mod:`~drill_env.identify.steady_state` -- stuck / equilibrium / cycle per constant-voltage
+  run, the upper disk's mean balance and the lower friction curve's points;
+* :mod:`~drill_env.identify.dynamics` -- the period of the torsional cycles;
+* :mod:`~drill_env.identify.joint` -- the joint fit of every parameter on the filtered
+  equation error (:mod:`drill_env.discrepancy.equation_error`) with its intervals;
+* :mod:`~drill_env.identify.identification` -- the whole identification (:func:`identify`);
+* :mod:`~drill_env.identify.plan` -- the experiments that identify a rig;
+* :mod:`~drill_env.identify.report` -- rig.yaml, identification.json, report.md, figures;
+* :mod:`~drill_env.identify.rigs` -- rigs other than the paper's, for tests and examples.
+
+Example::
+
+    from drill_env.discrepancy import load_dataset
+    from drill_env.identify import identify
+    res = identify(load_dataset("my_rig/"), known={"string_stiffness": 0.081})
+    res.params.to_yaml("rig.yaml"); res.parameters["lower_inertia"].ci95
+"""
+
+from drill_env.identify.identification import (
+    SCALE_PARAMETERS,
+    Identification,
+    ParameterResult,
+    identify,
+    parse_known,
+)
+from drill_env.identify.plan import PLANS, ExperimentPlan, plan_text, synth_config
+from drill_env.identify.rigs import draw_rig
+
+__all__ = [
+    "ExperimentPlan",
+    "Identification",
+    "PLANS",
+    "ParameterResult",
+    "SCALE_PARAMETERS",
+    "draw_rig",
+    "identify",
+    "parse_known",
+    "plan_text",
+    "synth_config",
+]

@@ -1,0 +1,467 @@
+"""Identify every parameter of the rig model from a measured dataset.
+
+The steps, in the rig's order (Sec. 2.3 of the paper did them by hand on its rig):
+
+1. **Steady states** of the constant-voltage runs (:mod:`.steady_state`): stuck, slip
+   equilibrium or cycle; the upper disk's mean balance and the lower friction curve's
+   points at the equilibria, relative to the one known value (the *scale*).
+2. **Dynamics** (:mod:`.dynamics`): the period of the cycles gives the string's resonance,
+   hence a first lower inertia; these first values only weight the equation error's
+   windows of the first pass.
+3. **Joint fit** (:mod:`.joint`) of every parameter on the filtered equation error of all
+   runs, twice: first with a cheap model of each window's noise, then with the full one
+   (the discrepancy workflow's) weighted at the first fit.
+4. **Identifiable or not**: a parameter the runs do not excite (the 95 % interval from the
+   window noise alone wider than its value) is named with the run that would fix it (:data:`.plan.RUN_THAT_IDENTIFIES`);
+   when one the model needs is among them, no rig file is offered. The negative side of
+   the upper friction without a run that turns the upper disk backwards, and hump terms
+   that a hump-free friction curve does not need, are set to stated values (the positive
+   side's; zero) and said so.
+5. **Held-out runs**: the model fitted without them is simulated on their input.
+
+The data fix the parameters up to one common scale of every torque and inertia: the
+string stiffness (or the motor constant) given by the user, or the paper's string
+stiffness when none is given (the result then says so first).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drill_env.discrepancy.dataset import MeasuredDataset
+from drill_env.discrepancy.equation_error import EquationErrorConfig, RunEquations, estimate_angle_noise
+from drill_env.identify.dynamics import oscillation_frequency
+from drill_env.identify.joint import HUMP_AMPLITUDES, HUMP_RATES, JointFit, fitted_params, joint_fit, run_rows
+from drill_env.identify.plan import RUN_THAT_IDENTIFIES
+from drill_env.identify.steady_state import SteadyState, UpperBalance, steady_states, upper_balance
+from drill_env.params import IDENTIFIED_PARAMETERS, ParameterError, RigParams, available_presets, load_params
+
+__all__ = ["Identification", "ParameterResult", "identify", "parse_known", "SCALE_PARAMETERS"]
+
+SCALE_PARAMETERS = ("string_stiffness", "motor_constant")
+# the parameters without which the model cannot be simulated at all
+ESSENTIAL = (
+    "motor_constant",
+    "string_stiffness",
+    "upper_inertia",
+    "lower_inertia",
+    "upper_static_pos",
+    "upper_viscous_pos",
+    "lower_static",
+)
+FIRST_PASS_NOISE = EquationErrorConfig(quantisation_harmonics=16, rate_span_factors=(1,))
+MAX_RELATIVE_HALF_WIDTH = 1.0  # a 95 % half-width above |value| x this: not identifiable
+
+
+@dataclass(frozen=True)
+class ParameterResult:
+    """One parameter: value, 95 % interval and how it was identified."""
+
+    name: str
+    value: float
+    ci95: tuple[float, float]
+    method: str  # "steady-state friction curve", "dynamic fit", "fixed by the user", "assumed", ...
+    identified: bool
+    note: str = ""
+    needs: str = ""  # the run that would identify it, when it is not
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {
+            "value": self.value,
+            "ci95": list(self.ci95),
+            "method": self.method,
+            "identified": self.identified,
+        }
+        if self.note:
+            d["note"] = self.note
+        if self.needs:
+            d["run_that_identifies_it"] = self.needs
+        return d
+
+
+@dataclass
+class Identification:
+    """What ``drill-env identify`` found (see :func:`identify`)."""
+
+    dataset: MeasuredDataset
+    structure: str
+    scale: tuple[str, float]
+    scale_assumed: bool  # no --known: the paper's string stiffness
+    states: list[SteadyState]
+    balance: UpperBalance | None
+    fit: JointFit
+    train_fit: JointFit | None
+    parameters: dict[str, ParameterResult]
+    params: RigParams | None  # None: a parameter the model needs is not identifiable
+    train_params: RigParams | None
+    train_runs: list[str]
+    heldout_runs: list[str]
+    equations: dict[str, RunEquations]
+    oscillation_hz: float
+    timings: dict[str, float] = field(default_factory=dict)
+    heldout: dict[str, Any] = field(default_factory=dict)  # run -> RunComparison
+
+    @property
+    def not_identifiable(self) -> list[ParameterResult]:
+        return [p for p in self.parameters.values() if not p.identified and p.name != self.scale[0]]
+
+    @property
+    def blocking(self) -> list[ParameterResult]:
+        """Parameters the model needs that the data do not fix."""
+        return [p for p in self.not_identifiable if p.name in ESSENTIAL and p.method != "assumed"]
+
+    @property
+    def hump(self) -> dict[str, Any]:
+        """How many hump terms the lower friction got, and the shape of the identified curve."""
+        out: dict[str, Any] = {"terms": self.fit.hump_terms, "tests": self.fit.hump_tests}
+        p = self.params or self.train_params
+        if p is not None:
+            from drill_env.friction import lower_friction_curve, lower_friction_slope
+
+            top = max(self.max_lower_speed, 1.0)
+            w = np.linspace(1e-3, top, 400)
+            slope = lower_friction_slope(p, w)
+            falls = slope < 0
+            out["monotone"] = bool(not falls.any())
+            if falls.any():
+                out["falls_between_rad_s"] = [float(w[falls][0]), float(w[falls][-1])]
+            out["curve_at_rad_s"] = {f"{x:g}": float(lower_friction_curve(p, x)) for x in (0.0, 1.0, 5.0)}
+        return out
+
+    @property
+    def max_lower_speed(self) -> float:
+        top = 0.0
+        for run in self.dataset.runs:
+            k = max(1, int(round(0.1 / run.dt)))
+            if run.theta_l.size > k:
+                top = max(top, float(np.max(np.abs(run.theta_l[k:] - run.theta_l[:-k]))) / (k * run.dt))
+        return top
+
+    def scale_sentence(self) -> str:
+        name, value = self.scale
+        if self.scale_assumed:
+            return (
+                f"The scale is ASSUMED: {name} = {value:g} N m/rad, the paper's rig's string. The data fix "
+                "every parameter only up to one common factor of every torque and inertia; if this rig's "
+                "string differs, every torque, inertia and the motor constant here are off by the same "
+                "factor. Give the string's stiffness (k = G pi d^4 / (32 L)) with --known "
+                "string_stiffness=VALUE, or the motor constant with --known motor_constant=VALUE."
+            )
+        unit = "N m/rad" if name == "string_stiffness" else "N m/V"
+        return f"The scale is fixed by the user: {name} = {value:g} {unit} (--known)."
+
+
+def parse_known(items: list[str] | tuple[str, ...] | None) -> dict[str, float]:
+    """``["string_stiffness=0.08"]`` -> ``{"string_stiffness": 0.08}``; ValueError naming the item."""
+    out: dict[str, float] = {}
+    for item in items or ():
+        if "=" not in item:
+            raise ValueError(
+                f"known: {item!r} is not NAME=VALUE; allowed names: {', '.join(SCALE_PARAMETERS)}"
+            )
+        name, _, text = item.partition("=")
+        name = name.strip()
+        if name not in SCALE_PARAMETERS:
+            raise ValueError(f"known: {name!r} cannot be given; allowed: {', '.join(SCALE_PARAMETERS)}")
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"known: {name}={text!r} is not a number") from None
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"known: {name}={text}; allowed: a finite number > 0")
+        if name in out:
+            raise ValueError(f"known: {name} given twice")
+        out[name] = value
+    if len(out) > 1:
+        raise ValueError(
+            "known: give one of string_stiffness, motor_constant (one value fixes the one scale the data "
+            "cannot; a second would contradict the data)"
+        )
+    return out
+
+
+def _split(runs, heldout: list[str] | None) -> tuple[list[str], list[str]]:
+    names = [r.name for r in runs]
+    if heldout is not None:
+        unknown = [h for h in heldout if h not in names]
+        if unknown:
+            raise ValueError(f"heldout: unknown run(s) {unknown}; runs: {names}")
+        train = [n for n in names if n not in heldout]
+        if heldout and len(train) < 2:
+            raise ValueError("heldout: leaves fewer than two runs to identify on")
+        return train, list(heldout)
+    from drill_env.discrepancy.decide import split_runs
+
+    if len(runs) < 4:
+        return names, []  # too few runs to spare one
+    try:
+        return split_runs(runs)
+    except ValueError:
+        return names, []
+
+
+def _initial(
+    scale: tuple[str, float], balance: UpperBalance | None, states: list[SteadyState], freq_hz: float
+) -> RigParams:
+    """First values, for the noise weights of the first pass only (the fit itself starts
+    from nothing: it is linear in all but the Stribeck rates, which are searched on a grid)."""
+    name, value = scale
+    if balance is not None:
+        kth, km = balance.string_stiffness, balance.motor_constant
+        tsu, bu = max(balance.static, 0.0), max(balance.viscous, 0.0)
+    else:
+        # the torque scale of the weights only: a string twisted a few radians at a few volts
+        kth = value if name == "string_stiffness" else 0.02 * value
+        km = value if name == "motor_constant" else 50.0 * value
+        tsu, bu = 4.0 * kth, 25.0 * kth
+    if not (kth > 0 and km > 0):
+        kth = value if name == "string_stiffness" else 0.02 * value
+        km = value if name == "motor_constant" else 50.0 * value
+    w_n = 2.0 * math.pi * (freq_hz if math.isfinite(freq_hz) and freq_hz > 0 else 0.25)
+    jl = kth / w_n**2
+    eq = [s for s in states if s.kind == "equilibrium"]
+    tsl = kth * min((abs(s.mean_twist) for s in eq), default=1.0)
+    return RigParams(
+        motor_constant=km,
+        upper_inertia=15.0 * jl,
+        upper_static_pos=tsu,
+        upper_static_neg=tsu,
+        upper_viscous_pos=bu,
+        upper_viscous_neg=bu,
+        lower_inertia=jl,
+        string_stiffness=kth,
+        lower_static=max(tsl, 1e-6),
+        lower_viscous=0.0,
+        lower_hump_1=0.0,
+        lower_hump_2=0.0,
+        lower_hump_rate_1=0.0,
+        lower_hump_rate_2=0.0,
+        name="first-pass",
+    )
+
+
+def _method(name: str, fit: JointFit, scale: tuple[str, float], assumed: bool) -> str:
+    if name == scale[0]:
+        return "assumed" if assumed else "fixed by the user"
+    share = fit.info_constant.get(name, 0.0)
+    if name in ("upper_inertia", "lower_inertia", "string_stiffness") or (
+        name == "motor_constant" and share < 0.5
+    ):
+        where = "the cycles of constant-voltage runs" if share >= 0.5 else "the random-level runs"
+        return f"dynamic fit (joint equation-error fit; most information from {where})"
+    if share >= 0.5:
+        return "steady-state friction curve (joint equation-error fit; most information from constant-voltage runs)"
+    return "dynamic fit (joint equation-error fit; most information from the random-level runs)"
+
+
+def _results(
+    fit: JointFit, scale: tuple[str, float], assumed: bool, structure: str
+) -> dict[str, ParameterResult]:
+    out: dict[str, ParameterResult] = {}
+    for name in IDENTIFIED_PARAMETERS:
+        v = fit.values[name]
+        if name == scale[0]:
+            note = "the paper's string stiffness: give --known to fix this rig's own" if assumed else ""
+            out[name] = ParameterResult(
+                name, v, (v, v), "assumed" if assumed else "fixed by the user", not assumed, note
+            )
+            continue
+        if name not in fit.free:
+            if name in ("upper_static_neg", "upper_viscous_neg"):
+                pos = name.replace("_neg", "_pos")
+                out[name] = ParameterResult(
+                    name,
+                    v,
+                    (math.nan, math.nan),
+                    "not identifiable from these data",
+                    False,
+                    f"the upper disk never turned backwards: set equal to {pos} (a symmetric friction assumed)",
+                    RUN_THAT_IDENTIFIES[name],
+                )
+            else:  # a hump term the curve does not need
+                out[name] = ParameterResult(
+                    name,
+                    0.0,
+                    (0.0, 0.0),
+                    "not needed by the data (no hump term)",
+                    True,
+                    f"the lower friction curve needs {fit.hump_terms} hump term(s): adding this one does not "
+                    "lower the equation error significantly; set to 0",
+                )
+            continue
+        sd = fit.sd(name)
+        lo, hi = v - 1.96 * sd, v + 1.96 * sd
+        if name not in HUMP_AMPLITUDES:
+            lo = max(lo, 0.0)
+        # identifiable: the runs excite it (a misfit, e.g. a missing effect, widens the interval
+        # but is named in the report, not taken for a lack of excitation)
+        identified = 1.96 * fit.sd_excited(name) <= MAX_RELATIVE_HALF_WIDTH * abs(v)
+        note = needs = ""
+        if not identified:
+            needs = RUN_THAT_IDENTIFIES[name]
+            if name in HUMP_AMPLITUDES + HUMP_RATES + ("lower_viscous",):
+                note = (
+                    "the friction curve is fixed better than this term of it: the hump terms and the "
+                    "viscous slope trade off over the speeds in the data"
+                )
+        out[name] = ParameterResult(
+            name,
+            v,
+            (lo, hi),
+            _method(name, fit, scale, assumed) if identified else "not identifiable from these data",
+            identified,
+            note,
+            needs,
+        )
+    return out
+
+
+def identify(
+    dataset: MeasuredDataset,
+    *,
+    structure: str | None = None,
+    known: Mapping[str, float] | None = None,
+    heldout: list[str] | None = None,
+    simulate_heldout: bool = True,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> Identification:
+    """Identify every parameter of the rig model from ``dataset`` (see the module docstring).
+
+    Args:
+        dataset: a loaded dataset (:func:`drill_env.discrepancy.dataset.load_dataset`).
+        structure: ``brake`` or ``no_brake`` (default: the dataset's ``preset``); names the
+            identified rig and, without ``known``, which preset's string stiffness is assumed.
+        known: at most one of ``{"string_stiffness": k}`` [N m/rad] or ``{"motor_constant": k_m}``
+            [N m/V]: the scale the data cannot fix.
+        heldout: run names kept out of the fit for validation (default: every third run by
+            voltage, as ``drill-env discrepancy``; none with fewer than four runs).
+    """
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    structure = structure or dataset.preset
+    if structure not in available_presets():
+        raise ValueError(f"structure: {structure!r}; allowed: {available_presets()}")
+    known = dict(known or {})
+    bad = sorted(set(known) - set(SCALE_PARAMETERS))
+    if bad or len(known) > 1:
+        raise ValueError(f"known: {sorted(known)}; allowed: one of {list(SCALE_PARAMETERS)}")
+    for k, v in known.items():
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"known: {k} = {v!r}; allowed: a finite number > 0")
+    if known:
+        scale = next(iter(known.items()))
+        scale = (scale[0], float(scale[1]))
+        assumed = False
+    else:
+        scale = ("string_stiffness", float(load_params(structure).string_stiffness))
+        assumed = True
+    train, held = _split(dataset.runs, heldout)
+
+    states = steady_states(dataset.runs, dataset.encoder_step)
+    balance = upper_balance(states, scale, 1)
+    freq = oscillation_frequency(dataset.runs, states)
+    timings["steady_states"] = time.perf_counter() - t0
+
+    noise = estimate_angle_noise(dataset.runs, dataset.encoder_step)
+    p0 = _initial(scale, balance, states, freq)
+    fit = None
+    eqs: dict[str, RunEquations] = {}
+    rows: dict[str, Any] = {}
+    for pass_ in (1, 2):
+        t1 = time.perf_counter()
+        weights_at = p0 if fit is None else _weights_params(fit, p0)
+        # the first pass only finds the parameters the second weights its windows at: a cheap
+        # noise model (16 harmonics of the quantisation error, the count rate over one support)
+        # does; the windows are the same
+        config = FIRST_PASS_NOISE if fit is None else None
+        for i, r in enumerate(dataset.runs):
+            eqs[r.name] = RunEquations(r, weights_at, noise, config)
+            rows[r.name] = run_rows(eqs[r.name])
+            if progress:
+                progress(f"equation error, pass {pass_}", i + 1, len(dataset.runs))
+        if sum(len(x.sigma) for x in rows.values()) < 20:
+            raise ValueError(
+                f"{dataset.path or 'dataset'}: fewer than 20 windows in which a disk turns one way; the rig "
+                "barely moved in these runs. Record on the plan of `drill-env identify --plan`"
+            )
+        fit = joint_fit([rows[r.name] for r in dataset.runs], scale)
+        timings[f"pass_{pass_}"] = time.perf_counter() - t1
+    parameters = _results(fit, scale, assumed, structure)
+    t1 = time.perf_counter()
+    train_fit = joint_fit([rows[n] for n in train], scale, hump_terms=fit.hump_terms) if held else None
+    timings["train_fit"] = time.perf_counter() - t1
+    desc = (
+        f"{structure} rig identified from {dataset.path.name if dataset.path else 'measured data'} "
+        f"({len(dataset.runs)} runs) by drill-env identify; scale: {scale[0]} = {scale[1]:g}"
+        + (" (assumed, the paper's)" if assumed else " (given)")
+    )
+    blocking = [
+        p for p in parameters.values() if not p.identified and p.name in ESSENTIAL and p.name != scale[0]
+    ]
+    params = None
+    if not blocking:
+        try:
+            params = fitted_params(fit, name=f"{structure}-identified", description=desc)
+        except ParameterError:
+            params = None
+    train_params = None
+    if train_fit is not None and params is not None:
+        try:
+            train_params = fitted_params(train_fit, name=f"{structure}-identified-train", description=desc)
+        except ParameterError:
+            train_params = None
+    ident = Identification(
+        dataset=dataset,
+        structure=structure,
+        scale=scale,
+        scale_assumed=assumed,
+        states=states,
+        balance=balance,
+        fit=fit,
+        train_fit=train_fit,
+        parameters=parameters,
+        params=params,
+        train_params=train_params,
+        train_runs=train,
+        heldout_runs=held,
+        equations=eqs,
+        oscillation_hz=freq,
+        timings=timings,
+    )
+    if simulate_heldout and held and train_params is not None:
+        from drill_env.discrepancy.compare import compare_run
+
+        t1 = time.perf_counter()
+        cache: dict = {}
+        for i, name in enumerate(held):
+            ident.heldout[name] = compare_run(
+                train_params, eqs[name], dataset.encoder_counts_per_rev, measured_cache=cache
+            )
+            if progress:
+                progress("simulate held-out runs", i + 1, len(held))
+        timings["heldout"] = time.perf_counter() - t1
+    timings["total"] = time.perf_counter() - t0
+    return ident
+
+
+def _weights_params(fit: JointFit, fallback: RigParams) -> RigParams:
+    """The first fit as parameters for the second pass's noise weights (the first values where
+    the fit left the valid range)."""
+    values = {n: fit.values[n] for n in IDENTIFIED_PARAMETERS}
+    for n in ("motor_constant", "upper_inertia", "lower_inertia", "string_stiffness"):
+        if not values[n] > 0:
+            values[n] = getattr(fallback, n)
+    try:
+        return RigParams(**values, name="first-fit")
+    except ParameterError:
+        values.update({h: 0.0 for h in HUMP_AMPLITUDES})
+        try:
+            return RigParams(**values, name="first-fit")
+        except ParameterError:
+            return fallback

@@ -1,0 +1,418 @@
+"""The joint fit: every parameter of the rig model from the filtered equation error of all runs.
+
+The equation error of :mod:`drill_env.discrepancy.equation_error` is, per window and disk,
+the mean unexplained torque. It is *linear* in every parameter of the model but the two
+Stribeck rates (:func:`drill_env.discrepancy.calibrate.calibration_columns` gives the
+columns; the string stiffness adds ``+K[x1]`` to the upper and ``-K[x1]`` to the lower
+disk's rows):
+
+    r = X_lin p_lin + T_1 H(beta_1) + T_2 H(beta_2),     H(beta) = sgn K[tanh(beta |x3| / 2)] / h^2
+
+so for given rates everything else is a weighted linear least-squares problem (weights:
+each window's noise standard deviation). The rates are found globally on a grid (the
+profile of the linear fit over beta_1 > beta_2), then every parameter is refined together
+(bounded Gauss-Newton, scipy's ``least_squares``). The data fix ratios only (scaling every
+torque and inertia together leaves r / sigma unchanged): the parameter given by the user
+(or the assumed string stiffness) is held at its value.
+
+How many hump terms the lower friction needs is chosen on the data: none (Coulomb plus
+viscous), one or two; a term is kept when it lowers the weighted sum of squares by more
+than ``chi2_{2}(1 - alpha)`` residual variances (alpha = 1e-4, a rate found on a grid is a
+search). A friction curve without a hump thus gets no hump terms, and says so.
+
+Intervals: the Gauss-Newton covariance scaled by the residual variance when the fit
+leaves more than the noise floor, at least as wide as the one-step jackknife over the runs
+(errors common to a run's windows are not in the per-window noise model).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, stats
+
+from drill_env.discrepancy.calibrate import CALIBRATED, calibration_columns
+from drill_env.discrepancy.equation_error import RunEquations
+from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
+
+__all__ = ["RunRows", "JointFit", "run_rows", "joint_fit", "HUMP_AMPLITUDES", "HUMP_RATES", "LINEAR"]
+
+HUMP_AMPLITUDES = ("lower_hump_1", "lower_hump_2")
+HUMP_RATES = ("lower_hump_rate_1", "lower_hump_rate_2")
+# the parameters the equation error is linear in, in IDENTIFIED_PARAMETERS order
+LINEAR: tuple[str, ...] = tuple(p for p in IDENTIFIED_PARAMETERS if p not in HUMP_AMPLITUDES + HUMP_RATES)
+BETA_GRID = np.geomspace(0.02, 60.0, 26)  # [s/rad] Stribeck rates tried before refining
+BETA_BOUNDS = (1e-3, 500.0)  # [s/rad]
+HUMP_ALPHA = 1e-4  # level at which a hump term is kept
+NEGATIVE_MIN_WINDOWS = 10  # upper-disk windows turning backwards needed for T_sun, b_un
+
+
+@dataclass
+class RunRows:
+    """The equation-error rows of one run: linear columns, hump material and noise."""
+
+    name: str
+    constant: bool  # a constant-voltage run
+    x_lin: np.ndarray  # (windows, len(LINEAR)) columns [N m per unit]
+    sigma: np.ndarray  # (windows,) noise standard deviation [N m]
+    lower: np.ndarray  # (lower windows,) row indices of the lower disk's windows
+    sign_l: np.ndarray  # (lower windows,) direction of slip
+    speed_l: np.ndarray  # (lower windows, support) |x3| on each window's support [rad/s]
+    kernel: np.ndarray  # (support,) the triangle kernel / h^2 [1]
+    negative_upper: int  # upper windows in which the upper disk turns backwards
+
+    def hump(self, beta: float) -> np.ndarray:
+        """H(beta) on every row (zero on the upper disk's) [N m per N m of T]."""
+        out = np.zeros(self.sigma.size)
+        out[self.lower] = self.sign_l * (np.tanh(0.5 * beta * self.speed_l) @ self.kernel)
+        return out
+
+    def hump_rate(self, beta: float) -> np.ndarray:
+        """dH/dbeta on every row [N m per (N m s/rad)]."""
+        e = np.exp(-beta * self.speed_l)  # sech^2(b w / 2) = 4 e / (1 + e)^2, without overflow
+        out = np.zeros(self.sigma.size)
+        out[self.lower] = self.sign_l * ((2.0 * self.speed_l * e / (1.0 + e) ** 2) @ self.kernel)
+        return out
+
+
+def run_rows(eq: RunEquations) -> RunRows:
+    """The rows of one run's equation error, built on the calibration columns."""
+    with np.errstate(over="ignore"):  # cosh of a steep Stribeck rate: its columns are not used here
+        xu, xl = calibration_columns(eq)
+    h2 = eq.h**2
+    cal = {n: i for i, n in enumerate(CALIBRATED)}
+    nu, nl = len(eq.upper), len(eq.lower)
+    x = np.zeros((nu + nl, len(LINEAR)))
+    for j, name in enumerate(LINEAR):
+        if name == "string_stiffness":
+            if nu:
+                x[:nu, j] = (eq.gather(eq.twist, eq.upper.centers) @ eq.w_tri) / h2
+            if nl:
+                x[nu:, j] = -(eq.gather(eq.twist, eq.lower.centers) @ eq.w_tri) / h2
+        else:
+            x[:nu, j] = xu[:, cal[name]]
+            x[nu:, j] = xl[:, cal[name]]
+    speed = np.abs(eq.gather(eq.speed_l, eq.lower.centers)) if nl else np.zeros((0, eq.w_tri.size))
+    return RunRows(
+        name=eq.run.name,
+        constant=bool(eq.run.is_constant_voltage),
+        x_lin=x,
+        sigma=np.concatenate([eq.upper.sigma, eq.lower.sigma]),
+        lower=np.arange(nu, nu + nl),
+        sign_l=eq.lower.sign.astype(float),
+        speed_l=speed,
+        kernel=eq.w_tri / h2,
+        negative_upper=int(np.sum(eq.upper.sign < 0)),
+    )
+
+
+@dataclass
+class JointFit:
+    """The joint fit's values, covariance and diagnostics (RigParams field names)."""
+
+    values: dict[str, float]
+    free: list[str]  # the parameters fitted (in the order of ``cov``)
+    cov: np.ndarray  # covariance of the free parameters (interval scale)
+    sd_model: np.ndarray  # standard deviations from the window noise alone
+    sd_jackknife: np.ndarray  # one-step jackknife over the runs
+    sd_information: np.ndarray  # from the window noise alone, unscaled by the misfit: what the data excite
+    hump_terms: int  # 0, 1 or 2
+    hump_tests: dict[str, float]  # chi2 of each added hump term, and the threshold
+    ss: float  # weighted sum of squares at the optimum
+    n_windows: int
+    dof: int
+    scale: tuple[str, float]
+    negative_side: bool  # the upper disk turned backwards in enough windows
+    info_constant: dict[str, float] = field(
+        default_factory=dict
+    )  # share of information from constant-voltage runs
+    relative_sd: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def residual_variance(self) -> float:
+        return self.ss / max(self.dof, 1)
+
+    def sd_excited(self, name: str) -> float:
+        """Standard deviation from the window noise alone: how well the runs excite ``name``
+        (a model the data contradict widens the interval, not this)."""
+        if name not in self.free:
+            return math.inf
+        return float(self.sd_information[self.free.index(name)])
+
+    def sd(self, name: str) -> float:
+        if name not in self.free:
+            return 0.0
+        i = self.free.index(name)
+        return float(math.sqrt(max(self.cov[i, i], 0.0)))
+
+
+def _stack(rows: list[RunRows]):
+    x = np.vstack([r.x_lin / r.sigma[:, None] for r in rows])
+    return x
+
+
+def _free_linear(scale: str, negative: bool) -> list[str]:
+    out = [p for p in LINEAR if p != scale]
+    if not negative:
+        out = [p for p in out if p not in ("upper_static_neg", "upper_viscous_neg")]
+    return out
+
+
+class _Problem:
+    """The stacked weighted rows of a set of runs, for one choice of free linear parameters."""
+
+    def __init__(self, rows: list[RunRows], scale: tuple[str, float], free_lin: list[str]):
+        self.rows = rows
+        self.scale = scale
+        self.free_lin = free_lin
+        x = _stack(rows)
+        idx = [LINEAR.index(p) for p in free_lin]
+        self.a = x[:, idx]
+        self.y = -x[:, LINEAR.index(scale[0])] * scale[1]
+        self.inv_sigma = np.concatenate([1.0 / r.sigma for r in rows])
+        self.run_of_row = np.concatenate([np.full(r.sigma.size, i) for i, r in enumerate(rows)])
+        self._h: dict[float, np.ndarray] = {}
+
+    @property
+    def n(self) -> int:
+        return self.y.size
+
+    def hump(self, beta: float) -> np.ndarray:
+        key = float(beta)
+        if key not in self._h:
+            self._h[key] = np.concatenate([r.hump(beta) for r in self.rows]) * self.inv_sigma
+            if len(self._h) > 200:
+                self._h.pop(next(iter(self._h)))
+        return self._h[key]
+
+    def hump_rate(self, beta: float) -> np.ndarray:
+        return np.concatenate([r.hump_rate(beta) for r in self.rows]) * self.inv_sigma
+
+    def lstsq(self, extra: list[np.ndarray]) -> tuple[np.ndarray, float]:
+        a = np.column_stack([self.a, *extra]) if extra else self.a
+        coef, *_ = np.linalg.lstsq(a, self.y, rcond=None)
+        res = self.y - a @ coef
+        return coef, float(res @ res)
+
+
+def _grid_search(prob: _Problem, terms: int) -> tuple[tuple[float, ...], float]:
+    """Best rates on the grid for a friction with ``terms`` hump terms, and the sum of squares."""
+    if terms == 0:
+        return (), prob.lstsq([])[1]
+    # normal equations, with the hump columns precomputed on the grid
+    a, y = prob.a, prob.y
+    h = np.column_stack([prob.hump(b) for b in BETA_GRID])
+    g_aa, g_ay = a.T @ a, a.T @ y
+    g_ah, g_hh, g_hy = a.T @ h, h.T @ h, h.T @ y
+    yy = float(y @ y)
+    # the best pair whose linear parameters are all >= 0 (a negative viscous slope can mimic a slow
+    # Stribeck term on the grid, and would be clipped away afterwards); the best of all if none is
+    best: tuple[tuple[float, ...], float] = ((), math.inf)
+    best_any: tuple[tuple[float, ...], float] = ((), math.inf)
+    k = a.shape[1]
+    pairs = (
+        [(i,) for i in range(BETA_GRID.size)]
+        if terms == 1
+        else [(i, j) for i in range(BETA_GRID.size) for j in range(i)]
+    )
+    for sel in pairs:
+        s = list(sel)
+        m = np.zeros((k + len(s), k + len(s)))
+        m[:k, :k] = g_aa
+        m[:k, k:] = g_ah[:, s]
+        m[k:, :k] = g_ah[:, s].T
+        m[k:, k:] = g_hh[np.ix_(s, s)]
+        b = np.concatenate([g_ay, g_hy[s]])
+        try:
+            coef = np.linalg.solve(m + 1e-12 * np.diag(np.diag(m)), b)
+        except np.linalg.LinAlgError:
+            continue
+        ss = yy - float(coef @ b)
+        here = (tuple(float(BETA_GRID[i]) for i in sel), ss)
+        if ss < best_any[1]:
+            best_any = here
+        if ss < best[1] and not np.any(coef[:k] < 0.0):
+            best = here
+    return best if best[0] else best_any
+
+
+def _residual(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
+    k = prob.a.shape[1]
+    r = prob.a @ theta[:k] - prob.y
+    for t in range(terms):
+        r = r + theta[k + t] * prob.hump(theta[k + terms + t])
+    return r
+
+
+def _jacobian(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
+    k = prob.a.shape[1]
+    cols = [prob.a]
+    cols += [prob.hump(theta[k + terms + t])[:, None] for t in range(terms)]
+    cols += [(theta[k + t] * prob.hump_rate(theta[k + terms + t]))[:, None] for t in range(terms)]
+    return np.hstack(cols)
+
+
+def _refine(
+    prob: _Problem, betas: tuple[float, ...], start: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
+    """Every free parameter together from the grid's best rates, or from ``start`` (bounded
+    Gauss-Newton)."""
+    terms = len(betas)
+    k = prob.a.shape[1]
+    lo = np.concatenate([np.zeros(k), np.full(terms, -np.inf), np.full(terms, BETA_BOUNDS[0])])
+    hi = np.concatenate([np.full(k, np.inf), np.full(terms, np.inf), np.full(terms, BETA_BOUNDS[1])])
+    if start is None:
+        coef, _ = prob.lstsq([prob.hump(b) for b in betas])
+        x0 = np.concatenate([coef, np.asarray(betas, dtype=float)])
+    else:
+        x0 = np.asarray(start, dtype=float)
+    x0 = np.clip(x0, lo, hi)
+    if start is None and np.any(x0[:k] == 0.0):
+        # a linear parameter clipped to its bound: start from the bounded linear fit at these rates
+        x0[: k + terms] = _bounded_linear(prob, [prob.hump(b) for b in betas], k)
+    sol = optimize.least_squares(
+        lambda th: _residual(prob, th, terms),
+        x0,
+        jac=lambda th: _jacobian(prob, th, terms),
+        bounds=(lo, hi),
+        x_scale="jac",
+        method="trf",
+        max_nfev=500,
+    )
+    r = sol.fun
+    r0 = _residual(prob, x0, terms)
+    if float(r0 @ r0) < float(r @ r):  # never worse than where it started
+        return x0, float(r0 @ r0)
+    return sol.x, float(r @ r)
+
+
+def _bounded_linear(prob: _Problem, extra: list[np.ndarray], k: int) -> np.ndarray:
+    """The linear parameters (>= 0) and hump amplitudes (free) at fixed rates."""
+    a = np.column_stack([prob.a, *extra]) if extra else prob.a
+    lo = np.concatenate([np.zeros(k), np.full(len(extra), -np.inf)])
+    return optimize.lsq_linear(a, prob.y, bounds=(lo, np.inf), method="bvls").x
+
+
+def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int | None = None) -> JointFit:
+    """Fit every parameter on the rows of ``rows`` with ``scale = (name, value)`` held.
+
+    ``hump_terms`` forces the number of hump terms (default: chosen on the data)."""
+    negative = sum(r.negative_upper for r in rows) >= NEGATIVE_MIN_WINDOWS
+    free_lin = _free_linear(scale[0], negative)
+    prob = _Problem(rows, scale, free_lin)
+    k = len(free_lin)
+    fits: dict[int, tuple[np.ndarray, float]] = {}
+    for terms in (0, 1, 2) if hump_terms is None else (hump_terms,):
+        betas, _ = _grid_search(prob, terms)
+        if terms == 0:
+            coef = _bounded_linear(prob, [], k)
+            fits[0] = (coef, float(np.sum(_residual(prob, coef, 0) ** 2)))
+        else:
+            fits[terms] = _refine(prob, betas)
+            if terms == 2 and 1 in fits:
+                # also grow the one-term fit by a second term (so that two terms never fit worse than
+                # one): its rate the best on the grid with the first term held
+                one = fits[1][0]
+                b1 = float(one[k + 1])
+                best = min(BETA_GRID, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
+                start = np.concatenate([one[:k], [one[k], 0.0], [b1, best]])
+                grown = _refine(prob, (b1, float(best)), start=start)
+                if grown[1] < fits[2][1]:
+                    fits[2] = grown
+    tests: dict[str, float] = {}
+    if hump_terms is None:
+        n_top = k + 4
+        s2 = max(1.0, fits[2][1] / max(prob.n - n_top, 1))
+        thr = float(stats.chi2.isf(HUMP_ALPHA, 2))
+        d10 = (fits[0][1] - fits[1][1]) / s2
+        d21 = (fits[1][1] - fits[2][1]) / s2
+        d20 = (fits[0][1] - fits[2][1]) / s2
+        tests = {"one_term_vs_none": d10, "two_terms_vs_one": d21, "two_terms_vs_none": d20, "threshold": thr}
+        if d21 > thr:
+            chosen = 2
+        elif d10 > thr:
+            chosen = 1
+        elif d20 > thr:
+            chosen = 2
+        else:
+            chosen = 0
+    else:
+        chosen = hump_terms
+    theta, ss = fits[chosen]
+    # order the terms: beta_1 >= beta_2, as the paper's
+    if chosen == 2 and theta[k + 2] < theta[k + 3]:
+        theta = theta.copy()
+        theta[[k, k + 1]] = theta[[k + 1, k]]
+        theta[[k + 2, k + 3]] = theta[[k + 3, k + 2]]
+    names = list(free_lin) + list(HUMP_AMPLITUDES[:chosen]) + list(HUMP_RATES[:chosen])
+    jac = _jacobian(prob, theta, chosen)
+    res = _residual(prob, theta, chosen)
+    p = jac.shape[1]
+    dof = prob.n - p
+    s2 = max(1.0, ss / max(dof, 1))
+    jtj = jac.T @ jac
+    norms = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
+    jn = jtj / np.outer(norms, norms)
+    cov_n = np.linalg.inv(jn + 1e-10 * np.eye(p))
+    cov_info = cov_n / np.outer(norms, norms)
+    cov_model = cov_info * s2
+    # one-step jackknife over the runs
+    runs = np.unique(prob.run_of_row)
+    g = jac.T @ res
+    loo = []
+    if runs.size >= 3:
+        for i in runs:
+            sel = prob.run_of_row == i
+            ji, ri = jac[sel], res[sel]
+            m = (jtj - ji.T @ ji) / np.outer(norms, norms) + 1e-10 * np.eye(p)
+            step = -np.linalg.solve(m, (g - ji.T @ ri) / norms) / norms
+            loo.append(step)
+        loo_a = np.array(loo)
+        var_jk = (runs.size - 1) / runs.size * np.sum((loo_a - loo_a.mean(axis=0)) ** 2, axis=0)
+    else:
+        var_jk = np.zeros(p)
+    sd_model = np.sqrt(np.maximum(np.diag(cov_model), 0.0))
+    sd_jk = np.sqrt(var_jk)
+    sd = np.maximum(sd_model, sd_jk)
+    corr = cov_model / np.outer(np.maximum(sd_model, 1e-300), np.maximum(sd_model, 1e-300))
+    cov = corr * np.outer(sd, sd)
+    # how much of each parameter's information comes from constant-voltage runs
+    const_rows = np.concatenate([np.full(r.sigma.size, r.constant) for r in rows])
+    info_all = np.sum(jac**2, axis=0)
+    info_const = np.sum(jac[const_rows] ** 2, axis=0)
+    values: dict[str, float] = {scale[0]: float(scale[1])}
+    for name, v in zip(names, theta, strict=True):
+        values[name] = float(v)
+    for t in range(chosen, 2):
+        values[HUMP_AMPLITUDES[t]] = 0.0
+        values[HUMP_RATES[t]] = 0.0
+    if not negative:
+        values["upper_static_neg"] = values["upper_static_pos"]
+        values["upper_viscous_neg"] = values["upper_viscous_pos"]
+    rel = {n: float(sd[i] / abs(values[n])) if values[n] != 0.0 else math.inf for i, n in enumerate(names)}
+    return JointFit(
+        values=values,
+        free=names,
+        cov=cov,
+        sd_model=sd_model,
+        sd_jackknife=sd_jk,
+        sd_information=np.sqrt(np.maximum(np.diag(cov_info), 0.0)),
+        hump_terms=chosen,
+        hump_tests=tests,
+        ss=ss,
+        n_windows=prob.n,
+        dof=dof,
+        scale=scale,
+        negative_side=negative,
+        info_constant={
+            n: float(info_const[i] / info_all[i]) if info_all[i] > 0 else 0.0 for i, n in enumerate(names)
+        },
+        relative_sd=rel,
+    )
+
+
+def fitted_params(fit: JointFit, *, name: str, description: str) -> RigParams:
+    """The fit as a validated :class:`RigParams`."""
+    return RigParams(**{n: fit.values[n] for n in IDENTIFIED_PARAMETERS}, name=name, description=description)
