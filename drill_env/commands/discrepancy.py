@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import typer
 
@@ -122,7 +122,8 @@ def synth(
             _fail(f"--preset: with --params the structure, one of {available_presets()}; got {preset!r}")
         truth = str(params)
     try:
-        design = dict(voltages=volts, random_runs=random_runs, duration_s=duration)
+        # SynthConfig's fields by name (all but the preset)
+        design: dict[str, Any] = dict(voltages=volts, random_runs=random_runs, duration_s=duration)
         if plan is not None:
             from drill_env.identify.plan import PLANS, synth_config
 

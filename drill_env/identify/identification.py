@@ -40,7 +40,14 @@ from drill_env.identify.dynamics import oscillation_frequency
 from drill_env.identify.joint import HUMP_AMPLITUDES, HUMP_RATES, JointFit, fitted_params, joint_fit, run_rows
 from drill_env.identify.plan import RUN_THAT_IDENTIFIES
 from drill_env.identify.steady_state import SteadyState, UpperBalance, steady_states, upper_balance
-from drill_env.params import IDENTIFIED_PARAMETERS, ParameterError, RigParams, available_presets, load_params
+from drill_env.params import (
+    IDENTIFIED_PARAMETERS,
+    ModelEffects,
+    ParameterError,
+    RigParams,
+    available_presets,
+    load_params,
+)
 
 __all__ = ["Identification", "ParameterResult", "identify", "parse_known", "SCALE_PARAMETERS"]
 
@@ -370,16 +377,16 @@ def identify(
 
     noise = estimate_angle_noise(dataset.runs, dataset.encoder_step)
     p0 = _initial(scale, balance, states, freq)
-    fit = None
     eqs: dict[str, RunEquations] = {}
     rows: dict[str, Any] = {}
-    for pass_ in (1, 2):
+
+    def fit_pass(pass_: int, previous: JointFit | None) -> JointFit:
         t1 = time.perf_counter()
-        weights_at = p0 if fit is None else _weights_params(fit, p0)
+        weights_at = p0 if previous is None else _weights_params(previous, p0)
         # the first pass only finds the parameters the second weights its windows at: a cheap
         # noise model (16 harmonics of the quantisation error, the count rate over one support)
         # does; the windows are the same
-        config = FIRST_PASS_NOISE if fit is None else None
+        config = FIRST_PASS_NOISE if previous is None else None
         for i, r in enumerate(dataset.runs):
             eqs[r.name] = RunEquations(r, weights_at, noise, config)
             rows[r.name] = run_rows(eqs[r.name])
@@ -392,6 +399,9 @@ def identify(
             )
         fit = joint_fit([rows[r.name] for r in dataset.runs], scale)
         timings[f"pass_{pass_}"] = time.perf_counter() - t1
+        return fit
+
+    fit = fit_pass(2, fit_pass(1, None))
     parameters = _results(fit, scale, assumed, structure)
     t1 = time.perf_counter()
     train_fit = joint_fit([rows[n] for n in train], scale, hump_terms=fit.hump_terms) if held else None
@@ -457,11 +467,11 @@ def _weights_params(fit: JointFit, fallback: RigParams) -> RigParams:
     for n in ("motor_constant", "upper_inertia", "lower_inertia", "string_stiffness"):
         if not values[n] > 0:
             values[n] = getattr(fallback, n)
-    try:
-        return RigParams(**values, name="first-fit")
+    try:  # values holds the numeric fields; the rest by name
+        return RigParams(**values, effects=ModelEffects(), name="first-fit", description="")
     except ParameterError:
         values.update({h: 0.0 for h in HUMP_AMPLITUDES})
         try:
-            return RigParams(**values, name="first-fit")
+            return RigParams(**values, effects=ModelEffects(), name="first-fit", description="")
         except ParameterError:
             return fallback

@@ -35,7 +35,7 @@ from scipy import optimize, stats
 
 from drill_env.discrepancy.calibrate import CALIBRATED, calibration_columns
 from drill_env.discrepancy.equation_error import RunEquations
-from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
+from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams
 
 __all__ = ["RunRows", "JointFit", "run_rows", "joint_fit", "HUMP_AMPLITUDES", "HUMP_RATES", "LINEAR"]
 
@@ -415,4 +415,5 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
 
 def fitted_params(fit: JointFit, *, name: str, description: str) -> RigParams:
     """The fit as a validated :class:`RigParams`."""
-    return RigParams(**{n: fit.values[n] for n in IDENTIFIED_PARAMETERS}, name=name, description=description)
+    values = {n: fit.values[n] for n in IDENTIFIED_PARAMETERS}  # the numeric fields; the rest by name
+    return RigParams(**values, effects=ModelEffects(), name=name, description=description)

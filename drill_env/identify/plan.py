@@ -20,6 +20,10 @@ Hopf point of a rig with parameters from x0.3 to x3 of the paper's lie.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from drill_env.discrepancy.synth import SynthConfig
 
 __all__ = ["ExperimentPlan", "PLANS", "plan_text", "RUN_THAT_IDENTIFIES"]
 
@@ -132,13 +136,13 @@ def plan_text() -> str:
     return "\n".join(lines)
 
 
-def synth_config(plan: ExperimentPlan | str, rig: str, **overrides):
+def synth_config(plan: ExperimentPlan | str, rig: str, **overrides: Any) -> SynthConfig:
     """The :class:`~drill_env.discrepancy.synth.SynthConfig` that records ``rig`` (a preset or a
     rig YAML) on ``plan``; ``overrides`` set other fields (sample rate, encoder, ...)."""
     from drill_env.discrepancy.synth import SynthConfig
 
     p = PLANS[plan] if isinstance(plan, str) else plan
-    fields = {
+    fields: dict[str, Any] = {  # SynthConfig's fields by name
         "preset": str(rig),
         "voltages": p.voltages,
         "random_runs": p.random_runs,

@@ -163,7 +163,8 @@ def _sample_params(res: Identification, n: int = 200, seed: int = 0) -> list[Rig
     return out
 
 
-def _friction_figure(res: Identification, path: Path) -> None:
+def _friction_figure(res: Identification, p: RigParams, path: Path) -> None:
+    """The identified friction curves (``p``: the identified rig, ``res.params``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -171,7 +172,6 @@ def _friction_figure(res: Identification, path: Path) -> None:
 
     from drill_env.friction import lower_friction_curve, upper_slip_friction
 
-    p = res.params
     fig, (ax_u, ax_l) = plt.subplots(1, 2, figsize=(12, 4.8))
     top_l = max(res.max_lower_speed, 1.0)
     w_l = np.linspace(0.0, top_l, 300)
@@ -257,7 +257,10 @@ def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> 
     return True
 
 
-def _bifurcation_figure(res: Identification, path: Path, progress=None) -> dict[str, Any] | None:
+def _bifurcation_figure(
+    res: Identification, params: RigParams, path: Path, progress=None
+) -> dict[str, Any] | None:
+    """The bifurcation diagram of ``params`` (the identified rig, ``res.params``) with the data."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -271,7 +274,7 @@ def _bifurcation_figure(res: Identification, path: Path, progress=None) -> dict[
     u_max = max([s.voltage for s in pos] + [1.0])
     u_max = min(5.0, u_max * 1.05) if u_max < 5.0 else 5.0
     try:
-        diagram = bifurcation_diagram(res.params, u_max=u_max, u_min=0.0)
+        diagram = bifurcation_diagram(params, u_max=u_max, u_min=0.0)
     except Exception as exc:  # noqa: BLE001 (the report says why the figure is missing)
         return {"error": f"{type(exc).__name__}: {exc}"}
     fig, ax = plt.subplots(figsize=(11, 5.5))
@@ -324,12 +327,12 @@ def write_outputs(
     figs: dict[str, str] = {}
     bif: dict[str, Any] | None = None
     if figures and res.params is not None:
-        _friction_figure(res, out / "friction.png")
+        _friction_figure(res, res.params, out / "friction.png")
         figs["friction"] = "friction.png"
         if _heldout_figure(res, out / "heldout.png"):
             figs["heldout"] = "heldout.png"
         if bifurcation:
-            bif = _bifurcation_figure(res, out / "bifurcation.png")
+            bif = _bifurcation_figure(res, res.params, out / "bifurcation.png")
             if bif is not None and "error" not in bif:
                 figs["bifurcation"] = "bifurcation.png"
             record["bifurcation"] = bif
