@@ -548,7 +548,7 @@ def _load_csv(
     runs = []
     for j, (a, b) in enumerate(segments):
         part = f"{path.stem}@{j + 1}" if len(segments) > 1 else path.stem
-        if t[b - 1] - t[a] < MIN_DURATION_S:
+        if t[b - 1] - t[a] < MIN_DURATION_S - 1e-3 * dt:  # as for a whole run: clock rounding
             raise DatasetError(
                 f"{name}: lines {line(a)}-{line(b - 1)}, column 't': the part between gaps lasts "
                 f"{t[b - 1] - t[a]:.4g} s; at least {MIN_DURATION_S:g} s are needed (split_at_gaps makes "
