@@ -26,7 +26,16 @@ def _progress():
 
 def synth(
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
-    effect: str = typer.Option(..., help="Hidden effect: none, a library effect, or external_torque."),
+    effect: str | None = typer.Option(
+        None, help="Hidden effect: none, a library effect, or external_torque (or give --plant)."
+    ),
+    plant: Path | None = typer.Option(
+        None,
+        "--plant",
+        help="Record this truth plant instead of the preset with a drawn effect: a plant file (rig "
+        "YAML with effects, optionally actuator_delay [s] and sensors:, whose counts_per_rev and "
+        "angle_noise_std replace --counts and --angle-noise). Its preset (friction family) is --preset.",
+    ),
     magnitude: float | None = typer.Option(
         None,
         help="Magnitude of the effect (its meaning per effect is in the README); default: "
@@ -57,8 +66,8 @@ def synth(
     random_runs: int = typer.Option(3, help="Quasi-random voltage runs."),
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
-    parameters off by a few percent)."""
-    from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
+    parameters off by a few percent), or from a truth plant file (--plant)."""
+    from drill_env.discrepancy.synth import SynthConfig, make_dataset, make_plant_dataset, write_synthetic
     from drill_env.outputs import check_output_file, check_output_folder, output_lock
     from drill_env.params import ParameterError
 
@@ -70,6 +79,22 @@ def synth(
             f"--answer {answer}: lies inside the dataset folder --out {out}; keep the answer apart from the data"
         )
 
+    if (effect is None) == (plant is None):
+        _fail(
+            "--effect/--plant: give exactly one of them (a hidden effect on the preset, or a truth plant file)"
+        )
+    truth_file = None
+    if plant is not None:
+        from drill_env.plant_file import read_plant_file
+
+        try:
+            truth_file = read_plant_file(plant)
+        except (ValueError, ParameterError) as exc:
+            _fail(f"--plant {plant}: {exc}")
+        if param_error:
+            _fail("--param-error: a truth plant file holds its own parameters; leave --param-error out")
+        counts = int(truth_file.sensors.get("counts_per_rev", counts))
+        angle_noise = float(truth_file.sensors.get("angle_noise_std", angle_noise))
     try:
         volts = tuple(float(v) for v in voltages.split(",") if v.strip())
     except ValueError:
@@ -88,13 +113,23 @@ def synth(
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:
                 task = prog.add_task("simulating runs", total=len(volts) + random_runs)
-                res = make_dataset(
-                    effect,
-                    seed=seed,
-                    magnitude=magnitude,
-                    config=cfg,
-                    progress=lambda i, n: prog.update(task, completed=i),
-                )
+                if truth_file is not None:
+                    res = make_plant_dataset(
+                        truth_file.params,
+                        seed=seed,
+                        config=cfg,
+                        delay_s=truth_file.actuator_delay,
+                        source=str(plant),
+                        progress=lambda i, n: prog.update(task, completed=i),
+                    )
+                else:
+                    res = make_dataset(
+                        effect,
+                        seed=seed,
+                        magnitude=magnitude,
+                        config=cfg,
+                        progress=lambda i, n: prog.update(task, completed=i),
+                    )
             write_synthetic(res, out, answer, preset=preset)
     except (ValueError, ParameterError) as exc:
         _fail(str(exc))

@@ -43,6 +43,7 @@ __all__ = [
     "SynthConfig",
     "SynthResult",
     "make_dataset",
+    "make_plant_dataset",
     "write_synthetic",
 ]
 
@@ -287,7 +288,9 @@ def _random_levels(cfg: SynthConfig, total_s: float, rng: np.random.Generator) -
     return out
 
 
-def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: str) -> MeasuredRun:
+def _simulate_run(
+    truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: str, delay_s: float = 0.0
+) -> MeasuredRun:
     from drill_env.sensors import SensorConfig, measure
     from drill_env.simulator import simulate
 
@@ -316,7 +319,8 @@ def _simulate_run(truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: 
     if np.ndim(u_levels) == 0:
         u = np.full(n_rec, float(u_levels))
     else:
-        idx = np.floor((t_true - t0) / cdt + 1e-9).astype(int)
+        # the voltage asked for: with an actuator delay, the one applied delay_s later
+        idx = np.floor((t_true + delay_s - t0) / cdt + 1e-9).astype(int)
         u = np.asarray(u_levels)[np.minimum(idx, len(u_levels) - 1)]
     sensors = SensorConfig(
         counts_per_rev=cfg.encoder_counts_per_rev,
@@ -420,6 +424,66 @@ def make_dataset(
             "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
             "angle_noise_std": cfg.angle_noise_std,
             "param_error": cfg.param_error,
+        },
+    }
+    return SynthResult(runs=runs, truth=truth, answer=answer)
+
+
+def make_plant_dataset(
+    truth: RigParams,
+    *,
+    seed: int,
+    config: SynthConfig | None = None,
+    delay_s: float = 0.0,
+    source: str = "plant file",
+    progress: Callable[[int, int], None] | None = None,
+) -> SynthResult:
+    """Record a given truth plant (a plant file's rig, effects included) like the rig: the runs
+    of ``config`` through its encoders. ``delay_s`` [s] is the plant's actuator delay: the
+    recorded (asked-for) voltage leads the applied one by it. The answer names the plant's
+    effects and parameters."""
+    if not isinstance(truth, RigParams):
+        raise ValueError(f"truth: expected RigParams, got {type(truth).__name__}")
+    if not (math.isfinite(delay_s) and 0.0 <= delay_s <= 1.0):
+        raise ValueError(f"actuator_delay: {delay_s!r} is outside the allowed range [0, 1] s")
+    cfg = config or SynthConfig()
+    rng = np.random.default_rng(seed)
+    total = len(cfg.voltages) + cfg.random_runs
+    designs: list[Any] = [float(v) for v in cfg.voltages]
+    for _ in range(cfg.random_runs):
+        designs.append(_random_levels(cfg, cfg.pre_roll_s + cfg.duration_s, rng))
+    runs: list[MeasuredRun] = []
+    for i, design in enumerate(designs):
+        runs.append(_simulate_run(truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}", delay_s))
+        if progress is not None:
+            progress(i + 1, total)
+    nominal = load_params(cfg.preset)
+    effects = {k: v for k, v in truth.to_dict().get("effects", {}).items()}
+    answer = {
+        "effect": "plant",
+        "source": source,
+        "in_library": True,
+        "model_effects": effects,
+        "effects": list(truth.effects.active),
+        "actuator_delay": delay_s,
+        "parameter_errors": {
+            n: float(getattr(truth, n)) / float(getattr(nominal, n)) - 1.0
+            for n in IDENTIFIED
+            if float(getattr(truth, n)) != float(getattr(nominal, n))
+        },
+        "parameters": {n: float(getattr(truth, n)) for n in IDENTIFIED},
+        "parameters_at_nominal_string_stiffness": _at_nominal_stiffness(cfg.preset, truth),
+        "seed": seed,
+        "preset": cfg.preset,
+        "design": {
+            "voltages": list(cfg.voltages),
+            "random_runs": cfg.random_runs,
+            "duration_s": cfg.duration_s,
+            "pre_roll_s": cfg.pre_roll_s,
+            "sample_rate_hz": cfg.sample_rate_hz,
+            "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
+            "angle_noise_std": cfg.angle_noise_std,
+            "param_error": 0.0,
         },
     }
     return SynthResult(runs=runs, truth=truth, answer=answer)
