@@ -229,3 +229,51 @@ def test_a_disk_that_stalls_scores_as_a_failure_not_a_perfect_suppression():
     assert m.stick_fraction > 0.9 and m.amplitude < 0.05 * m.open_loop_amplitude  # raw: ~1
     assert m.stalled and m.suppression == 0.0
     assert m.rms_error > 1.0
+
+
+@pytest.mark.slow
+def test_the_hidden_plant_numbers_hold_with_the_design_models_set_point(tmp_path):
+    """A plant the project never saw: lower position friction a1 0.15 (second harmonic 0.05),
+    upper a1 0.12, 15 ms motor lag, parameters 6 % off in directions outside the family. With
+    the target speed of the design model (the preset's), lqi_angle_ff and ppo_robust keep a
+    worst-case suppression of at least 0.95 over 0.7-1.5 V, without stalling, while the LQI
+    does not."""
+    from drill_env.agents.evaluation.benchmark import BenchmarkConfig, run_benchmark
+
+    b = load_params("brake")
+    rig = _plant_file(
+        tmp_path / "hidden.yaml",
+        motor_constant=b.motor_constant * 1.06,
+        lower_inertia=b.lower_inertia * 0.94,
+        string_stiffness=b.string_stiffness * 1.06,
+        lower_static=b.lower_static * 0.94,
+        upper_viscous_pos=b.upper_viscous_pos * 1.06,
+        upper_inertia=b.upper_inertia * 0.94,
+        effects={
+            "lower_position_amp_1": 0.15,
+            "lower_position_phase_1": 2.0,
+            "lower_position_amp_2": 0.05,
+            "lower_position_phase_2": 0.7,
+            "upper_position_amp_1": 0.12,
+            "upper_position_phase_1": 5.0,
+            "motor_lag": 0.015,
+        },
+    )
+    volts = (0.7, 0.85, 1.0, 1.25, 1.5)
+    cfg = BenchmarkConfig(
+        presets=("brake",),
+        controllers=("lqi", "lqi_angle_ff", "ppo_robust"),
+        voltages={"brake": volts},
+        seeds=(0,),
+        plants=(Plant.from_path(rig),),
+    )
+    run_benchmark(cfg, tmp_path / "out", backend="sequential")
+    df = load_results(tmp_path / "out" / "benchmark.csv")
+    assert (df["error"] == "").all() and len(df) == 15
+    nominal = load_params("brake")
+    for v, w in df.groupby("voltage")["target_speed"]:
+        assert np.allclose(w, equilibrium_speed(nominal, v), rtol=1e-9)
+    worst = df.groupby("controller")["suppression"].min()
+    assert worst["lqi_angle_ff"] >= 0.95 and worst["ppo_robust"] >= 0.95, worst
+    assert worst["lqi"] < 0.5, worst
+    assert not df[df["controller"] != "lqi"]["stalled"].any()

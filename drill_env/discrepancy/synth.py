@@ -429,6 +429,17 @@ def make_dataset(
     return SynthResult(runs=runs, truth=truth, answer=answer)
 
 
+def _named_effects(truth: RigParams) -> list[str]:
+    """The library effects (HIDDEN_EFFECTS names) whose fields ``truth`` has switched on."""
+    active = set(truth.effects.active)
+    rng = np.random.default_rng(0)
+    return [
+        name
+        for name, h in HIDDEN_EFFECTS.items()
+        if name != "none" and h.in_library and active & set(h.build(max(h.low, 1e-3), rng))
+    ]
+
+
 def make_plant_dataset(
     truth: RigParams,
     *,
@@ -464,7 +475,7 @@ def make_plant_dataset(
         "source": source,
         "in_library": True,
         "model_effects": effects,
-        "effects": list(truth.effects.active),
+        "effects": _named_effects(truth),
         "actuator_delay": delay_s,
         "parameter_errors": {
             n: float(getattr(truth, n)) / float(getattr(nominal, n)) - 1.0
