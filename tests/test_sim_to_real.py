@@ -225,4 +225,5 @@ def test_a_truth_plant_file_and_the_after_rows_are_one_benchmark_command(tmp_pat
     after = df[df.design == "corrected"].set_index("controller")
     for c in cfg.controllers:
         for col in ("amplitude", "suppression", "rms_error", "target_speed"):
-            assert rows.loc[c, col] == pytest.approx(after.loc[c, col], rel=1e-9, abs=1e-12), (c, col)
+            # results.csv keeps 6 significant digits
+            assert rows.loc[c, col] == pytest.approx(after.loc[c, col], rel=1e-5, abs=1e-9), (c, col)
