@@ -136,3 +136,15 @@ def test_a_residual_policy_base_is_redesigned_on_the_design_model():
     assert after.base.effect is not None and before.base.effect is None
     assert after.base.spec.params.motor_constant == pytest.approx(MODEL.motor_constant)
     assert after.policy is not None and after.base.adaptation_time == before.base.adaptation_time
+
+
+def test_upper_position_friction_is_fed_forward_in_the_upper_angle_and_stays_stable():
+    model = BRAKE.replace(upper_position_amp_1=0.12, upper_position_phase_1=5.0, upper_position_amp_2=0.03)
+    lqi = classical_controller("lqi", _spec(design=model), "brake")
+    w = equilibrium_speed(model, 1.0)
+    d = lqi.effect.design(w)
+    assert np.all(d.lower == 0) and abs(d.upper[0]) > 0.005 and abs(d.upper[1]) > 0
+    assert lqi.effect.decay_rate(w) > 0.03
+    # the upper disk's friction modulation, pushed by the motor on the same disk: about
+    # T_sup a1 / k_m at low frequency
+    assert abs(d.upper[0]) == pytest.approx(BRAKE.upper_static_pos * 0.12 / BRAKE.motor_constant, rel=0.5)

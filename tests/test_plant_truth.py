@@ -277,3 +277,24 @@ def test_the_hidden_plant_numbers_hold_with_the_design_models_set_point(tmp_path
     assert worst["lqi_angle_ff"] >= 0.95 and worst["ppo_robust"] >= 0.95, worst
     assert worst["lqi"] < 0.5, worst
     assert not df[df["controller"] != "lqi"]["stalled"].any()
+
+
+def test_plants_folder_runs_every_plant_file_in_it(tmp_path):
+    folder = tmp_path / "plants"
+    folder.mkdir()
+    b = load_params("brake")
+    _plant_file(folder / "rig_a.yaml", lower_inertia=b.lower_inertia * 1.05)
+    _plant_file(folder / "rig_b.yaml", actuator_delay=0.01)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        app,
+        ["benchmark", "--out", str(out), "--preset", "brake", "--plants", str(folder)]
+        + ["--controllers", "open_loop", "--voltages", "1.0", *TINY],
+    )
+    assert res.exit_code == 0, res.output
+    df = load_results(out / "benchmark.csv")
+    assert sorted(df["plant"]) == ["rig_a", "rig_b"] and (df["error"] == "").all()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    res = CliRunner().invoke(app, ["benchmark", "--out", str(tmp_path / "o2"), "--plants", str(empty), *TINY])
+    assert res.exit_code == 2 and "holds no plant file" in res.output
