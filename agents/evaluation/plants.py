@@ -49,13 +49,12 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from drill_env.plant_file import PLANT_FILE_KEYS  # re-exported: a plant file's keys beside the rig's
+
 __all__ = ["NOMINAL", "FAMILY", "PLANT_FILE_KEYS", "Plant", "standard_family", "plants_in", "write_family"]
 
 NOMINAL = "nominal"  # the plant that is the preset's own model (the paper's)
 FAMILY = "family"  # the keyword of the standard family
-
-
-from drill_env.plant_file import PLANT_FILE_KEYS  # noqa: E402  (re-exported)
 
 
 def _sensor_fields() -> set[str]:
