@@ -195,8 +195,31 @@ def build_controller(
 
         policy = load_policy(policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name)
         policy.check_env(env)
+        _rebase(policy, env, preset)
         return policy
     raise ValueError(f"controller: {name!r} is not one of {list(CONTROLLERS)}")
+
+
+def _rebase(policy: Any, env: Any, preset: str) -> None:
+    """A residual policy's classical base designed on ``env``'s design model where that is not
+    the preset's own (``benchmark --design-params``): the base is a design like the classical
+    controllers, the trained correction stays as it was trained."""
+    import dataclasses
+
+    import numpy as np
+
+    from drill_env.params import load_params
+
+    base = getattr(policy, "base", None)
+    if base is None or not hasattr(base, "redesigned"):
+        return
+    design = ControllerSpec.from_env(env)
+    own = load_params(preset)
+    if not design.effects.active and np.array_equal(design.params.as_array(), own.as_array()):
+        return
+    policy.base = base.redesigned(
+        dataclasses.replace(base.spec, params=design.params, effects=design.effects)
+    )
 
 
 def observation_version(name: str, preset: str, agents_dir: str | Path | None = None) -> int:

@@ -187,8 +187,8 @@ def test_the_worst_case_over_the_plants_at_each_voltage_sets_a_robust_policy_aga
     )
     assert (
         "| controller | 1 V | 2 V |" in text
-        and "| ppo | 0.400 | 0.995 |" in text
-        and "| lqi | - | 0.500 |" in text
+        and "| ppo | 0.400 / 0.000 | 0.995 / 0.000 |" in text  # suppression / RMS error
+        and "| lqi | - | 0.500 / 0.000 |" in text
     )
     # ahead everywhere: the smallest margin is named
     ahead = df[df["voltage"] == 1.0]
@@ -268,7 +268,7 @@ def test_a_plant_name_must_be_usable_as_a_file_name():
         Plant("x", sensors={"lens": 1})
 
 
-def test_time_series_show_each_controller_on_the_nominal_and_the_paper_friction_plant(tmp_path):
+def test_time_series_show_every_plant_one_figure_per_plant_and_controller_group(tmp_path):
     from drill_env.agents.evaluation.timeseries import run_trace, timeseries_figures
 
     paper = FAMILY["position_friction_lower"]
@@ -276,8 +276,11 @@ def test_time_series_show_each_controller_on_the_nominal_and_the_paper_friction_
     paths = timeseries_figures(
         ["open_loop", "lqi"], "brake", 1.0, (Plant(), paper), tmp_path, episode=episode
     )
-    assert [p.name for p in paths] == ["timeseries_brake_open_loop.png", "timeseries_brake_lqi.png"]
-    assert all(p.stat().st_size > 30_000 for p in paths)
+    assert [p.name for p in paths] == [
+        "timeseries_brake_nominal_classical.png",
+        "timeseries_brake_position_friction_lower_classical.png",
+    ]
+    assert all(p.stat().st_size > 20_000 for p in paths)
     # the traces are the benchmark's runs: the LQI settles on the nominal rig, not on the plant
     # whose friction varies once per revolution (the paper's Sec. 4.1 effect)
     nominal, plant = (run_trace("lqi", "brake", 1.0, 0, episode, q) for q in (Plant(), paper))
@@ -298,7 +301,7 @@ def test_cli_quick_benchmark_writes_time_series(tmp_path):
     args += ["--duration", "6", "--window", "3", "--warmup", "4", "--backend", "sequential"]
     res = runner.invoke(app, [*args, "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert "wrote 2 time-series figures of brake" in res.output
-    assert (tmp_path / "timeseries_brake_torque_feedback.png").is_file()
+    assert "wrote 1 time-series figures of brake" in res.output
+    assert (tmp_path / "timeseries_brake_nominal_classical.png").is_file()
     res = runner.invoke(app, [*args, "--no-timeseries", "--fresh", "--out", str(tmp_path)])
     assert res.exit_code == 0 and not list(tmp_path.glob("timeseries_*.png")), res.output

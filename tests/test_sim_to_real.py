@@ -176,3 +176,54 @@ def test_summary_reports_before_and_after_from_the_rows():
     assert "0.750 → 0.350" in rms and rms.endswith("| 0.800 → 0.400 |")
     assert "`lqi`: 0.200 → 0.600: the corrected model helps." in text
     assert "moves the gains by at most 10.0%" in text
+
+
+@pytest.mark.slow  # about a minute: recording, discrepancy, tuning, then the benchmark
+def test_a_truth_plant_file_and_the_after_rows_are_one_benchmark_command(tmp_path: Path):
+    """sim-to-real --truth FILE (effects, actuator delay and sensors in the file) runs, the
+    corrected lqi feeds the identified friction forward and beats the nominal one, and
+    `benchmark --plant truth.yaml --design-params discrepancy/model.yaml --gains
+    gains_corrected.yaml` reproduces the after rows run for run."""
+    import yaml
+
+    from drill_env.agents.evaluation.benchmark import BenchmarkConfig, load_results, run_benchmark
+    from drill_env.agents.evaluation.plants import Plant
+
+    nominal = load_params("brake")
+    data = nominal.to_dict()
+    data.update(
+        motor_constant=nominal.motor_constant * 1.04,
+        effects={"lower_position_amp_1": 0.12, "lower_position_phase_1": 1.3},
+        actuator_delay=0.005,
+        sensors={"counts_per_rev": 4000},
+    )
+    truth_file = tmp_path / "my_truth.yaml"
+    truth_file.write_text(yaml.safe_dump(data))
+    cfg = dataclasses.replace(_reduced(), truth_file=str(truth_file))
+    out = tmp_path / "out"
+    run_sim_to_real(out, cfg)
+    answer = json.loads((out / "truth_answer.json").read_text())
+    assert answer["effects"] == ["position_friction_lower"] and answer["actuator_delay"] == 0.005
+    assert answer["design"]["encoder_counts_per_rev"] == 4000
+    df = pd.read_csv(out / "results.csv")
+    lqi = df[df.controller == "lqi"].set_index("design")
+    assert lqi.loc["corrected", "suppression"] > lqi.loc["nominal", "suppression"] + 0.1
+    written = Plant.from_path(out / "truth.yaml")
+    assert written.sensors == {"counts_per_rev": 4000, "delay_samples": 5}
+    bench = BenchmarkConfig(
+        presets=("brake",),
+        controllers=cfg.controllers,
+        voltages={"brake": cfg.voltages},
+        seeds=cfg.seeds,
+        episode=cfg.episode,
+        gains_file=str(out / "gains_corrected.yaml"),
+        plants=(written,),
+        design_params=str(out / "discrepancy" / "model.yaml"),
+    )
+    run_benchmark(bench, tmp_path / "bench", backend="sequential")
+    rows = load_results(tmp_path / "bench" / "benchmark.csv").set_index("controller")
+    after = df[df.design == "corrected"].set_index("controller")
+    for c in cfg.controllers:
+        for col in ("amplitude", "suppression", "rms_error", "target_speed"):
+            # results.csv keeps 6 significant digits
+            assert rows.loc[c, col] == pytest.approx(after.loc[c, col], rel=1e-5, abs=1e-9), (c, col)

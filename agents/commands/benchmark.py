@@ -89,18 +89,30 @@ def register(app: typer.Typer) -> None:
         plant: list[str] | None = typer.Option(
             None,
             "--plant",
-            help="Run every controller on this rig instead of the nominal model: a rig YAML in the "
-            "preset format, effects included (e.g. a discrepancy model.yaml); repeatable; `nominal` "
-            "is the preset's own model. Controllers keep their design on the nominal model; "
-            "suppression is relative to the open-loop run on the plant. Default: nominal.",
+            help="Run every controller on this plant instead of the nominal model: a plant file (a "
+            "rig YAML in the preset format, effects included, optionally with actuator_delay [s] "
+            "and a sensors: mapping; docs/guides/plants.md); repeatable; `nominal` is the preset's "
+            "own model and runs only when given. Controllers keep their design on the design model "
+            "(--design-params, default the preset's); so do the target speed and the regime labels. "
+            "Suppression is relative to the open-loop run on the plant. Default: nominal.",
         ),
         plants: str | None = typer.Option(
             None,
             "--plants",
             help="`family`: run on the standard family of plants as well (the nominal rig, each "
             "identified parameter perturbed, each library effect, 10 ms delay, 3 mrad angle noise; "
-            "see agents/evaluation/plants.py); summary.md and robustness_<preset>.png then show each "
-            "controller's nominal, mean and worst case across them.",
+            "see agents/evaluation/plants.py); or a folder of plant files. summary.md and "
+            "robustness_<preset>.png then show each controller's nominal, mean and worst case "
+            "across them.",
+        ),
+        design_params: Path | None = typer.Option(
+            None,
+            "--design-params",
+            help="Design every controller on this model (a rig YAML, effects included, e.g. a "
+            "discrepancy model.yaml) instead of the preset's: the LQI's schedule, the feedforwards "
+            "(an effect the model names is fed forward), the target speed and the regime labels. "
+            "Gains still come from --gains (tune them on the model with `drill-env tune --params`). "
+            "One preset only.",
         ),
         gains: Path | None = typer.Option(
             None, help="Tuned gains of the classical controllers (default: configs/agents/controllers.yaml)."
@@ -118,9 +130,9 @@ def register(app: typer.Typer) -> None:
         timeseries: bool | None = typer.Option(
             None,
             "--timeseries/--no-timeseries",
-            help="Also write timeseries_<preset>_<controller>.png: one run per controller at "
-            f"{TIMESERIES_VOLTAGE:g} V on the nominal rig and on the rig with the paper's lower "
-            "position friction (a1 = 0.12). Default: with --quick.",
+            help="Also write timeseries_<preset>_<plant>_<group>.png: one run per controller at "
+            f"{TIMESERIES_VOLTAGE:g} V on every plant of the benchmark, one figure per plant and "
+            "controller group (classical, learned). Default: with --quick.",
         ),
     ) -> None:
         """Run every controller at every operating point and seed; resume an interrupted run.
@@ -183,12 +195,22 @@ def register(app: typer.Typer) -> None:
                 _fail(f"--{name.lstrip('-')}: {value!r} s; allowed: {allowed} s")
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
-        from drill_env.agents.evaluation.plants import FAMILY, NOMINAL, Plant, standard_family
+        from drill_env.agents.evaluation.plants import FAMILY, NOMINAL, Plant, plants_in, standard_family
         from drill_env.params import ParameterError
 
-        if plants is not None and plants.strip() != FAMILY:
-            _fail(f"--plants: {plants!r} is not one of ['{FAMILY}'] (single rigs: --plant PATH)")
-        plant_list = list(standard_family()) if plants is not None else []
+        plant_list: list = []
+        if plants is not None:
+            if plants.strip() == FAMILY:
+                plant_list = list(standard_family())
+            elif Path(plants).is_dir():
+                try:
+                    plant_list = plants_in(plants)
+                except (ParameterError, ValueError) as exc:
+                    _fail(f"--plants {plants}: {exc}")
+            else:
+                _fail(
+                    f"--plants: {plants!r} is not '{FAMILY}' or a folder of plant files (single rigs: --plant PATH)"
+                )
         for item in plant or ([] if plant_list else [NOMINAL]):
             if item == NOMINAL and any(q.is_nominal for q in plant_list):
                 continue
@@ -202,6 +224,19 @@ def register(app: typer.Typer) -> None:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             _fail(f"--plant: the plant name(s) {dup} appear twice (a plant is named by its file's stem)")
+        if design_params is not None:
+            if len(presets) != 1:
+                _fail(
+                    f"--design-params: a design model is one rig; give one --preset (brake or no_brake), got {preset!r}"
+                )
+            if not design_params.is_file():
+                _fail(f"--design-params: {design_params} is not a file (a rig YAML in the preset format)")
+            from drill_env.params import load_params
+
+            try:
+                load_params(design_params)
+            except (ParameterError, ValueError) as exc:
+                _fail(f"--design-params: {design_params}: {exc}")
         if gains is not None and not gains.is_file():
             _fail(f"--gains: {gains} is not a file (a YAML written by drill-env tune)")
         if agents_dir is not None and not agents_dir.is_dir():
@@ -226,6 +261,7 @@ def register(app: typer.Typer) -> None:
                     agents_dir=None if agents_dir is None else str(agents_dir),
                     gains_file=None if gains is None else str(gains),
                     plants=tuple(plant_list),
+                    design_params=None if design_params is None else str(design_params),
                 )
             else:
                 cfg = BenchmarkConfig.preset_grid(
@@ -237,6 +273,7 @@ def register(app: typer.Typer) -> None:
                     agents_dir=None if agents_dir is None else str(agents_dir),
                     gains_file=None if gains is None else str(gains),
                     plants=tuple(plant_list),
+                    design_params=None if design_params is None else str(design_params),
                 )
         except ValueError as exc:
             _fail(str(exc))
@@ -371,21 +408,21 @@ def register(app: typer.Typer) -> None:
         typer.echo(summary)
         typer.echo(f"wrote {csv_path}, {out / 'summary.md'} and the figures in {out}")
         if timeseries if timeseries is not None else quick:
-            from drill_env.agents.evaluation.plants import standard_family
             from drill_env.agents.evaluation.timeseries import timeseries_figures
 
-            paper = next(q for q in standard_family() if q.name == "position_friction_lower")
             for p in cfg.presets:
                 try:
                     made = timeseries_figures(
                         cfg.controllers,
                         p,
                         TIMESERIES_VOLTAGE,
-                        (Plant(), paper),
+                        cfg.plants,
                         out,
                         episode=cfg.episode,
                         agents_dir=cfg.agents_dir,
                         gains_file=cfg.gains_file,
+                        design_params=cfg.design_model(),
+                        progress=lambda path: typer.echo(f"wrote {path}", err=True),
                     )
                 except ValueError as exc:
                     _fail(f"--timeseries: {exc}")

@@ -26,6 +26,17 @@ def sim_to_real(
     data: Path | None = typer.Option(
         None, help="Keep the synthetic dataset in this folder (default: a temporary one, removed)."
     ),
+    truth: Path | None = typer.Option(
+        None,
+        "--truth",
+        help="Take this plant file as the truth instead of the built-in one (rig YAML with effects, "
+        "optionally actuator_delay [s] and sensors:; --magnitude is then unused).",
+    ),
+    controllers: str | None = typer.Option(
+        None,
+        help="Comma-separated controllers compared before/after (default: "
+        "torque_feedback,lqi,lqi_angle_ff,ppo_robust; also sac_robust).",
+    ),
     quick: bool = typer.Option(
         False, "--quick", help="A smoke run: short recordings and episodes, one seed, a coarse tuning."
     ),
@@ -33,6 +44,7 @@ def sim_to_real(
     """Truth plant with a hidden effect -> synth data -> discrepancy -> model.yaml -> retune on it ->
     benchmark on the truth plant, before (nominal design) and after (design on the corrected model).
 
+    With --truth the truth is a plant file (its effects, delay and sensors recorded and simulated).
     Writes OUT/summary.md, results.csv, timeseries_<V>V.png, suppression.png, gains_corrected.yaml,
     truth.yaml, truth_answer.json and the discrepancy report under OUT/discrepancy/.
     """
@@ -54,20 +66,35 @@ def sim_to_real(
         _fail(f"--seeds must be an integer from 1 to 20, got {seeds!r}")
     if not 0.01 <= magnitude <= 0.2:
         _fail(f"--magnitude must lie in [0.01, 0.2] (a1 of the lower position friction), got {magnitude!r}")
+    if truth is not None:
+        from drill_env.params import ParameterError
+        from drill_env.plant_file import read_plant_file
+
+        try:
+            read_plant_file(truth)
+        except (ParameterError, ValueError) as exc:
+            _fail(f"--truth {truth}: {exc}")
+    ctrl_list = None
+    if controllers is not None:
+        ctrl_list = tuple(c.strip() for c in controllers.split(",") if c.strip())
     check_output_folder(out, "--out")
     if data is not None:
         check_output_folder(data, "--data")
         if data.resolve() == out.resolve():
             _fail(f"--data {data}: must not be the output folder --out")
     try:
+        extra: dict = {"truth_file": None if truth is None else str(truth)}
+        if ctrl_list is not None:
+            extra["controllers"] = ctrl_list
         if quick:
-            cfg = dataclasses.replace(quick_config(voltages=volts or (1.0,)), magnitude=magnitude)
+            cfg = dataclasses.replace(quick_config(voltages=volts or (1.0,)), magnitude=magnitude, **extra)
         else:
-            extra = {"voltages": volts} if volts else {}
+            if volts:
+                extra["voltages"] = volts
             cfg = SimToRealConfig(magnitude=magnitude, seeds=tuple(range(seeds)), **extra)
     except ValueError as exc:
         msg = str(exc)  # the config's field names are the options' names
-        _fail(f"--{msg}" if msg.startswith(("voltages:", "seeds:")) else msg)
+        _fail(f"--{msg}" if msg.startswith(("voltages:", "seeds:", "controllers:")) else msg)
     res = run_sim_to_real(out, cfg, data_dir=data, progress=lambda line: typer.echo(line, err=True))
     typer.echo(f"wrote {len(res.files)} files to {out}; see {out / 'summary.md'}")
 

@@ -126,7 +126,6 @@ slowest harmonic where s is small (``tests/test_angle_rejection.py``).
 
 from __future__ import annotations
 
-import cmath
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -135,6 +134,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
 from drill_env.agents.controllers.base import ControllerSpec
+from drill_env.agents.controllers.effect_feedforward import EffectFeedforward, has_position_effect
 from drill_env.agents.controllers.linear_model import (
     SampledRig,
     decay_rate,
@@ -143,6 +143,7 @@ from drill_env.agents.controllers.linear_model import (
     sampled_rig,
 )
 from drill_env.agents.controllers.lqi import LQI
+from drill_env.agents.controllers.lqi_loop import _LOWER_MEAN, _loop, _response
 from drill_env.agents.controllers.pi import _gain
 from drill_env.params import RigParams
 
@@ -166,28 +167,6 @@ AVERAGING_TIMES = 0.5  # variable step: T_d of the harmonic's significance, in a
 SIGNIFICANCE = 2.0  # variable step: c, how far above its noise the error's harmonic must be
 NOISE_RATIO = 1.3  # the feedforward may raise the quantisation noise on x3 by this factor
 MIN_TURNS = 0.5  # a harmonic is adapted only if it turns this many revolutions per adaptation time
-_LOWER_MEAN = 3  # row of the lower_speed_mean entry in SampledRig.H
-
-
-def _loop(rig: SampledRig, lqi: LQI) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(A, b, c, Bn): ``rig`` closed by the LQI, the input of a voltage added to the LQI's
-    output, the output lower_speed_mean and the input of the measurement noise, in deviations
-    from the equilibrium. The LQI is affine in the observation with gains scheduled on w*:
-    its linear part, probed at the equilibrium of its own (nominal) model at the rig's speed,
-    holds on any rig turning at that speed."""
-    from drill_env.agents.controllers.tuning import closed_loop, controller_matrices
-
-    own = design_point(lqi.spec.params, speed=rig.speed)
-    A, Bn, _, _ = closed_loop(rig, controller_matrices(lqi, own))
-    nc = A.shape[0] - rig.n
-    b = np.concatenate([rig.G, np.zeros(nc)])
-    c = np.concatenate([rig.H[_LOWER_MEAN], np.zeros(nc)])
-    return A, b, c, Bn
-
-
-def _response(A: np.ndarray, b: np.ndarray, c: np.ndarray, omega: float, dt: float) -> complex:
-    z = cmath.exp(1j * omega * dt)
-    return complex(c @ np.linalg.solve(z * np.eye(A.shape[0]) - A, b.astype(complex)))
 
 
 def voltage_to_lower_speed(
@@ -409,6 +388,9 @@ class LQIAngleFeedforward(LQI):
     ):
         super().__init__(spec, **lqi_gains)
         self.lqi = LQI(spec, **lqi_gains)  # the feedback alone: what G_h is computed with
+        # an effect the design model names (a position friction): its feedforward, an input
+        # added to the feedback like the adaptive one (drill_env.agents.controllers.effect_feedforward)
+        self.effect = EffectFeedforward(spec, self.lqi) if has_position_effect(spec.effects) else None
         self.adaptation_time = _gain("adaptation_time", adaptation_time, positive=True)
         self.hold_decays = _gain("hold_decays", hold_decays)
         self.error_clip = _gain("error_clip", error_clip, positive=True)
@@ -425,6 +407,24 @@ class LQIAngleFeedforward(LQI):
             else None
         )
         self._designs: dict[float, FeedforwardDesign] = {}
+
+    def redesigned(self, spec: ControllerSpec) -> LQIAngleFeedforward:
+        """The same controller (the LQI's gains, the feedforward's options) designed on another
+        spec's model."""
+        return LQIAngleFeedforward(
+            spec,
+            adaptation_time=self.adaptation_time,
+            hold_decays=self.hold_decays,
+            error_clip=self.error_clip,
+            variable_step=self.variable_step,
+            averaging_times=self.averaging_times,
+            significance=self.significance,
+            voltage_scale=self.voltage_scale,
+            speed_rel=self.speed_rel,
+            speed_min=self.speed_min,
+            integral_time=self.integral_time,
+            anti_windup=self.anti_windup,
+        )
 
     def design(self, speed: float) -> FeedforwardDesign:
         """The feedforward's design at a target speed [rad/s] (cached)."""
@@ -474,6 +474,8 @@ class LQIAngleFeedforward(LQI):
         theta, C, rot = self._harmonics(y, state)
         g = state[:, 7 + 2 * nh : 7 + 4 * nh : 2] + 1j * state[:, 8 + 2 * nh : 7 + 4 * nh : 2]
         u_ff = np.sum((C * rot).real, axis=1)
+        if self.effect is not None:
+            u_ff = u_ff + self.effect.voltage(y)
         u, out, u_req = self._step(y, state, u_ff)
         w = y[:, self._i_target]
         e = np.clip(y[:, self._i_lower_mean] - w, -self.error_clip * w, self.error_clip * w)

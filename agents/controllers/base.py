@@ -56,7 +56,7 @@ class ControllerSpec:
     observation table); ``volts = action * action_to_volts``.
     """
 
-    params: RigParams  # the nominal model the controller is designed on
+    params: RigParams  # the design model, effects left out (its linear, paper model)
     control_dt: float  # [s] hold period of the action
     observation_names: tuple[str, ...] = OBSERVATION_NAMES
     observation_scales: tuple[float, ...] = OBSERVATION_SCALES
@@ -64,6 +64,9 @@ class ControllerSpec:
     voltage_limit: float = VOLTAGE_LIMIT  # [V] the amplifier range
     sensors: SensorConfig = field(default_factory=SensorConfig)  # the measurement chain
     env_id: str | None = None
+    # the design model's named effects (ModelEffects; None: those of ``params`` as given, then
+    # removed from it): what an effect-aware design uses (drill_env.agents.controllers.effect_feedforward)
+    effects: Any = None
     _index: dict[str, int] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -76,7 +79,10 @@ class ControllerSpec:
             )
         if not (math.isfinite(self.action_to_volts) and self.action_to_volts > 0):
             raise ValueError(f"action_to_volts: expected a finite number > 0, got {self.action_to_volts!r}")
-        object.__setattr__(self, "params", nominal_params(resolve_params(self.params)))
+        full = resolve_params(self.params)
+        if self.effects is None:
+            object.__setattr__(self, "effects", full.effects)
+        object.__setattr__(self, "params", nominal_params(full))
         object.__setattr__(self, "observation_scales", tuple(float(s) for s in self.observation_scales))
         self._index.update({n: i for i, n in enumerate(self.observation_names)})
 
@@ -97,7 +103,8 @@ class ControllerSpec:
         names = getattr(settings, "observation_names", OBSERVATION_NAMES)
         spec = getattr(env, "spec", None)
         return cls(
-            params=settings.params,
+            # the design model, not the simulated plant: what a controller may know
+            params=getattr(settings, "design_params", settings.params),
             control_dt=settings.control_dt,
             observation_names=tuple(names),
             observation_scales=tuple(float(s) for s in scales),

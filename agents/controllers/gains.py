@@ -92,4 +92,9 @@ def classical_controller(
         return LQIAngleFeedforward(spec, **gains, **options)
     if options:
         raise ValueError(f"options: {kind!r} takes none, got {dict(options)!r}")
+    if kind == "lqi":
+        from drill_env.agents.controllers.effect_feedforward import LQIEffectFeedforward, has_position_effect
+
+        if has_position_effect(spec.effects):  # a design model that names a position friction
+            return LQIEffectFeedforward(spec, **gains)
     return make_controller(kind, spec, gains)

@@ -36,6 +36,7 @@ from drill_env.params import RigParams
 from drill_env.sensors import SensorConfig
 
 __all__ = [
+    "sampled_sinusoid_input",
     "MEASURED",
     "MEASUREMENT_NOISE",
     "SampledRig",
@@ -214,6 +215,60 @@ def sampled_rig(
     H[4, n + 1] = 1.0
     H[5, n + 2] = 1.0
     return SampledRig(eq=eq, dt=float(dt), F=F, G=G, H=H)
+
+
+def sampled_sinusoid_input(
+    params: RigParams,
+    eq: Equilibrium,
+    dt: float,
+    sensors: SensorConfig | None,
+    disk: str,
+    omega: float,
+) -> np.ndarray:
+    """The input column (complex, the size of :func:`sampled_rig`'s state) of a sinusoidal
+    torque ``Re(D exp(j omega t))`` [N m] on ``disk`` (``"lower"`` or ``"upper"``, in its direction
+    of motion) that is *not* held over the control period: with ``d_k = D exp(j omega k dt)``
+    the input's phasor at the start of period k, the sampled state moves by this column times
+    ``d_k``. The voltage's column ``G`` of :func:`sampled_rig` is the same with omega = 0 and
+    the motor's input."""
+    if disk not in ("lower", "upper"):
+        raise ValueError(f"disk: {disk!r} is not one of ['lower', 'upper']")
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: expected a finite control period > 0 s, got {dt!r}")
+    sensors = sensors or SensorConfig()
+    A3, _ = linearise(params, eq)
+    wc = sensors.cutoff_rad_s
+    nf = sensors.filter_order
+    n = 3 + 2 * nf
+    A = np.zeros((n, n))
+    A[:3, :3] = A3
+    b = np.zeros(n)
+    if disk == "lower":
+        b[2] = 1.0 / params.lower_inertia
+    else:
+        b[1] = 1.0 / params.upper_inertia
+    for j, src in enumerate((2, 1)):  # the speed filters, as in sampled_rig
+        i0 = 3 + j * nf
+        if nf == 1:
+            A[i0, i0] = -wc
+            A[i0, src] = wc
+        else:
+            A[i0, i0 + 1] = 1.0
+            A[i0 + 1, i0] = -wc * wc
+            A[i0 + 1, i0 + 1] = -math.sqrt(2.0) * wc
+            A[i0 + 1, src] = wc * wc
+    m = n + 3
+    M = np.zeros((m, m), dtype=complex)
+    M[:n, :n] = A
+    M[:n, n] = b
+    M[n, n] = 1j * float(omega)  # the input turns as exp(j omega s) over the period
+    M[n + 1, 2] = 1.0
+    M[n + 2, 1] = 1.0
+    E = expm(M * dt)
+    col = np.zeros(n + 3, dtype=complex)
+    col[:n] = E[:n, n]
+    col[n : n + 2] = E[n + 1 :, n] / dt
+    return col
 
 
 def sampled_drive(

@@ -23,7 +23,18 @@ Metrics (:class:`RunMetrics`), over the window unless stated:
   bifurcation analysis (:func:`drill_env.analysis.limit_cycle`, nominal model) predicts
   at the nominal voltage; 0 where it predicts a stable equilibrium and no cycle;
 * ``suppression = 1 - amplitude / open_loop_amplitude`` where a cycle is predicted, NaN
-  elsewhere (1: cycle removed; 0: as open loop; negative: worse);
+  elsewhere (1: cycle removed; 0: as open loop; negative: worse); a *stalled* run scores
+  ``min(suppression, 0)``: no better than the open loop;
+* ``stalled``: the run failed to turn the lower disk at the target: stuck over more than
+  :data:`STALL_STUCK_FRACTION` (half) of the window, or its mean speed off the target by more
+  than :data:`STALL_SPEED_ERROR` (half) of the target. A disk that stops has no cycle left,
+  so its raw suppression is near 1; the flag makes it a failure in every summary;
+* ``plant_open_loop_regime``: how the *plant* behaves open loop at the voltage, measured
+  (the open-loop run on it, when the caller passes one) or, on the design model itself,
+  predicted by the analysis: ``equilibrium`` (no cycle above the benchmark's floor),
+  ``limit_cycle`` (a cycle without sticking) or ``stick_slip``; beside ``regime``, the design
+  model's label, so that a plant that oscillates where the model predicts an equilibrium is
+  visible;
 * ``stick_fraction``: fraction of the 1 kHz samples with the lower disk stuck;
 * ``severity``: the stick-slip severity (max - min) / (2 mean) of x3;
 * ``rms_error``: RMS of x3 - w* (the target speed) [rad/s];
@@ -59,6 +70,8 @@ from drill_env.params import IDENTIFIED_SPEED_RAD_S
 
 __all__ = [
     "IDENTIFIED_SPEED",
+    "STALL_SPEED_ERROR",
+    "STALL_STUCK_FRACTION",
     "EpisodeSettings",
     "RunMetrics",
     "Trajectory",
@@ -67,6 +80,8 @@ __all__ = [
     "make_env",
     "open_loop_cycle",
     "run_episode",
+    "is_stalled",
+    "open_loop_regime",
     "suppression",
 ]
 
@@ -79,6 +94,11 @@ LIMIT_TOL = 1e-6  # [V] a voltage within this of +-5 V counts as at the limit
 # the brake's measured friction reached about 12.6 rad/s (Sec. 4 of the paper); the no-brake
 # friction has no stated limit.
 IDENTIFIED_SPEED: dict[str, float] = IDENTIFIED_SPEED_RAD_S
+# A run is stalled (a failure, whatever its amplitude) when the lower disk is stuck over more
+# than this fraction of the scoring window ...
+STALL_STUCK_FRACTION = 0.5
+# ... or its mean speed is off the target by more than this fraction of the target.
+STALL_SPEED_ERROR = 0.5
 
 
 def env_id_of(preset: str, observation_version: int = 0) -> str:
@@ -130,9 +150,14 @@ class EpisodeSettings:
             raise ValueError(
                 f"env_kwargs: expected a mapping of DrillStringEnv arguments, got {self.env_kwargs!r}"
             )
-        reserved = {"params", "warmup_time", "warmup_jitter", "max_episode_steps", "task"} & set(
-            self.env_kwargs
-        )
+        reserved = {
+            "params",
+            "design_params",
+            "warmup_time",
+            "warmup_jitter",
+            "max_episode_steps",
+            "task",
+        } & set(self.env_kwargs)
         if reserved:
             raise ValueError(f"env_kwargs: {sorted(reserved)} are set by the evaluation itself")
         object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
@@ -150,17 +175,23 @@ def make_env(
     observation_version: int = 0,
     params: Any = None,
     overrides: Mapping[str, Any] | None = None,
+    design_params: Any = None,
 ) -> gym.Env:
     """The registered environment of ``preset`` (observation version ``observation_version``)
     configured for evaluation episodes. The versions differ only in what is observed: the
     same seed gives the same episode. ``params`` (a ``RigParams``, preset name or YAML path)
-    replaces the preset's rig: the *plant* the controller runs on, which may differ from the
-    model it was designed on (operating points and their regimes stay the preset's).
+    replaces the preset's rig: the *plant* the controller runs on, the truth. What the
+    controller, the task and the regime labels know (target speed, nominal voltage, regime)
+    comes from the *design model* ``design_params``: by default the preset's model, whatever
+    the plant (a controller on a real rig does not know the rig's equilibrium speed).
     ``overrides`` (e.g. ``{"sensors": {...}}`` of a plant's measurement chain) replace
     arguments of ``settings.env_kwargs``."""
     kwargs = {**settings.env_kwargs, **(overrides or {})}
     if params is not None:
         kwargs["params"] = params
+        kwargs["design_params"] = preset if design_params is None else design_params
+    elif design_params is not None:
+        kwargs["design_params"] = design_params
     with warnings.catch_warnings():
         # v0 is chosen on purpose (the classical controllers' and v0 policies' observation):
         # gymnasium's "out of date, consider v1" is not news to the user here
@@ -305,6 +336,25 @@ def suppression(amplitude: float, open_loop_amplitude: float) -> float:
     return 1.0 - a / a0 if a0 > 0 else math.nan
 
 
+def is_stalled(stick_fraction: float, mean_speed: float, target_speed: float) -> bool:
+    """The stalled rule (module docstring): stuck over more than :data:`STALL_STUCK_FRACTION`
+    of the window, or the mean speed off the target by more than :data:`STALL_SPEED_ERROR`
+    of it."""
+    w = float(target_speed)
+    if not (math.isfinite(w) and w > 0):
+        return False
+    off = abs(float(mean_speed) - w) > STALL_SPEED_ERROR * w if math.isfinite(float(mean_speed)) else True
+    return bool(float(stick_fraction) > STALL_STUCK_FRACTION or off)
+
+
+def open_loop_regime(amplitude: float, stick_fraction: float, floor: float = 0.0) -> str:
+    """The regime an open-loop run shows: ``equilibrium`` (amplitude at or below ``floor``
+    [rad/s]), ``stick_slip`` (the lower disk sticks) or ``limit_cycle``."""
+    if not amplitude > floor:
+        return "equilibrium"
+    return "stick_slip" if stick_fraction > 0 else "limit_cycle"
+
+
 @dataclass(frozen=True)
 class RunMetrics:
     """One controller at one operating point and seed (the benchmark's CSV row)."""
@@ -313,11 +363,13 @@ class RunMetrics:
     preset: str
     voltage: float  # [V] nominal voltage of the operating point
     seed: int
-    regime: str  # of the nominal model at this voltage (equilibrium, limit_cycle, stick_slip)
-    target_speed: float  # [rad/s]
+    regime: str  # of the design model at this voltage (equilibrium, limit_cycle, stick_slip)
+    plant_open_loop_regime: str  # what the plant does open loop at this voltage (same labels)
+    target_speed: float  # [rad/s] the design model's slip-equilibrium speed
+    stalled: bool  # the lower disk stuck or far off the target (a failure; module docstring)
     amplitude: float  # [rad/s]
     open_loop_amplitude: float  # [rad/s] predicted by the analysis
-    suppression: float  # [-]
+    suppression: float  # [-] min(., 0) when stalled
     stick_fraction: float  # [-]
     severity: float  # [-]
     rms_error: float  # [rad/s]
@@ -351,13 +403,16 @@ def evaluate(
     name: str | None = None,
     env: gym.Env | None = None,
     open_loop_amplitude: float | None = None,
+    plant_open_loop_regime: str | None = None,
 ) -> RunMetrics:
     """Run one evaluation episode and score it (see the module docstring).
 
     ``env`` may be passed to reuse an environment made by :func:`make_env` with the same
     preset and settings (and possibly another plant). ``open_loop_amplitude`` [rad/s]
     replaces the analysis' prediction as the reference of the suppression (for a plant the
-    analysis does not cover: the open-loop run on that plant).
+    analysis does not cover: the open-loop run on that plant), ``plant_open_loop_regime``
+    what that run showed (:func:`open_loop_regime`; default: the analysis' prediction on the
+    preset's model where no reference is given, else from the reference amplitude alone).
     """
     settings = settings or EpisodeSettings()
     v = float(voltage)
@@ -385,6 +440,15 @@ def evaluate(
         if open_loop_amplitude is None
         else {"amplitude": float(open_loop_amplitude)}
     )
+    if plant_open_loop_regime is None:
+        if open_loop_amplitude is None:
+            plant_open_loop_regime = open_loop_regime(ol["amplitude"], ol["stick_fraction"])
+        else:
+            plant_open_loop_regime = "equilibrium" if not ol["amplitude"] > 0 else "limit_cycle"
+    stalled = is_stalled(m.stick_fraction, m.mean_speed, w)
+    supp = suppression(m.amplitude, ol["amplitude"])
+    if stalled and math.isfinite(supp):
+        supp = min(supp, 0.0)
     err = traj.window_lower_speed - w
     at_limit = np.abs(traj.voltage_requested) >= VOLTAGE_LIMIT - LIMIT_TOL
     peak = float(np.max(np.abs(traj.true_state[:, 2])))
@@ -396,10 +460,12 @@ def evaluate(
         voltage=v,
         seed=int(seed),
         regime=str(info["regime"]),
+        plant_open_loop_regime=str(plant_open_loop_regime),
         target_speed=w,
+        stalled=stalled,
         amplitude=m.amplitude,
         open_loop_amplitude=ol["amplitude"],
-        suppression=suppression(m.amplitude, ol["amplitude"]),
+        suppression=supp,
         stick_fraction=m.stick_fraction,
         severity=m.severity,
         rms_error=float(np.sqrt(np.mean(err * err))),

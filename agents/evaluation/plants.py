@@ -4,8 +4,11 @@ Every controller is designed on the nominal model of its preset (gains tuned, po
 trained). A :class:`Plant` is what it then drives:
 
 * ``nominal``: the preset's own model (the paper's);
-* a rig YAML in the preset format, effects included (:meth:`Plant.from_path`, e.g. a
-  discrepancy ``model.yaml``): that whole rig, whatever the preset;
+* a *plant file* (:meth:`Plant.from_path`): a rig YAML in the preset format, effects
+  included (e.g. a discrepancy ``model.yaml``), and optionally the measurement chain that
+  rig has: ``actuator_delay`` [s] and a ``sensors:`` mapping (``angle_noise_std`` [rad],
+  ``speed_noise_std`` [rad/s], ``counts_per_rev``, ``cutoff_rad_s`` [rad/s],
+  ``filter_order``, ``sample_rate_hz`` [Hz]); that whole rig, whatever the preset;
 * a *variant* of the preset's model: some identified parameters scaled, some effects of the
   library switched on, or another measurement chain (:func:`standard_family`).
 
@@ -30,9 +33,13 @@ a slower loop and a noisier encoder. Magnitudes (relative to the preset's model)
 ``motor_lag``                motor torque lag L/R = 20 ms
 ``friction_memory``          frictional lag of the Stribeck part, tau_f = 0.1 s
 ``delay_10ms``               10 ms transport delay of the measurements (in a loop with
-                             constant set points equivalent to a 10 ms actuator delay)
+                             constant set points equivalent to a 10 ms actuator delay;
+                             ``actuator_delay: 0.01`` in a plant file)
 ``angle_noise_3mrad``        3 mrad Gaussian noise on both encoder angles (about one count)
 ==========================  ==========================================================
+
+Every member of the family is also a plant file (:meth:`Plant.to_file`, :func:`write_family`):
+``drill-env benchmark --plants FOLDER`` runs on a folder of them as ``--plants family`` does.
 """
 
 from __future__ import annotations
@@ -42,7 +49,9 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NOMINAL", "FAMILY", "Plant", "standard_family"]
+from drill_env.plant_file import PLANT_FILE_KEYS  # re-exported: a plant file's keys beside the rig's
+
+__all__ = ["NOMINAL", "FAMILY", "PLANT_FILE_KEYS", "Plant", "standard_family", "plants_in", "write_family"]
 
 NOMINAL = "nominal"  # the plant that is the preset's own model (the paper's)
 FAMILY = "family"  # the keyword of the standard family
@@ -89,6 +98,13 @@ class Plant:
                 raise ValueError(
                     f"plant {self.name}: sensors: unknown field {k!r}; allowed: {sorted(_sensor_fields())}"
                 )
+        if self.sensors:
+            from drill_env.sensors import SensorConfig
+
+            try:
+                SensorConfig(**dict(self.sensors))
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"plant {self.name}: sensors.{exc}") from None
         if self.params is not None and (self.scale or self.effects):
             raise ValueError(f"plant {self.name}: a rig read from a file takes no scale or effects")
         if self.name == NOMINAL and not self.is_nominal:
@@ -98,17 +114,40 @@ class Plant:
 
     @classmethod
     def from_path(cls, path: str | Path) -> Plant:
-        """A plant from a rig YAML; its name is the file's stem. Raises ``ParameterError``
-        (a ValueError) naming the field for a bad file."""
-        from drill_env.params import load_params
+        """A plant from a plant file (module docstring); its name is the file's stem. Raises
+        ``ParameterError`` (a ValueError) naming the field for a bad file."""
+        from drill_env.plant_file import read_plant_file
 
         p = Path(path)
-        if not p.is_file():
-            raise ValueError(f"plant: {path} is not a file (a rig YAML in the preset format)")
-        params = load_params(p)
+        f = read_plant_file(p)
+        params, sensors = f.params, f.sensors
         if p.stem in (NOMINAL, FAMILY):
             raise ValueError(f"plant: {path}: the name {p.stem!r} is reserved; rename the file")
-        return cls(name=p.stem, params=params, source=str(p))
+        return cls(name=p.stem, params=params, source=str(p), sensors=sensors, description=params.description)
+
+    def to_file(self, path: str | Path, preset: str) -> Path:
+        """Write the plant as a plant file (its rig under ``preset``, effects, actuator delay and
+        sensors): :meth:`from_path` reads it back as the same plant."""
+        import yaml
+
+        from drill_env.params import load_params
+        from drill_env.sensors import SensorConfig
+
+        rig = self.rig(preset) or load_params(preset)
+        data = rig.to_dict()
+        data["name"] = self.name
+        if self.description:
+            data["description"] = self.description
+        sensors = dict(self.sensors)
+        n = sensors.pop("delay_samples", 0)
+        if n:
+            rate = float(sensors.get("sample_rate_hz", SensorConfig().sample_rate_hz))
+            data["actuator_delay"] = n / rate
+        if sensors:
+            data["sensors"] = sensors
+        out = Path(path)
+        out.write_text(yaml.safe_dump(data, sort_keys=False))
+        return out
 
     @property
     def is_nominal(self) -> bool:
@@ -224,3 +263,22 @@ def standard_family() -> tuple[Plant, ...]:
         ),
     ]
     return tuple(plants)
+
+
+def write_family(folder: str | Path, preset: str) -> list[Path]:
+    """The standard family of ``preset`` as plant files in ``folder`` (the nominal model left
+    out: it is ``--plant nominal``), one per plant, named by it."""
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    return [q.to_file(out / f"{q.name}.yaml", preset) for q in standard_family() if not q.is_nominal]
+
+
+def plants_in(folder: str | Path) -> list[Plant]:
+    """Every plant file (``*.yaml``, ``*.yml``) of ``folder``, by name."""
+    d = Path(folder)
+    if not d.is_dir():
+        raise ValueError(f"plants: {folder} is not a folder of plant files")
+    files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in (".yaml", ".yml"))
+    if not files:
+        raise ValueError(f"plants: {folder} holds no plant file (*.yaml)")
+    return [Plant.from_path(p) for p in files]

@@ -1,7 +1,7 @@
 """How each controller holds up across plants: the nominal, mean and worst case of a
 benchmark run on several plants (``drill-env benchmark --plants family`` or ``--plant``).
 
-Per preset, regime (the nominal model's, at each voltage) and controller:
+Per preset, regime (the design model's, at each voltage) and controller:
 
 * *nominal*: the mean over the runs on the nominal plant;
 * *mean*: the mean over plants of each plant's mean (every plant weighs the same);
@@ -12,7 +12,9 @@ run over every plant and seed at that voltage, the envelope a controller guarant
 family. A robust policy (``<name>_robust``) is set against its nominal-trained counterpart
 (``<name>``) on it (:func:`robust_pairs`, :func:`worst_case_verdict`).
 
-Suppression counts only runs whose plant has an open-loop cycle at that voltage and seed.
+Suppression counts only runs whose plant has an open-loop cycle at that voltage and seed; a
+stalled run (:func:`drill_env.agents.evaluation.episodes.is_stalled`) has its suppression scored
+as a failure, min(., 0), so a disk that stops never ranks as a suppressed one.
 """
 
 from __future__ import annotations
@@ -108,7 +110,7 @@ def robustness_lines(df, preset: str, plants: Mapping[str, Mapping[str, Any]] | 
     lines = [
         f"## {preset}: robustness across {len(names)} plants",
         "",
-        "Every controller keeps its design on the nominal model. Per regime of the nominal model:",
+        "Every controller keeps its design on the design model. Per regime of the design model:",
         "*nominal* = mean over the runs on the nominal plant, *mean* = mean over plants of each",
         "plant's mean, *worst* = the worst single run over all plants, voltages and seeds (plant,",
         "voltage). Suppression counts only runs whose plant has an open-loop cycle there "
@@ -212,9 +214,13 @@ def worst_case_lines(df, preset: str) -> list[str]:
         "### worst case over the plants at each voltage",
         "",
         "The worst single run's suppression at each voltage over every plant and seed with an "
-        f"open-loop cycle there (figure: `worst_case_{preset}.png`).",
+        "open-loop cycle there (stalled runs scored as failures), and after the slash the largest "
+        f"RMS speed error [rad/s] of a run there, the tracking (figure: `worst_case_{preset}.png`); "
+        "`(stalled)`: the worst run stalled.",
         "",
     ]
+    rms = worst_rms_by_voltage(df, preset)
+    stalled = _stalled_worst(df, preset, worst)
     for robust, nominal in robust_pairs(worst):
         v = worst_case_verdict(worst, robust, nominal)
         if not v["voltages"]:
@@ -236,11 +242,45 @@ def worst_case_lines(df, preset: str) -> list[str]:
         "|---|" + "---|" * len(volts),
     ]
     for c, w in worst.items():
-        lines.append(
-            f"| {c} | " + " | ".join(_cell(w[v][0], 1.0, 3) if v in w else "-" for v in volts) + " |"
-        )
+        cells = []
+        for v in volts:
+            if v not in w:
+                cells.append("-")
+                continue
+            e = rms.get(c, {}).get(v, math.nan)
+            cells.append(
+                _cell(w[v][0], 1.0, 3)
+                + (" (stalled)" if (c, v) in stalled else "")
+                + f" / {_cell(e, 1.0, 3)}"
+            )
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
     lines.append("")
     return lines
+
+
+def worst_rms_by_voltage(df, preset: str) -> dict[str, dict[float, float]]:
+    """controller -> voltage -> the largest RMS speed error [rad/s] of a single run over every
+    plant and seed at that voltage (the tracking beside the worst suppression)."""
+    ok = df[(df["error"] == "") & (df["preset"] == preset) & (df["controller"] != "open_loop")]
+    ok = ok.dropna(subset=["rms_error"])
+    return {
+        c: {float(v): float(e) for v, e in g.groupby("voltage")["rms_error"].max().items()}
+        for c, g in ok.groupby("controller")
+    }
+
+
+def _stalled_worst(df, preset: str, worst) -> set[tuple[str, float]]:
+    """(controller, voltage) whose worst run of :func:`worst_by_voltage` stalled."""
+    if "stalled" not in df:
+        return set()
+    ok = df[(df["error"] == "") & (df["preset"] == preset) & df["stalled"].astype(bool)]
+    out = set()
+    for c, w in worst.items():
+        for v, (s, plant) in w.items():
+            r = ok[(ok["controller"] == c) & (ok["voltage"] == v) & (ok["plant"] == plant)]
+            if len(r) and (r["suppression"] == s).any():
+                out.add((c, v))
+    return out
 
 
 # Each controller's colour in every figure, from the registry (drill_env.agents.registry.STYLES).

@@ -13,15 +13,22 @@ stands for the real rig; every step sees only what a user of the real rig would 
 3. *Redesign*: the classical controllers are tuned on the corrected model by the procedure
    of :mod:`drill_env.agents.controllers.tuning` (what ``drill-env tune --params model.yaml`` does); the LQI's
    gain schedule and the angle-locked feedforward's phase correction
-   (:mod:`drill_env.agents.controllers.angle_feedforward`) are computed on it as well. The linearised design
-   model has the corrected parameters, not the effect: a once-per-revolution friction is
-   not a parameter of a linear model. What knowing the effect buys is the choice of
-   structure, the feedforward locked to the lower disk's angle.
+   (:mod:`drill_env.agents.controllers.angle_feedforward`) are computed on it as well, and the
+   effect it names is used: a position-dependent friction is fed forward as a function of the
+   measured angle (:mod:`drill_env.agents.controllers.effect_feedforward`) by ``lqi`` and
+   ``lqi_angle_ff`` (and by ``ppo_robust``'s base, its trained correction kept). The target
+   speed the controllers regulate to is the design model's (what ``drill-env benchmark
+   --design-params`` does: the *after* rows are ``benchmark --plant truth.yaml --design-params
+   discrepancy/model.yaml --gains gains_corrected.yaml``).
 4. *Score*: every controller, designed on the nominal model (*before*) and on the corrected
    model (*after*), runs on the truth plant through :func:`drill_env.agents.evaluation.episodes.evaluate`, the
    benchmark's one evaluation path, at the same voltages and seeds; the suppression is
    relative to the open-loop run on the truth plant at the same voltage and seed (as the
    benchmark's ``--plant``), with the benchmark's floor for "no cycle".
+
+The truth is the built-in one (the preset, a hidden effect of the library, a few percent of
+parameter error) or a plant file (``truth_file``, ``drill-env sim-to-real --truth``): its
+effects, actuator delay and sensors are recorded and simulated as they are.
 
 :func:`run_sim_to_real` writes ``truth.yaml`` and ``truth_answer.json`` (what the data were
 made from; nothing downstream reads them), ``discrepancy/`` (the workflow's report,
@@ -59,7 +66,10 @@ __all__ = [
 DESIGNS = ("nominal", "corrected")
 # the classical controllers that are designed on a model (PI of the upper speed cannot damp
 # the torsional mode for any gain, the lower-speed PI makes the cycles larger: drill_env.agents.controllers.tuning)
-CONTROLLERS = ("torque_feedback", "lqi", "lqi_angle_ff")
+CONTROLLERS = ("torque_feedback", "lqi", "lqi_angle_ff", "ppo_robust")
+# the controllers the example may compare: those designed on a model, and the residual policies
+# on lqi_angle_ff (their base is redesigned, their trained correction kept)
+ALLOWED = ("torque_feedback", "lqi", "lqi_angle_ff", "ppo_robust", "sac_robust")
 VOLTAGES = (0.7, 0.85, 1.0, 1.25, 1.5)  # [V] where the rig turns near the torsional resonance
 COLUMNS = ("design",) + METRIC_COLUMNS + ("plant",)
 TRUTH = "truth"  # the plant's name in results.csv
@@ -98,6 +108,7 @@ class SimToRealConfig:
     timeseries_voltage: float = 1.0  # [V]
     design_points: int = 12  # of drill_env.agents.controllers.tuning's design set (its default)
     tuning_grid: int = 7  # values per gain in drill_env.agents.controllers.tuning's grid search (its default)
+    truth_file: str | None = None  # a plant file to take as the truth (effect, magnitude, errors unused)
 
     def __post_init__(self) -> None:
         from drill_env.discrepancy.synth import HIDDEN_EFFECTS, IDENTIFIED, SynthConfig
@@ -119,8 +130,13 @@ class SimToRealConfig:
         if not self.controllers:
             raise ValueError(f"controllers: expected one or more of {list(CONTROLLERS)}")
         for c in self.controllers:
-            if c not in CONTROLLERS:
-                raise ValueError(f"controllers: {c!r} is not one of {list(CONTROLLERS)}")
+            if c not in ALLOWED:
+                raise ValueError(f"controllers: {c!r} is not one of {list(ALLOWED)}")
+        if self.truth_file is not None:
+            from drill_env.plant_file import read_plant_file
+
+            read_plant_file(self.truth_file)  # a ParameterError naming the field
+            object.__setattr__(self, "truth_file", str(self.truth_file))
         uc1 = load_params(self.synth.preset).uc1
         if not self.voltages:
             raise ValueError("voltages: expected at least one voltage")
@@ -166,6 +182,7 @@ class SimToRealConfig:
             "timeseries_voltage": self.timeseries_voltage,
             "design_points": self.design_points,
             "tuning_grid": self.tuning_grid,
+            "truth_file": self.truth_file,
         }
 
 
@@ -185,6 +202,9 @@ class SimToRealResult:
     timings: dict[str, float]
     # design -> voltage -> phase of the feedforward's G_1 against the truth's [deg]
     phase_errors: dict[str, dict[float, float]] = field(default_factory=dict)
+    # voltage -> the identified effect's feedforward on the corrected model: target speed [rad/s],
+    # |C_h| of the lower and upper angle [V], decay rate of the rotation with it [1/s]
+    effect_feedforward: dict[float, dict[str, Any]] = field(default_factory=dict)
 
     def to_pandas(self):
         import pandas as pd
@@ -202,8 +222,9 @@ def _truth_overrides(preset: str, errors: Mapping[str, float]) -> dict[str, floa
 def tuned_kinds(controllers: Sequence[str]) -> tuple[str, ...]:
     """The tuned controllers whose gains ``controllers`` use (``lqi_angle_ff``: the LQI's)."""
     from drill_env.agents.controllers.gains import BUILT_ON
+    from drill_env.agents.registry import LEARNED
 
-    return tuple(dict.fromkeys(BUILT_ON.get(c, c) for c in controllers))
+    return tuple(dict.fromkeys(BUILT_ON.get(c, c) for c in controllers if c not in LEARNED))
 
 
 def _tuned_gains(model, source: str, cfg: SimToRealConfig, control_dt: float, progress) -> dict[str, Any]:
@@ -230,7 +251,7 @@ def _open_loop_run(env, preset: str, voltage: float, seed: int, episode: Episode
     from drill_env.agents.controllers.base import ControllerSpec
     from drill_env.agents.controllers.open_loop import OpenLoop
     from drill_env.agents.evaluation.benchmark import OPEN_LOOP_FLOOR
-    from drill_env.agents.evaluation.episodes import evaluate, suppression
+    from drill_env.agents.evaluation.episodes import evaluate, open_loop_regime, suppression
 
     m = evaluate(
         OpenLoop(ControllerSpec.from_env(env)),
@@ -243,7 +264,10 @@ def _open_loop_run(env, preset: str, voltage: float, seed: int, episode: Episode
         open_loop_amplitude=0.0,
     ).as_dict()
     ref = m["amplitude"] if m["amplitude"] >= OPEN_LOOP_FLOOR else 0.0
-    m.update(open_loop_amplitude=ref, suppression=suppression(m["amplitude"], ref))
+    regime = open_loop_regime(ref, m["stick_fraction"])
+    m.update(
+        open_loop_amplitude=ref, suppression=suppression(m["amplitude"], ref), plant_open_loop_regime=regime
+    )
     return m
 
 
@@ -273,10 +297,10 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     import yaml
 
     from drill_env.agents.controllers.base import ControllerSpec
-    from drill_env.agents.controllers.gains import classical_controller, gains_path, load_gains
+    from drill_env.agents.controllers.gains import gains_path, load_gains
     from drill_env.agents.evaluation.episodes import evaluate, make_env, run_episode
-    from drill_env.agents.registry import observation_version
-    from drill_env.discrepancy.synth import make_dataset, write_synthetic
+    from drill_env.agents.registry import build_controller, observation_version
+    from drill_env.discrepancy.synth import make_dataset, make_plant_dataset, write_synthetic
     from drill_env.discrepancy.workflow import run_discrepancy
     from drill_env.outputs import atomic_write_text
     from drill_env.params import load_params
@@ -287,20 +311,40 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     # 1. measure the truth plant
     t0 = time.perf_counter()
     n_runs = len(cfg.synth.voltages) + cfg.synth.random_runs
-    say(
-        f"[1/5] recording {n_runs} runs on the truth plant ({cfg.effect}, {cfg.magnitude:g}; "
-        + ", ".join(f"{k} {v:+.0%}" for k, v in cfg.parameter_errors.items())
-        + ")"
-    )
-    synth = make_dataset(
-        cfg.effect,
-        seed=cfg.data_seed,
-        magnitude=cfg.magnitude,
-        config=cfg.synth,
-        truth_overrides=_truth_overrides(preset, cfg.parameter_errors),
-    )
-    truth = synth.truth.replace(name="truth", description="sim-to-real truth plant (drill-env sim-to-real)")
-    truth.to_yaml(out / "truth.yaml")
+    plant = None
+    if cfg.truth_file is not None:
+        from drill_env.agents.evaluation.plants import Plant
+
+        plant = Plant.from_path(cfg.truth_file)
+        synth_cfg = dataclasses.replace(
+            cfg.synth,
+            encoder_counts_per_rev=int(plant.sensors.get("counts_per_rev", cfg.synth.encoder_counts_per_rev)),
+            angle_noise_std=float(plant.sensors.get("angle_noise_std", cfg.synth.angle_noise_std)),
+        )
+        delay = plant.sensors.get("delay_samples", 0) / float(plant.sensors.get("sample_rate_hz", 1000.0))
+        say(f"[1/5] recording {n_runs} runs on the truth plant {cfg.truth_file}")
+        synth = make_plant_dataset(
+            plant.params, seed=cfg.data_seed, config=synth_cfg, delay_s=delay, source=cfg.truth_file
+        )
+        truth = plant.params
+        plant.to_file(out / "truth.yaml", preset)
+    else:
+        say(
+            f"[1/5] recording {n_runs} runs on the truth plant ({cfg.effect}, {cfg.magnitude:g}; "
+            + ", ".join(f"{k} {v:+.0%}" for k, v in cfg.parameter_errors.items())
+            + ")"
+        )
+        synth = make_dataset(
+            cfg.effect,
+            seed=cfg.data_seed,
+            magnitude=cfg.magnitude,
+            config=cfg.synth,
+            truth_overrides=_truth_overrides(preset, cfg.parameter_errors),
+        )
+        truth = synth.truth.replace(
+            name="truth", description="sim-to-real truth plant (drill-env sim-to-real)"
+        )
+        truth.to_yaml(out / "truth.yaml")
     write_synthetic(synth, data, out / "truth_answer.json", preset=preset)
     files += [out / "truth.yaml", out / "truth_answer.json"]
     timings["measure"] = time.perf_counter() - t0
@@ -347,30 +391,50 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     }
     timings["design"] = time.perf_counter() - t0
 
-    # 4. every design on the truth plant, through the benchmark's evaluation path
+    # 4. every design on the truth plant, through the benchmark's evaluation path: each design's
+    # controllers are built on its model (benchmark --design-params), and the task (target speed)
+    # is that model's; the truth is only simulated
     t0 = time.perf_counter()
     version = max(observation_version(c, preset) for c in cfg.controllers)
-    env = make_env(preset, cfg.episode, version, params=truth)
+    overrides = plant.env_overrides() if plant is not None else None
+    design_model = {"nominal": None, "corrected": corrected}
+    envs = {
+        d: make_env(preset, cfg.episode, version, params=truth, overrides=overrides, design_params=m)
+        for d, m in design_model.items()
+    }
     rows: list[dict[str, Any]] = []
     traces: dict[tuple[str, str], Any] = {}
     try:
-        base_spec = ControllerSpec.from_env(env)
-        ctrls = {
-            (d, c): classical_controller(c, dataclasses.replace(base_spec, params=p), preset, g)
-            for d, (p, g) in design_of.items()
-            for c in cfg.controllers
-        }
+        ctrls = {}
+        for d, (_, g) in design_of.items():
+            design_env = make_env(preset, cfg.episode, version, design_params=design_model[d])
+            try:
+                for c in cfg.controllers:
+                    ctrls[(d, c)] = build_controller(c, design_env, preset, gains_file=g)
+            finally:
+                design_env.close()
         n_total = len(cfg.voltages) * len(cfg.seeds)
         say(
             f"[4/5] {len(cfg.controllers)} controllers x {len(DESIGNS)} designs and the open loop x "
             f"{len(cfg.voltages)} voltages x {len(cfg.seeds)} seeds on the truth plant"
         )
+        open_loop = _open_loop(ControllerSpec.from_env(envs["nominal"]))
         for i, (v, s) in enumerate((v, s) for v in cfg.voltages for s in cfg.seeds):
-            ol = _open_loop_run(env, preset, v, s, cfg.episode)
+            ol = _open_loop_run(envs["nominal"], preset, v, s, cfg.episode)
             ref = ol["open_loop_amplitude"]
             rows.append({"design": "-", **ol, "plant": TRUTH})
             for (d, c), ctrl in ctrls.items():
-                m = evaluate(ctrl, preset, v, s, cfg.episode, name=c, env=env, open_loop_amplitude=ref)
+                m = evaluate(
+                    ctrl,
+                    preset,
+                    v,
+                    s,
+                    cfg.episode,
+                    name=c,
+                    env=envs[d],
+                    open_loop_amplitude=ref,
+                    plant_open_loop_regime=ol["plant_open_loop_regime"],
+                )
                 rows.append({"design": d, **m.as_dict(), "plant": TRUTH})
             done = rows[-len(ctrls) :]
             say(
@@ -381,14 +445,18 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
         n = cfg.episode.n_steps(control_dt)
         opts = {"nominal_voltage": cfg.timeseries_voltage}
         traces[("-", "open_loop")] = run_episode(
-            env, _open_loop(base_spec), seed=cfg.seeds[0], n_steps=n, options=opts, window_steps=n
+            envs["nominal"], open_loop, seed=cfg.seeds[0], n_steps=n, options=opts, window_steps=n
         )
-        for key, ctrl in ctrls.items():
-            traces[key] = run_episode(env, ctrl, seed=cfg.seeds[0], n_steps=n, options=opts, window_steps=n)
+        for (d, c), ctrl in ctrls.items():
+            traces[(d, c)] = run_episode(
+                envs[d], ctrl, seed=cfg.seeds[0], n_steps=n, options=opts, window_steps=n
+            )
     finally:
-        env.close()
+        for e in envs.values():
+            e.close()
     timings["evaluate"] = time.perf_counter() - t0
     phases = _phase_errors(ctrls, design_of, truth, rows, cfg)
+    effect_ff = _effect_feedforward(ctrls, corrected, cfg)
 
     # 5. the report
     say("[5/5] summary and figures")
@@ -404,6 +472,7 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
         files=files,
         timings=timings,
         phase_errors=phases,
+        effect_feedforward=effect_ff,
     )
     df = res.to_pandas()
     csv = out / "results.csv"
@@ -435,6 +504,9 @@ LABEL = {
 }
 
 
+COINCIDE = 0.02  # [rad/s] before and after closer than this everywhere are said to coincide
+
+
 def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConfig, out: Path) -> Path:
     import matplotlib
 
@@ -444,33 +516,53 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
     from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
-    fig, axes = plt.subplots(len(ctrls), 1, figsize=(9, 2.6 * len(ctrls) + 0.6), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(
+        len(ctrls), 1, figsize=(9, 2.3 * len(ctrls) + 1.4), sharex=True, sharey=True, squeeze=False
+    )
     ol = traces[("-", "open_loop")]
     t_on = float(ol.t[0]) - float(ol.t[1] - ol.t[0]) if ol.t.size > 1 else 0.0
-    target = float(ol.reset_info["target_speed"])
     for ax, c in zip(axes[:, 0], ctrls, strict=True):
-        ax.plot(ol.window_t - t_on, ol.window_lower_speed, color="0.6", lw=0.8, label="open loop")
-        for d in DESIGNS:
-            tr = traces[(d, c)]
-            ax.plot(
-                tr.window_t - t_on,
-                tr.window_lower_speed,
-                LINE[d],
-                color=COLORS.get(c, "C0") if d == "corrected" else "k",
-                lw=1.0,
-                label=LABEL[d],
+        ax.plot(ol.window_t - t_on, ol.window_lower_speed, color="0.7", lw=0.8)
+        before, after = traces[("nominal", c)], traces[("corrected", c)]
+        # before: wide, dashed, black, under; after: thin, solid, in the controller's colour
+        ax.plot(before.window_t - t_on, before.window_lower_speed, "--", color="k", lw=2.0, alpha=0.55)
+        ax.plot(after.window_t - t_on, after.window_lower_speed, "-", color=COLORS.get(c, "C0"), lw=1.0)
+        for tr, style in ((before, (0, (4, 2))), (after, "-")):
+            ax.axhline(float(tr.reset_info["target_speed"]), color="0.3", ls=style, lw=0.6)
+        n = min(before.window_lower_speed.size, after.window_lower_speed.size)
+        gap = (
+            float(np.max(np.abs(before.window_lower_speed[:n] - after.window_lower_speed[:n]))) if n else 0.0
+        )
+        if gap < COINCIDE:
+            ax.text(
+                0.99,
+                0.95,
+                f"before and after coincide (largest difference {gap:.3f} rad/s)",
+                transform=ax.transAxes,
+                ha="right",
+                va="top",
+                fontsize=8,
+                bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
             )
-        ax.axhline(target, color="0.3", ls=":", lw=0.8, label="target speed")
-        ax.set_title(c, fontsize=10)
-        ax.set_ylabel("lower-disk speed [rad/s]")
-        ax.legend(fontsize=7, loc="best", ncol=2, framealpha=0.6)
+        ax.set_title(c, fontsize=10, loc="left")
+        ax.set_ylabel("lower-disk speed\n[rad/s]")
+        ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time since the controller was switched on [s]")
-    fig.suptitle(
-        f"Truth plant ({cfg.effect} {cfg.magnitude:g}, parameter errors) at {cfg.timeseries_voltage:g} V, "
-        f"seed {cfg.seeds[0]}",
-        fontsize=10,
+    handles = [
+        plt.Line2D([], [], color="0.7", lw=0.8, label="open loop"),
+        plt.Line2D([], [], ls="--", color="k", lw=2.0, alpha=0.55, label=LABEL["nominal"]),
+        plt.Line2D([], [], color="C0", lw=1.0, label=LABEL["corrected"] + " (controller's colour)"),
+        plt.Line2D([], [], color="0.3", ls=(0, (4, 2)), lw=0.6, label="target speed, nominal model"),
+        plt.Line2D([], [], color="0.3", ls="-", lw=0.6, label="target speed, corrected model"),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
+    what = (
+        f"plant file {Path(cfg.truth_file).name}"
+        if cfg.truth_file
+        else f"{cfg.effect} {cfg.magnitude:g}, parameter errors"
     )
-    fig.tight_layout()
+    fig.suptitle(f"Truth plant ({what}) at {cfg.timeseries_voltage:g} V, seed {cfg.seeds[0]}", fontsize=10)
+    fig.tight_layout(rect=(0, 0.7 / fig.get_figheight(), 1, 1))
     path = out / f"timeseries_{cfg.timeseries_voltage:g}V.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -486,25 +578,27 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
     from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
-    fig, axes = plt.subplots(2, len(ctrls), figsize=(3.6 * len(ctrls), 6), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(
+        2, len(ctrls), figsize=(3.3 * len(ctrls), 6.4), sharex=True, sharey="row", squeeze=False
+    )
     for j, c in enumerate(ctrls):
         for i, (metric, label) in enumerate(
             (("suppression", "suppression [-]"), ("rms_error", "RMS speed error [rad/s]"))
         ):
             ax = axes[i, j]
-            for d, marker in zip(DESIGNS, ("o", "s"), strict=True):
+            for d, marker, off in zip(DESIGNS, ("o", "s"), (-0.012, 0.012), strict=True):
                 g = df[(df.controller == c) & (df.design == d)].groupby("voltage")[metric]
                 mean, lo, hi = g.mean(), g.min(), g.max()
                 ax.errorbar(
-                    mean.index,
+                    mean.index + off,  # side by side where they coincide
                     mean.values,
                     yerr=[mean.values - lo.values, hi.values - mean.values],
                     fmt=LINE[d] + marker,
                     color=COLORS.get(c, "C0") if d == "corrected" else "k",
                     mfc="none" if d == "nominal" else None,
+                    ms=6 if d == "nominal" else 4,
                     capsize=2,
                     lw=1.0,
-                    label=LABEL[d],
                 )
             if metric == "suppression":
                 ax.axhline(1.0, color="0.7", lw=0.6)
@@ -515,14 +609,21 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
                 ax.set_xlabel("nominal voltage [V]")
             if j == 0:
                 ax.set_ylabel(label)
-            ax.legend(fontsize=7, loc="best", framealpha=0.6)
+            ax.grid(alpha=0.3)
+    handles = [
+        plt.Line2D([], [], ls="--", marker="o", mfc="none", color="k", label=LABEL["nominal"]),
+        plt.Line2D(
+            [], [], ls="-", marker="s", color="C0", label=LABEL["corrected"] + " (controller's colour)"
+        ),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
     n = len(cfg.seeds)
     fig.suptitle(
-        f"On the truth plant: mean over {n} seed{'s' if n > 1 else ''} (bars: min-max); "
-        "suppression against the open loop on the same plant",
-        fontsize=10,
+        f"On the truth plant: mean over {n} seed{'s' if n > 1 else ''} (bars: min-max; before and after "
+        "drawn side by side); suppression against the open loop on the same plant",
+        fontsize=9,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.45 / fig.get_figheight(), 1, 1))
     path = out / "suppression.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -541,6 +642,23 @@ def summary_markdown(res: SimToRealResult) -> str:
     nominal = load_params(cfg.preset)
     disc = res.discrepancy
     eff_fields = res.answer.get("model_effects", {})
+    if cfg.truth_file:
+        errs = res.answer.get("parameter_errors", {})
+        what = (
+            f"The plant file `{Path(cfg.truth_file).name}` (copied to `truth.yaml`): effects "
+            + (", ".join(f"{k} = {v:.4g}" for k, v in eff_fields.items()) or "none")
+            + "; parameters off the nominal model: "
+            + (", ".join(f"{k} {v:+.1%}" for k, v in errs.items()) or "none")
+            + f"; actuator delay {1000 * float(res.answer.get('actuator_delay', 0.0)):g} ms. It was recorded like the rig: "
+        )
+    else:
+        what = (
+            f"The `{cfg.preset}` preset with the hidden effect `{cfg.effect}` ("
+            + ", ".join(f"{k} = {v:.4g}" for k, v in eff_fields.items())
+            + ") and the parameter errors "
+            + ", ".join(f"{k} {v:+.0%}" for k, v in cfg.parameter_errors.items())
+            + " (`truth.yaml`). It was recorded like the rig: "
+        )
     lines = [
         "# Sim-to-real: from measured data to a better controller",
         "",
@@ -549,15 +667,11 @@ def summary_markdown(res: SimToRealResult) -> str:
         "",
         "## The truth plant",
         "",
-        f"The `{cfg.preset}` preset with the hidden effect `{cfg.effect}` ("
-        + ", ".join(f"{k} = {v:.4g}" for k, v in eff_fields.items())
-        + ") and the parameter errors "
-        + ", ".join(f"{k} {v:+.0%}" for k, v in cfg.parameter_errors.items())
-        + " (`truth.yaml`). It was recorded like the rig: "
-        f"{len(cfg.synth.voltages)} constant-voltage runs ({', '.join(f'{v:g}' for v in cfg.synth.voltages)} V) "
+        what
+        + f"{len(cfg.synth.voltages)} constant-voltage runs ({', '.join(f'{v:g}' for v in cfg.synth.voltages)} V) "
         f"and {cfg.synth.random_runs} quasi-random run(s), {cfg.synth.duration_s:g} s each at "
-        f"{cfg.synth.sample_rate_hz:g} Hz, {cfg.synth.encoder_counts_per_rev} counts/rev, angle noise "
-        f"{cfg.synth.angle_noise_std:g} rad.",
+        f"{cfg.synth.sample_rate_hz:g} Hz, {res.answer.get('design', {}).get('encoder_counts_per_rev', cfg.synth.encoder_counts_per_rev)} counts/rev, angle noise "
+        f"{res.answer.get('design', {}).get('angle_noise_std', cfg.synth.angle_noise_std):g} rad.",
         "",
         "## What the discrepancy workflow found",
         "",
@@ -603,8 +717,13 @@ def summary_markdown(res: SimToRealResult) -> str:
         "The classical controllers were tuned on the corrected model (`discrepancy/model.yaml`) by the "
         "procedure of `agents/controllers/tuning.py`, as `drill-env tune --params` does (`gains_corrected.yaml`); "
         "the LQI's gain schedule and the angle-locked feedforward's phase correction are computed on "
-        "that model too. The linearised design model has the recalibrated parameters but not the "
-        "effect: a friction that varies with the lower disk's angle is no parameter of a linear model.",
+        "that model too, and the target speed the controllers regulate to is its own. The linearised "
+        "model has the recalibrated parameters but not the effect (a friction that varies with the "
+        "disk's angle is no parameter of a linear model); the effect is used as what it is, a known "
+        "function of the measured angle: `lqi` and `lqi_angle_ff` designed on the corrected model add "
+        "its feedforward (`agents/controllers/effect_feedforward.py`), and so does the base of a "
+        "residual policy (`ppo_robust`: its trained correction is kept, its `lqi_angle_ff` base is "
+        "designed on the corrected model).",
         "",
         "| controller | gains, nominal design | gains, corrected design | worst decay rate nominal / corrected design [1/s] |",
         "|---|---|---|---|",
@@ -616,6 +735,22 @@ def summary_markdown(res: SimToRealResult) -> str:
             f"| `{k}` | {g0} | {g1} | {res.decay_rates['nominal'][k]:.3f} / {res.decay_rates['corrected'][k]:.3f} |"
         )
     lines += ["", "`lqi_angle_ff` has no gains of its own: it is the LQI above plus the feedforward.", ""]
+    if res.effect_feedforward:
+        lines += [
+            "The identified effect's feedforward on the corrected model, per voltage: the target speed, "
+            "the amplitude |C_h| of its harmonics of the lower (and upper) angle, and the decay rate of "
+            "the rotation with it, from the Floquet multipliers of the periodic linearisation over one "
+            "revolution (> 0: stable; `effect_feedforward.orbit_decay_rate`):",
+            "",
+            "| voltage [V] | target speed [rad/s] | lower \\|C_1\\|, \\|C_2\\| [V] | upper \\|C_1\\|, \\|C_2\\| [V] | decay rate [1/s] |",
+            "|---|---|---|---|---|",
+        ]
+        for v, e in res.effect_feedforward.items():
+            lines.append(
+                f"| {v:g} | {e['speed']:.3f} | {e['lower'][0]:.3f}, {e['lower'][1]:.3f} | "
+                f"{e['upper'][0]:.3f}, {e['upper'][1]:.3f} | {e['decay_rate']:.3f} |"
+            )
+        lines.append("")
     lines += _before_after(res)
     lines += [
         "",
@@ -628,6 +763,29 @@ def summary_markdown(res: SimToRealResult) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _effect_feedforward(ctrls, corrected, cfg: SimToRealConfig) -> dict[float, dict[str, Any]]:
+    """Per voltage, the corrected design's feedforward of the identified position friction
+    (:mod:`drill_env.agents.controllers.effect_feedforward`) and the decay rate of the rotation
+    with it on the corrected model; empty where the model names no such effect."""
+    from drill_env.envs.task import equilibrium_speed, nominal_params
+
+    ctrl = ctrls.get(("corrected", "lqi")) or ctrls.get(("corrected", "lqi_angle_ff"))
+    effect = getattr(ctrl, "effect", None)
+    if effect is None:
+        return {}
+    out = {}
+    for v in cfg.voltages:
+        w = equilibrium_speed(nominal_params(corrected), v)
+        d = effect.design(w)
+        out[v] = {
+            "speed": w,
+            "lower": [abs(c) for c in d.lower],
+            "upper": [abs(c) for c in d.upper],
+            "decay_rate": effect.decay_rate(w),
+        }
+    return out
 
 
 def _phase_errors(ctrls, design_of, truth, rows, cfg: SimToRealConfig) -> dict[str, dict[float, float]]:
@@ -707,18 +865,33 @@ def _before_after(res: SimToRealResult) -> list[str]:
         lines += [
             "",
             f"What knowing the effect changes: the discrepancy named `{ANGLE_LOCKED}`, a friction locked "
-            "to the lower disk's angle, which the linearised design model cannot contain; the structure "
-            "made for it is the angle-locked feedforward. Before the data a user deploys the best "
-            "controller of the nominal benchmark, `lqi` on the nominal model: worst-case suppression "
+            "to the lower disk's angle, which the linearised design model cannot contain but whose "
+            "identified torque is a known function of the measured angle. Before the data a user deploys "
+            "`lqi` on the nominal model: worst-case suppression "
             f"{_fmt(w.get(('lqi', 'nominal'), math.nan))}, worst RMS speed error "
-            f"{_fmt(r.get(('lqi', 'nominal'), math.nan))} rad/s on the truth plant. After it, `lqi_angle_ff` "
-            f"on the corrected model: {_fmt(w.get(('lqi_angle_ff', 'corrected'), math.nan))} and "
-            f"{_fmt(r.get(('lqi_angle_ff', 'corrected'), math.nan))} rad/s.",
+            f"{_fmt(r.get(('lqi', 'nominal'), math.nan))} rad/s on the truth plant. After it, the same "
+            "`lqi` designed on the corrected model, with the identified friction fed forward: "
+            f"{_fmt(w.get(('lqi', 'corrected'), math.nan))} and {_fmt(r.get(('lqi', 'corrected'), math.nan))} "
+            "rad/s; `lqi_angle_ff`, which learns the friction's harmonics without a model of them, "
+            f"{_fmt(w.get(('lqi_angle_ff', 'nominal'), math.nan))} → "
+            f"{_fmt(w.get(('lqi_angle_ff', 'corrected'), math.nan))}.",
+        ]
+    from drill_env.agents.registry import LEARNED
+
+    for c in (c for c in cfg.controllers if c in LEARNED):
+        w = df[(df.controller == c) & (df.design != "-")].groupby("design")["suppression"].min()
+        lines += [
+            "",
+            f"`{c}` is not retrained on the corrected model: it is a residual policy on `lqi_angle_ff`, whose "
+            "adaptation already rejects the friction before the data; on the corrected model its base is "
+            "redesigned (the identified friction fed forward) and its trained correction kept. Measured: "
+            f"worst-case suppression {_fmt(w.get('nominal', math.nan))} → {_fmt(w.get('corrected', math.nan))}; "
+            "retraining would have to beat a base that leaves little to correct.",
         ]
     if res.phase_errors:
         lines += [
             "",
-            "Why the corrected model adds little to `lqi_angle_ff`: its adaptation needs only the phase of "
+            "Why `lqi_angle_ff` is good before the data already: its adaptation needs only the phase of "
             "the closed loop's response at the rotation frequency within 90 deg of the truth's; the phase "
             "error of the first harmonic [deg], nominal → corrected design: "
             + ", ".join(
@@ -744,15 +917,20 @@ def _before_after(res: SimToRealResult) -> list[str]:
     moved = float(np.nanmax(deltas)) if deltas and np.isfinite(deltas).any() else math.nan
     lines += [
         "",
-        f"In short: retuning on the corrected model moves the gains by at most {gain_change:.1%} and the "
-        f"worst-case suppression by at most {_fmt(moved)}"
+        f"In short: retuning on the corrected model moves the gains by at most {gain_change:.1%}; the "
+        f"corrected design moves the worst-case suppression by up to {_fmt(moved)}"
         + (
-            "; the linear designs are insensitive to parameter errors of this size, and the effect that "
-            "undoes them is not in a linear model. What the data contribute is the effect's name: it says "
-            "which structure to run."
-            if moved <= 0.02
+            ", through the effect the model names, fed forward; the recalibrated parameters alone "
+            "change little (the linear designs are insensitive to parameter errors of this size)."
+            if res.effect_feedforward
             else "."
         ),
+        "",
+        "The *after* rows are one public command: `drill-env benchmark --preset "
+        f"{cfg.preset} --plant truth.yaml --design-params discrepancy/model.yaml --gains gains_corrected.yaml "
+        f"--controllers {','.join(cfg.controllers)} --voltages {','.join(f'{v:g}' for v in cfg.voltages)} "
+        f"--seeds {len(cfg.seeds)}` (with this example's episode settings; the plant is named by its "
+        "file, the runs are the same); without `--design-params` and `--gains`, the *before* rows.",
     ]
     best = (
         df[df.design != "-"]

@@ -1,11 +1,14 @@
-"""Time series of single benchmark runs: what a controller does, over time, on the nominal rig
-and on a plant it was not designed for.
+"""Time series of single benchmark runs: what each controller does, over time, on every plant
+of a benchmark.
 
-:func:`timeseries_figures` writes ``timeseries_<preset>_<controller>.png`` per controller:
-one run (voltage, seed, the benchmark's episode settings) on each plant side by side, the
-lower- and upper-disk speeds with the lower disk's stuck phases shaded, the open-loop run on
-the same plant and seed in grey, and the applied voltage below. Runs go through
-:func:`drill_env.agents.evaluation.episodes.run_episode`, the path every benchmark run takes.
+:func:`timeseries_figures` writes ``timeseries_<preset>_<plant>_<group>.png``: one figure per
+plant and controller group (``classical``: open loop, PIs, torque feedback, LQIs; ``learned``:
+the trained policies), one row per controller with one run (voltage, seed, the benchmark's
+episode settings): the lower-disk speed with its stuck phases shaded, the open-loop run on the
+same plant and seed in grey, the target speed (the design model's), and the applied voltage
+beside it. Speeds share one scale in a figure, voltages another. Runs go through
+:func:`drill_env.agents.evaluation.episodes.run_episode`, the path every benchmark run takes,
+with the controller built on the design model and run on the plant.
 """
 
 from __future__ import annotations
@@ -19,9 +22,11 @@ import numpy as np
 
 from drill_env.agents.evaluation.episodes import EpisodeSettings, make_env, run_episode
 from drill_env.agents.evaluation.plants import Plant
-from drill_env.agents.registry import controller_style
+from drill_env.agents.registry import CLASSICAL, LEARNED, controller_style
 
-__all__ = ["run_trace", "timeseries_figures"]
+__all__ = ["GROUPS", "run_trace", "timeseries_figures"]
+
+GROUPS = {"classical": CLASSICAL, "learned": LEARNED}  # one figure per plant and group
 
 
 def run_trace(
@@ -34,14 +39,23 @@ def run_trace(
     *,
     agents_dir: str | None = None,
     gains_file: str | None = None,
+    design_params: Any = None,
 ):
-    """One closed-loop episode of ``controller`` (designed on the nominal model) on ``plant``,
-    with the 1 kHz true lower-disk samples of the whole episode (a ``Trajectory``)."""
+    """One closed-loop episode of ``controller`` (built on the design model ``design_params``,
+    default the preset's) on ``plant``, with the 1 kHz true lower-disk samples of the whole
+    episode (a ``Trajectory``)."""
     from drill_env.agents.registry import build_controller, observation_version
 
     version = observation_version(controller, preset, agents_dir)
-    design = make_env(preset, episode, version)
-    env = make_env(preset, episode, version, params=plant.rig(preset), overrides=plant.env_overrides())
+    design = make_env(preset, episode, version, design_params=design_params)
+    env = make_env(
+        preset,
+        episode,
+        version,
+        params=plant.rig(preset),
+        overrides=plant.env_overrides(),
+        design_params=design_params,
+    )
     try:
         ctrl = build_controller(controller, design, preset, agents_dir=agents_dir, gains_file=gains_file)
         n = episode.n_steps(env.unwrapped.control_dt)
@@ -79,130 +93,109 @@ def timeseries_figures(
     episode: EpisodeSettings | None = None,
     agents_dir: str | None = None,
     gains_file: str | None = None,
+    design_params: Any = None,
+    progress: Any = None,
 ) -> list[Path]:
-    """``timeseries_<preset>_<controller>.png`` for each controller (see the module docstring).
-    A controller that cannot be built (e.g. no trained policy) is skipped with its reason in
-    the returned list's place: the error is raised only if no figure could be made."""
+    """``timeseries_<preset>_<plant>_<group>.png`` for each plant and controller group (see the
+    module docstring). A controller that cannot be built (e.g. no trained policy) is left out
+    of its figure; the error is raised only if no figure could be made. ``progress`` receives
+    each written path."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
-    from drill_env.analysis.plots import AMPLIFIER_LIMIT_V, IDENTIFIED_SPEED_RAD_S
+    from drill_env.analysis.plots import AMPLIFIER_LIMIT_V
 
     episode = episode or EpisodeSettings()
     out = Path(out)
-    open_loop: dict[str, Any] = {}
     paths: list[Path] = []
     errors: list[str] = []
-    for c in controllers:
-        try:
-            traces = [
-                run_trace(c, preset, voltage, seed, episode, q, agents_dir=agents_dir, gains_file=gains_file)
-                for q in plants
-            ]
-        except ValueError as exc:
-            errors.append(f"{c}: {exc}")
-            continue
-        for q in plants:
-            if q.name not in open_loop:
-                open_loop[q.name] = (
-                    traces[list(plants).index(q)]
-                    if c == "open_loop"
-                    else run_trace("open_loop", preset, voltage, seed, episode, q)
+    kw = {"agents_dir": agents_dir, "gains_file": gains_file, "design_params": design_params}
+    for q in plants:
+        open_loop = run_trace("open_loop", preset, voltage, seed, episode, q, **kw)
+        for group, members in GROUPS.items():
+            traces: dict[str, Any] = {}
+            for c in (c for c in controllers if c in members and c != "open_loop"):
+                try:
+                    traces[c] = run_trace(c, preset, voltage, seed, episode, q, **kw)
+                except ValueError as exc:
+                    errors.append(f"{c}: {exc}")
+            if not traces and not (group == "classical" and "open_loop" in controllers):
+                continue
+            if not traces:  # the open loop alone
+                traces["open_loop"] = open_loop
+            paths.append(
+                _figure(
+                    plt, Patch, AMPLIFIER_LIMIT_V, traces, open_loop, q, group, preset, voltage, seed, out
                 )
-        fig, axes = plt.subplots(
-            2,
-            len(plants),
-            figsize=(6.5 * len(plants), 6),
-            sharex=True,
-            squeeze=False,
-            gridspec_kw={"height_ratios": [2.2, 1]},
-        )
-        stuck_any = False
-        for j, (q, tr) in enumerate(zip(plants, traces, strict=True)):
-            ax, axu = axes[0][j], axes[1][j]
-            t0 = _switch_on(tr)
-            ol = open_loop[q.name]
-            t_ol = _switch_on(ol)
-            reference = c != "open_loop"  # the open-loop run drawn under the controller's
-            if reference:
-                ax.plot(
-                    ol.window_t - t_ol,
-                    ol.window_lower_speed,
-                    color="0.7",
-                    lw=0.8,
-                    label="open loop: lower disk",
-                )
-            for a, b in _spans(tr.window_t - t0, tr.window_lower_stuck.astype(bool)):
-                ax.axvspan(a, b, color="tab:red", alpha=0.15, lw=0)
-            col = controller_style(c).colour
-            ax.plot(tr.window_t - t0, tr.window_lower_speed, color=col, lw=1.0, label=f"{c}: lower disk x3")
-            ax.plot(
-                tr.t - t0,
-                tr.true_state[:, 1],
-                color=col,
-                lw=0.8,
-                ls="--",
-                alpha=0.8,
-                label=f"{c}: upper disk x2",
             )
-            w = float(tr.reset_info["target_speed"])
-            ax.axhline(w, color="black", lw=0.6, ls=":", label=f"target w* = {w:.2f} rad/s")
-            ax.set_ylabel("disk speed [rad/s]")
-            if IDENTIFIED_SPEED_RAD_S.get(preset, np.inf) < ax.get_ylim()[1]:
-                w_id = IDENTIFIED_SPEED_RAD_S[preset]
-                ax.axhline(
-                    w_id, color="tab:brown", lw=0.8, ls=":", label=f"friction identified up to {w_id:g} rad/s"
-                )
-            what = "nominal model (the design model)" if q.is_nominal else (q.description or q.name)
-            ax.set_title(textwrap.fill(f"plant {q.name}: {what}", 80), fontsize=9)
-            ax.grid(alpha=0.3)
-            stuck_any = stuck_any or bool(tr.window_lower_stuck.any())
-            if reference:
-                axu.plot(ol.t - t_ol, ol.voltage, color="0.7", lw=0.8, label="open loop")
-            axu.plot(tr.t - t0, tr.voltage, color=col, lw=1.0, label=c)
-            axu.axhline(
-                AMPLIFIER_LIMIT_V,
-                color="tab:red",
-                lw=0.6,
-                ls="--",
-                label=f"amplifier limits +-{AMPLIFIER_LIMIT_V:g} V",
-            )
-            axu.axhline(-AMPLIFIER_LIMIT_V, color="tab:red", lw=0.6, ls="--")  # seen when u goes there
-            axu.set_ylim(min(-0.2, float(np.min(tr.voltage)) - 0.4), 5.4)
-            axu.set_ylabel("applied voltage u [V]")
-            axu.set_xlabel("time since the controller was switched on [s]")
-            axu.grid(alpha=0.3)
-        # one legend for all panels, below them, so that it covers no trace
-        handles, labels = [], []
-        for a in (axes[0][0], axes[1][0]):
-            for h, lab in zip(*a.get_legend_handles_labels(), strict=True):
-                if lab not in labels:
-                    handles.append(h)
-                    labels.append(
-                        lab if a is axes[0][0] or lab.startswith("amplifier") else f"{lab}: voltage"
-                    )
-        for a in axes[0][1:]:  # the identified range may be reached on another plant only
-            for h, lab in zip(*a.get_legend_handles_labels(), strict=True):
-                if lab not in labels:
-                    handles.append(h)
-                    labels.append(lab)
-        if stuck_any:
-            handles.append(Patch(color="tab:red", alpha=0.15))
-            labels.append(f"{c}: lower disk stuck")
-        fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
-        fig.suptitle(
-            f"{preset}: {c} at {voltage:g} V (seed {seed}) on each plant"
-            + (", against the open loop on the same plant (grey)" if c != "open_loop" else ""),
-            fontsize=10,
-        )
-        fig.tight_layout(rect=(0, (0.25 + 0.18 * -(-len(handles) // 4)) / fig.get_figheight(), 1, 1))
-        p = out / f"timeseries_{preset}_{c}.png"
-        fig.savefig(p, dpi=100)
-        plt.close(fig)
-        paths.append(p)
+            if progress is not None:
+                progress(paths[-1])
     if errors and not paths:
         raise ValueError("no time series could be made: " + "; ".join(errors))
     return paths
+
+
+def _figure(
+    plt, Patch, u_limit, traces, open_loop, q: Plant, group, preset, voltage, seed, out: Path
+) -> Path:
+    n = len(traces)
+    fig, axes = plt.subplots(
+        n,
+        2,
+        figsize=(12, 1.9 * n + 1.6),
+        sharex=True,
+        sharey="col",
+        squeeze=False,
+        gridspec_kw={"width_ratios": [3, 1]},
+    )
+    t_ol = _switch_on(open_loop)
+    stuck_any = False
+    for i, (c, tr) in enumerate(traces.items()):
+        ax, axu = axes[i]
+        t0 = _switch_on(tr)
+        col = controller_style(c).colour
+        if c != "open_loop":
+            ax.plot(open_loop.window_t - t_ol, open_loop.window_lower_speed, color="0.72", lw=0.8)
+            axu.plot(open_loop.t - t_ol, open_loop.voltage, color="0.72", lw=0.8)
+        for a, b in _spans(tr.window_t - t0, tr.window_lower_stuck.astype(bool)):
+            ax.axvspan(a, b, color="tab:red", alpha=0.15, lw=0)
+            stuck_any = True
+        ax.plot(tr.window_t - t0, tr.window_lower_speed, color=col, lw=1.0)
+        w = float(tr.reset_info["target_speed"])
+        ax.axhline(w, color="black", lw=0.7, ls=":")
+        ax.set_ylabel(f"{c}\nlower-disk speed [rad/s]", fontsize=8)
+        ax.grid(alpha=0.3)
+        axu.plot(tr.t - t0, tr.voltage, color=col, lw=1.0)
+        axu.axhline(u_limit, color="tab:red", lw=0.6, ls="--")
+        axu.set_ylabel("voltage u [V]", fontsize=8)
+        axu.grid(alpha=0.3)
+    axes[-1][0].set_xlabel("time since the controller was switched on [s]")
+    axes[-1][1].set_xlabel("time [s]")
+    lo = min(-0.2, min(float(np.min(tr.voltage)) for tr in traces.values()) - 0.3)
+    axes[0][1].set_ylim(lo, u_limit + 0.4)
+    handles = [
+        plt.Line2D(
+            [], [], color="0.4", lw=1.0, label="controller: lower-disk speed / voltage (colour per row)"
+        ),
+        plt.Line2D([], [], color="0.72", lw=0.8, label="open loop on the same plant and seed"),
+        plt.Line2D([], [], color="black", lw=0.7, ls=":", label="target speed w* (design model)"),
+        plt.Line2D([], [], color="tab:red", lw=0.6, ls="--", label=f"amplifier limit {u_limit:g} V"),
+    ]
+    if stuck_any:
+        handles.append(Patch(color="tab:red", alpha=0.15, label="lower disk stuck"))
+    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    what = "the design model" if q.is_nominal else (q.description or q.source or q.name)
+    fig.suptitle(
+        textwrap.fill(
+            f"{preset}, plant {q.name} ({what}): {group} controllers at {voltage:g} V, seed {seed}", 110
+        ),
+        fontsize=10,
+    )
+    fig.tight_layout(rect=(0, 0.75 / fig.get_figheight(), 1, 1))
+    p = out / f"timeseries_{preset}_{q.name}_{group}.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    return p

@@ -30,10 +30,17 @@ DATASET_FILES = ("dataset.json", "*.csv")  # what synth writes into --out
 
 def synth(
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
-    effect: str = typer.Option(
-        ...,
+    effect: str | None = typer.Option(
+        None,
         help="Hidden effect: none, a library effect, external_torque, or encoder_eccentricity_lower "
-        "(a reading error of the lower encoder).",
+        "(a reading error of the lower encoder); or give --plant.",
+    ),
+    plant: Path | None = typer.Option(
+        None,
+        "--plant",
+        help="Record this truth plant instead of the preset with a drawn effect: a plant file (rig "
+        "YAML with effects, optionally actuator_delay [s] and sensors:, whose counts_per_rev and "
+        "angle_noise_std replace --counts and --angle-noise). Its preset (friction family) is --preset.",
     ),
     magnitude: float | None = typer.Option(
         None,
@@ -93,8 +100,14 @@ def synth(
     ),
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
-    parameters off by a few percent)."""
-    from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
+    parameters off by a few percent), or from a truth plant file (--plant)."""
+    from drill_env.discrepancy.synth import (
+        HIDDEN_EFFECTS,
+        SynthConfig,
+        make_dataset,
+        make_plant_dataset,
+        write_synthetic,
+    )
     from drill_env.outputs import (
         check_new_folder,
         check_output_file,
@@ -105,8 +118,26 @@ def synth(
     from drill_env.params import ParameterError
 
     # the arguments first, then both outputs, all before the runs are simulated
-    if effect not in HIDDEN_EFFECTS:
+    if (effect is None) == (plant is None):
+        _fail(
+            "--effect/--plant: give exactly one of them (a hidden effect on the preset, or a truth plant file)"
+        )
+    if effect is not None and effect not in HIDDEN_EFFECTS:
         _fail(f"effect: unknown effect {effect!r}; allowed: {sorted(HIDDEN_EFFECTS)}")
+    truth_file = None
+    if plant is not None:
+        from drill_env.plant_file import read_plant_file
+
+        if params is not None or plan is not None:
+            _fail("--plant: a truth plant file holds its own parameters; leave --params and --plan out")
+        try:
+            truth_file = read_plant_file(plant)
+        except (ValueError, ParameterError) as exc:
+            _fail(f"--plant {plant}: {exc}")
+        if param_error:
+            _fail("--param-error: a truth plant file holds its own parameters; leave --param-error out")
+        counts = int(truth_file.sensors.get("counts_per_rev", counts))
+        angle_noise = float(truth_file.sensors.get("angle_noise_std", angle_noise))
     try:
         volts = tuple(float(v) for v in voltages.split(",") if v.strip())
     except ValueError:
@@ -152,13 +183,24 @@ def synth(
         with output_lock(out, "synth"):  # the dataset folder is this run's alone
             with _progress() as prog:
                 task = prog.add_task("simulating runs", total=len(cfg.voltages) + cfg.random_runs)
-                res = make_dataset(
-                    effect,
-                    seed=seed,
-                    magnitude=magnitude,
-                    config=cfg,
-                    progress=lambda i, n: prog.update(task, completed=i),
-                )
+                if truth_file is not None:
+                    res = make_plant_dataset(
+                        truth_file.params,
+                        seed=seed,
+                        config=cfg,
+                        delay_s=truth_file.actuator_delay,
+                        source=str(plant),
+                        progress=lambda i, n: prog.update(task, completed=i),
+                    )
+                else:
+                    assert effect is not None  # exactly one of --effect and --plant, checked above
+                    res = make_dataset(
+                        effect,
+                        seed=seed,
+                        magnitude=magnitude,
+                        config=cfg,
+                        progress=lambda i, n: prog.update(task, completed=i),
+                    )
             clear_folder(stale)  # --fresh: the former dataset goes whole, once the new one is made
             write_synthetic(res, out, answer, preset=preset)
     except (ValueError, ParameterError) as exc:

@@ -51,6 +51,7 @@ __all__ = [
     "SynthConfig",
     "SynthResult",
     "make_dataset",
+    "make_plant_dataset",
     "write_synthetic",
 ]
 
@@ -367,7 +368,14 @@ def _random_levels(cfg: SynthConfig, total_s: float, rng: np.random.Generator) -
 
 
 def _simulate_run(
-    truth: RigParams, u_levels, cdt, cfg: SynthConfig, rng, name: str, reading: dict[str, float] | None = None
+    truth: RigParams,
+    u_levels,
+    cdt,
+    cfg: SynthConfig,
+    rng,
+    name: str,
+    reading: dict[str, float] | None = None,
+    delay_s: float = 0.0,
 ) -> MeasuredRun:
     from drill_env.sensors import SensorConfig, measure
     from drill_env.simulator import simulate
@@ -412,8 +420,9 @@ def _simulate_run(
         u = np.full(n_rec, float(u_levels))
     else:
         # the voltage of sample k is the one the DAQ holds over step k (its output, updated on
-        # its own clock, logged with the sample), whatever the time stamp's jitter
-        idx = np.floor((t_true - t0) / cdt + 1e-9).astype(int)
+        # its own clock, logged with the sample), whatever the time stamp's jitter; with an
+        # actuator delay, the one applied delay_s later
+        idx = np.floor((t_true + delay_s - t0) / cdt + 1e-9).astype(int)
         u = np.asarray(u_levels)[np.minimum(idx, len(u_levels) - 1)]
     sensors = SensorConfig(
         counts_per_rev=cfg.encoder_counts_per_rev,
@@ -523,6 +532,79 @@ def make_dataset(
             "angle_noise_std": cfg.angle_noise_std,
             "param_error": cfg.param_error,
             "time_jitter": cfg.time_jitter,
+        },
+    }
+    return SynthResult(runs=runs, truth=truth, answer=answer)
+
+
+def _named_effects(truth: RigParams) -> list[str]:
+    """The library effects (HIDDEN_EFFECTS names) whose fields ``truth`` has switched on."""
+    active = set(truth.effects.active)
+    rng = np.random.default_rng(0)
+    return [
+        name
+        for name, h in HIDDEN_EFFECTS.items()
+        if name != "none" and h.in_library and active & set(h.build(max(h.low, 1e-3), rng))
+    ]
+
+
+def make_plant_dataset(
+    truth: RigParams,
+    *,
+    seed: int,
+    config: SynthConfig | None = None,
+    delay_s: float = 0.0,
+    source: str = "plant file",
+    progress: Callable[[int, int], None] | None = None,
+) -> SynthResult:
+    """Record a given truth plant (a plant file's rig, effects included) like the rig: the runs
+    of ``config`` through its encoders. ``delay_s`` [s] is the plant's actuator delay: the
+    recorded (asked-for) voltage leads the applied one by it. The answer names the plant's
+    effects and parameters."""
+    if not isinstance(truth, RigParams):
+        raise ValueError(f"truth: expected RigParams, got {type(truth).__name__}")
+    if not (math.isfinite(delay_s) and 0.0 <= delay_s <= 1.0):
+        raise ValueError(f"actuator_delay: {delay_s!r} is outside the allowed range [0, 1] s")
+    cfg = config or SynthConfig()
+    rng = np.random.default_rng(seed)
+    total = len(cfg.voltages) + cfg.random_runs
+    designs: list[Any] = [float(v) for v in cfg.voltages]
+    for _ in range(cfg.random_runs):
+        designs.append(_random_levels(cfg, cfg.pre_roll_s + cfg.duration_s, rng))
+    runs: list[MeasuredRun] = []
+    for i, design in enumerate(designs):
+        runs.append(
+            _simulate_run(truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}", delay_s=delay_s)
+        )
+        if progress is not None:
+            progress(i + 1, total)
+    nominal = load_params(cfg.preset)
+    effects = {k: v for k, v in truth.to_dict().get("effects", {}).items()}
+    answer = {
+        "effect": "plant",
+        "source": source,
+        "in_library": True,
+        "model_effects": effects,
+        "effects": _named_effects(truth),
+        "actuator_delay": delay_s,
+        "parameter_errors": {
+            n: float(getattr(truth, n)) / float(getattr(nominal, n)) - 1.0
+            for n in IDENTIFIED
+            if float(getattr(truth, n)) != float(getattr(nominal, n))
+        },
+        "parameters": {n: float(getattr(truth, n)) for n in IDENTIFIED},
+        "parameters_at_nominal_string_stiffness": _at_nominal_stiffness(cfg.preset, truth),
+        "seed": seed,
+        "preset": cfg.preset,
+        "design": {
+            "voltages": list(cfg.voltages),
+            "random_runs": cfg.random_runs,
+            "duration_s": cfg.duration_s,
+            "pre_roll_s": cfg.pre_roll_s,
+            "sample_rate_hz": cfg.sample_rate_hz,
+            "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
+            "angle_noise_std": cfg.angle_noise_std,
+            "param_error": 0.0,
         },
     }
     return SynthResult(runs=runs, truth=truth, answer=answer)

@@ -6,9 +6,11 @@ everything random about an episode from one ``np.random.Generator``, so a single
 environment and a rig of the vector environment with the same seed draw the same
 numbers in the same order.
 
-Nominal vs true plant: the operating point (target speed, nominal voltage, regime) and
-the equilibrium start state come from the *nominal* model, the preset as given; domain
-randomisation only changes the *true* plant that is simulated.
+Design model vs true plant (one rule): what a controller, the task and the regime labels
+know (the target speed, the nominal voltage, the regime) comes from the *design model*
+(``design_params``; by default the paper's model of ``params``, its effects left out); only
+the simulated plant (``params``, randomised per episode with domain randomisation) is the
+truth. The equilibrium start state is the design model's at the episode's voltage.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from drill_env.envs.task import (
     OperatingPointSampler,
     TaskConfig,
     equilibrium_state,
+    nominal_params,
 )
 from drill_env.params import ParameterError, RigParams, resolve_params
 from drill_env.sensors import SensorConfig, config_from_any, rng_state
@@ -372,12 +375,18 @@ class EnvSettings:
         atol: float = DEFAULT_ATOL,
         observation_version: int = 0,
         start_angle: float | str = 0.0,
+        design_params: RigParams | str | Path | None = None,
     ):
         if params_overrides is not None and not isinstance(params_overrides, Mapping):
             raise ValueError(
                 f"params_overrides: expected a dict of parameter values, got {params_overrides!r}"
             )
         self.params = resolve_params(params, **dict(params_overrides or {}))
+        # the model the operating points and regimes belong to (its effects kept for the
+        # controllers that use them; the task uses its paper model)
+        self.design_params = (
+            nominal_params(self.params) if design_params is None else resolve_params(design_params)
+        )
         self.sensors = SensorConfig.from_any(sensors)
         ts = self.sensors.sample_period
         self.control_dt = _number("control_dt", control_dt, 0.0, 60.0, lo_incl=False)
@@ -434,7 +443,7 @@ class EnvSettings:
         self._obs_high = np.asarray(layout["high"], dtype=np.float64)
         self.rtol = _number("rtol", rtol, 1e-14, 1e-3)
         self.atol = _number("atol", atol, 1e-16, 1e-3)
-        self.sampler = OperatingPointSampler(self.params, self.task)
+        self.sampler = OperatingPointSampler(self.design_params, self.task)
         self.action_to_volts = VOLTAGE_LIMIT if action_mode == "normalized" else 1.0
         settle_time = max(SETTLE_TIME, (self.sensors.delay_samples + 50) * ts)
         self.settle_periods = max(1, int(math.ceil(settle_time / self.control_dt - 1e-9)))

@@ -173,6 +173,11 @@ class DrillStringEnv(gym.Env):
 
     * ``params``: preset name (``"brake"``, ``"no_brake"``), YAML path or ``RigParams``.
     * ``params_overrides``: dict of parameter changes, e.g. ``{"lower_static": 0.1}``.
+    * ``design_params``: the *design model* (preset name, YAML path or ``RigParams``; default:
+      ``params`` without its effects): the target speed, nominal voltage and regime of each
+      episode, and what :meth:`ControllerSpec.from_env
+      <drill_env.agents.controllers.base.ControllerSpec.from_env>` hands a controller, come from
+      it; ``params`` is only the simulated plant (the truth).
     * ``control_dt`` [s]: hold period of the action, a multiple of the sensor period (0.05).
     * ``sensors``: :class:`~drill_env.sensors.SensorConfig` or a dict of its fields:
       ``counts_per_rev`` (2000, an assumption: the paper does not give it),
@@ -244,6 +249,7 @@ class DrillStringEnv(gym.Env):
         render_mode: str | None = None,
         observation_version: int = 0,
         start_angle: float | str = 0.0,
+        design_params: RigParams | str | Path | None = None,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -266,6 +272,7 @@ class DrillStringEnv(gym.Env):
             atol=atol,
             observation_version=observation_version,
             start_angle=start_angle,
+            design_params=design_params,
         )
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / s.control_dt)))

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -55,6 +56,9 @@ class BenchmarkConfig:
     agents_dir: str | None = None  # where the trained policies are (default: results/agents)
     gains_file: str | None = None  # tuned gains (default: configs/agents/controllers.yaml)
     plants: tuple[Plant, ...] = (Plant(),)  # the rigs every controller runs on
+    # the design model (a rig YAML): what every controller is built on and what the task knows
+    # (target speed, regime); None: the preset's own model
+    design_params: str | None = None
 
     def __post_init__(self) -> None:
         from drill_env.envs.task import VOLTAGE_LIMIT
@@ -93,6 +97,13 @@ class BenchmarkConfig:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"plants: the name(s) {dup} appear twice (a plant is named by its file's stem)")
+        if self.design_params is not None:
+            if len(self.presets) != 1:
+                raise ValueError(
+                    f"design_params: a design model is one rig; give one preset, got {list(self.presets)}"
+                )
+            object.__setattr__(self, "design_params", str(self.design_params))
+            self.design_model()  # a bad file is named before anything runs
         object.__setattr__(self, "plants", tuple(self.plants))
         object.__setattr__(self, "voltages", volts)
         object.__setattr__(self, "presets", tuple(self.presets))
@@ -106,6 +117,16 @@ class BenchmarkConfig:
         grid = QUICK_GRID if quick else FULL_GRID
         kwargs.setdefault("seeds", QUICK_SEEDS if quick else FULL_SEEDS)
         return cls(presets=tuple(presets), voltages={p: grid[p] for p in presets}, **kwargs)
+
+    def design_model(self):
+        """The design model's ``RigParams`` (effects included), or None for the preset's own."""
+        if self.design_params is None:
+            return None
+        return _load_design(self.design_params)
+
+    def is_design_plant(self, plant: Plant) -> bool:
+        """Whether ``plant`` is the design model itself (its open loop is then the analysis')."""
+        return plant.is_nominal and self.design_params is None
 
     def plant(self, name: str) -> Plant:
         for p in self.plants:
@@ -128,4 +149,23 @@ class BenchmarkConfig:
         rec: dict[str, Any] = {"episode": self.episode.to_dict()}
         if any(not p.is_nominal for p in self.plants):
             rec["plants"] = [p.record() for p in self.plants if not p.is_nominal]
+        if self.design_params is not None:
+            from dataclasses import asdict
+
+            rec["design_model"] = {"source": self.design_params, "params": asdict(self.design_model())}
         return rec
+
+
+@functools.lru_cache(maxsize=8)
+def _load_design(path: str):
+    """The design model read from ``path`` (cached per process); ValueError naming the file."""
+    from pathlib import Path
+
+    from drill_env.params import load_params
+
+    if not Path(path).is_file():
+        raise ValueError(f"design_params: {path} is not a file (a rig YAML in the preset format)")
+    try:
+        return load_params(path)
+    except ValueError as exc:
+        raise ValueError(f"design_params: {path}: {exc}") from None

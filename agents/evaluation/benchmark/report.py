@@ -11,7 +11,7 @@ from typing import Any
 from drill_env.agents.evaluation.benchmark.figures import _figures, _plants_figure, worst_case_figure
 from drill_env.agents.evaluation.benchmark.runs import OPEN_LOOP_FLOOR
 from drill_env.agents.evaluation.benchmark.store import load_results
-from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED
+from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED, STALL_SPEED_ERROR, STALL_STUCK_FRACTION
 from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.evaluation.robustness import (
     REGIMES,
@@ -47,8 +47,8 @@ def _plant_heading(preset: str, plant: str, info: Mapping[str, Any] | None) -> l
         return [
             f"## {preset}, plant `{NOMINAL}`",
             "",
-            "The preset's own model, on which every controller was designed; open-loop reference: "
-            "the bifurcation analysis.",
+            "The preset's own model; open-loop reference: the bifurcation analysis where it is "
+            "also the design model, else the open-loop run on it at the same voltage and seed.",
             "",
         ]
     info = info or {}
@@ -62,9 +62,10 @@ def _plant_heading(preset: str, plant: str, info: Mapping[str, Any] | None) -> l
         f"## {preset}, plant `{plant}`",
         "",
         f"{what} (effects: {effects}). The controllers keep their design on "
-        f"the nominal `{preset}` model; open-loop reference: the open-loop run on this plant at the "
-        "same voltage and seed (no cycle below "
-        f"{OPEN_LOOP_FLOOR:g} rad/s: suppression `-`). Regimes are the nominal model's at each voltage.",
+        "the design model, and the target speed and the regimes are the design model's; "
+        "open-loop reference: the open-loop run on this plant at the same voltage and seed (no "
+        f"cycle below {OPEN_LOOP_FLOOR:g} rad/s: suppression `-`), whose regime is the CSV's "
+        "`plant_open_loop_regime`.",
         "",
     ]
     family = info.get("family")
@@ -82,10 +83,12 @@ def summary_tables(
     notes: Mapping[str, str] | None = None,
     plants: Mapping[str, Mapping[str, Any]] | None = None,
     starts: Mapping[str, str] | None = None,
+    design: str | None = None,
 ) -> str:
     """The markdown of ``summary.md`` from the results DataFrame; ``notes``: the policy each
     learned controller ran per preset (``"<controller>/<preset>"`` -> ``"path on ENV-ID"``),
-    ``starts``: how each started (same keys)."""
+    ``starts``: how each started (same keys); ``design``: the design model's file when the
+    controllers were built on one other than the preset's."""
     lines = [
         "# Controller benchmark",
         "",
@@ -107,7 +110,18 @@ def summary_tables(
         "time of the closed-loop episode (CSV: `beyond_identified_range`, `x3_peak_abs`); their",
         "figures are outside what the model vouches for.",
         "",
+        "*Stalled* runs failed to turn the lower disk at the target: stuck over more than "
+        f"{100 * STALL_STUCK_FRACTION:g} % of the window, or the mean speed off the target by more "
+        f"than {100 * STALL_SPEED_ERROR:g} % of it (CSV: `stalled`). A stopped disk has no cycle left, so "
+        "its raw suppression is near 1; a stalled run is scored as a failure: its suppression is "
+        "min(1 - amplitude / open-loop amplitude, 0), no better than the open loop, in every table.",
+        "",
     ]
+    if design:
+        lines += [
+            f"Design model: `{design}` (every controller built on it; target speeds and regimes are its own).",
+            "",
+        ]
     ok = df[df["error"] == ""]
     failed = df[df["error"] != ""]
     only_nominal = set(df["plant"]) <= {NOMINAL}
@@ -146,7 +160,8 @@ def summary_tables(
             lines.append("")
             lines.append(
                 "| controller | suppression | amplitude [rad/s] | open-loop amplitude [rad/s] | stuck [%] | "
-                "severity | RMS error [rad/s] | mean \\|u\\| [V] | peak \\|u\\| [V] | at 5 V limit [%] | runs |"
+                "severity | RMS error [rad/s] | mean \\|u\\| [V] | peak \\|u\\| [V] | at 5 V limit [%] | runs | "
+                "stalled [runs] |"
                 + (
                     f" beyond {IDENTIFIED_SPEED[preset]:g} rad/s [runs] |"
                     if preset in IDENTIFIED_SPEED
@@ -154,7 +169,7 @@ def summary_tables(
                 )
             )
             lines.append(
-                "|---|---|---|---|---|---|---|---|---|---|---|"
+                "|---|---|---|---|---|---|---|---|---|---|---|---|"
                 + ("---|" if preset in IDENTIFIED_SPEED else "")
             )
             for c in ordered_controllers(reg["controller"]):
@@ -173,6 +188,7 @@ def summary_tables(
                     _num(r["u_peak_abs"].max(), 2),
                     _num(100 * r["u_limit_fraction"].mean(), 1),
                     str(len(r)),
+                    f"**{int(r['stalled'].sum())}**" if r["stalled"].any() else "0",
                 ]
                 if preset in IDENTIFIED_SPEED:
                     n_out = int(r["beyond_identified_range"].sum())
@@ -212,6 +228,7 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
     df = load_results(csv_path)
     out = Path(out_dir)
     notes = starts = None
+    design = None
     plants: dict[str, dict[str, Any]] = {}
     cfg_path = Path(csv_path).parent / "benchmark_config.json"
     if cfg_path.is_file():
@@ -219,8 +236,9 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
         notes = rec.get("policies")
         starts = rec.get("policy_starts")
         plants = {p["name"]: p for p in rec.get("plant_notes", [])}
+        design = (rec.get("design_model") or {}).get("source")
     paths = [out / "summary.md"]
-    atomic_write_text(paths[0], summary_tables(df, notes, plants, starts) + "\n")
+    atomic_write_text(paths[0], summary_tables(df, notes, plants, starts, design) + "\n")
     for preset in [p for p in PRESETS if p in set(df["preset"])]:
         names = _plants_in(df[df["preset"] == preset])
         others = [q for q in names if q != NOMINAL]

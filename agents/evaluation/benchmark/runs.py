@@ -10,7 +10,6 @@ from typing import Any
 
 from drill_env.agents.evaluation.benchmark.grid import BenchmarkConfig, Job
 from drill_env.agents.evaluation.benchmark.store import COLUMNS
-from drill_env.agents.evaluation.plants import NOMINAL
 
 # [rad/s] below this open-loop amplitude a plant has no cycle to suppress (suppression NaN):
 # the closed loops leave a steady amplitude of 0.005-0.05 rad/s from encoder quantisation on
@@ -30,7 +29,11 @@ def _worker_init() -> None:
 
 def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
     """Evaluate one job; environments and controllers are cached per process. An exception
-    becomes a row with NaN metrics and the message in ``error``."""
+    becomes a row with NaN metrics and the message in ``error``.
+
+    The controller is built on the design model (the preset's, or ``cfg.design_params``) and
+    run on the plant; the target speed and the regime label come from the design model
+    whatever the plant (:func:`~drill_env.agents.evaluation.episodes.make_env`)."""
     from drill_env.agents.evaluation.episodes import evaluate, make_env
     from drill_env.agents.registry import build_controller, observation_version
 
@@ -39,25 +42,44 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
         # cached per process, keyed by everything they are built from
         version = observation_version(job.controller, job.preset, cfg.agents_dir)
         episode_key = json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str)
+        design = cfg.design_model()
 
-        def env_of(plant: str, v: int):
-            key = (job.preset, v, episode_key, plant)
+        def env_of(plant: str | None, v: int):
+            key = (job.preset, v, episode_key, plant, cfg.design_params)
             if key not in _ENVS:
-                q = cfg.plant(plant)
-                _ENVS[key] = make_env(
-                    job.preset, cfg.episode, v, params=q.rig(job.preset), overrides=q.env_overrides()
-                )
+                if plant is None:  # the design model as the plant: what the controller is built on
+                    _ENVS[key] = make_env(job.preset, cfg.episode, v, design_params=design)
+                else:
+                    q = cfg.plant(plant)
+                    _ENVS[key] = make_env(
+                        job.preset,
+                        cfg.episode,
+                        v,
+                        params=q.rig(job.preset),
+                        overrides=q.env_overrides(),
+                        design_params=design,
+                    )
             return _ENVS[key]
 
-        # the controller is built on the nominal model (its design), then run on the plant
-        design_env = env_of(NOMINAL, version)
-        ctrl_key = (job.controller, job.preset, version, episode_key, cfg.agents_dir, cfg.gains_file)
+        design_env = env_of(None, version)
+        ctrl_key = (
+            job.controller,
+            job.preset,
+            version,
+            episode_key,
+            cfg.agents_dir,
+            cfg.gains_file,
+            cfg.design_params,
+        )
         ctrl = _CONTROLLERS.get(ctrl_key)
         if ctrl is None:
             ctrl = _CONTROLLERS[ctrl_key] = build_controller(
                 job.controller, design_env, job.preset, agents_dir=cfg.agents_dir, gains_file=cfg.gains_file
             )
-        reference = None if job.plant == NOMINAL else _plant_open_loop(job, cfg, env_of(job.plant, 0))
+        plant = cfg.plant(job.plant)
+        reference, regime = (
+            (None, None) if cfg.is_design_plant(plant) else _plant_open_loop(job, cfg, env_of(job.plant, 0))
+        )
         row = evaluate(
             ctrl,
             job.preset,
@@ -67,6 +89,7 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
             name=job.controller,
             env=env_of(job.plant, version),
             open_loop_amplitude=reference,
+            plant_open_loop_regime=regime,
         ).as_dict()
         row["plant"] = job.plant
         row["error"] = ""
@@ -75,21 +98,23 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
         row.update(
             controller=job.controller, preset=job.preset, plant=job.plant, voltage=job.voltage, seed=job.seed
         )
-        row.update(regime="", sim_status=-1, wall_time=time.perf_counter() - t0)
+        row.update(regime="", plant_open_loop_regime="", stalled=False)
+        row.update(sim_status=-1, wall_time=time.perf_counter() - t0)
         row["error"] = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
     return row
 
 
-_OPEN_LOOP: dict[tuple[Any, ...], float] = {}
+_OPEN_LOOP: dict[tuple[Any, ...], tuple[float, str]] = {}
 
 
-def _plant_open_loop(job: Job, cfg: BenchmarkConfig, env: Any) -> float:
-    """The open-loop amplitude on ``job``'s plant at its voltage and seed (cached per process):
-    the reference of the suppression where the bifurcation analysis (nominal model) does not
-    apply. 0 below :data:`OPEN_LOOP_FLOOR` (no cycle: suppression NaN)."""
+def _plant_open_loop(job: Job, cfg: BenchmarkConfig, env: Any) -> tuple[float, str]:
+    """The open-loop run on ``job``'s plant at its voltage and seed (cached per process): its
+    amplitude, the reference of the suppression where the bifurcation analysis of the design
+    model does not apply (0 below :data:`OPEN_LOOP_FLOOR`: no cycle, suppression NaN), and
+    the regime it shows (:func:`~drill_env.agents.evaluation.episodes.open_loop_regime`)."""
     from drill_env.agents.controllers.base import ControllerSpec
     from drill_env.agents.controllers.open_loop import OpenLoop
-    from drill_env.agents.evaluation.episodes import evaluate
+    from drill_env.agents.evaluation.episodes import evaluate, open_loop_regime
 
     key = (
         job.preset,
@@ -97,6 +122,7 @@ def _plant_open_loop(job: Job, cfg: BenchmarkConfig, env: Any) -> float:
         round(job.voltage, 9),
         job.seed,
         json.dumps(cfg.episode.to_dict(), default=str),
+        cfg.design_params,
     )
     if key not in _OPEN_LOOP:
         m = evaluate(
@@ -108,7 +134,8 @@ def _plant_open_loop(job: Job, cfg: BenchmarkConfig, env: Any) -> float:
             env=env,
             open_loop_amplitude=0.0,
         )
-        _OPEN_LOOP[key] = m.amplitude if m.amplitude >= OPEN_LOOP_FLOOR else 0.0
+        amp = m.amplitude if m.amplitude >= OPEN_LOOP_FLOOR else 0.0
+        _OPEN_LOOP[key] = (amp, open_loop_regime(amp, m.stick_fraction))
     return _OPEN_LOOP[key]
 
 

@@ -41,7 +41,7 @@ def load_results(path: str | Path):
     """The benchmark CSV as a pandas DataFrame."""
     import pandas as pd
 
-    text = ("controller", "preset", "plant", "regime", "error")
+    text = ("controller", "preset", "plant", "regime", "plant_open_loop_regime", "error")
     df = pd.read_csv(path, dtype={c: object for c in text})
     if "plant" not in df.columns:  # a CSV from before plants: every run on the nominal model
         df.insert(2, "plant", NOMINAL)
@@ -50,12 +50,22 @@ def load_results(path: str | Path):
         df["x3_peak_abs"] = np.maximum(df["x3_min"].abs(), df["x3_max"].abs())
         limit = df["preset"].map(lambda p: IDENTIFIED_SPEED.get(str(p), math.inf)).astype(float)
         df["beyond_identified_range"] = df["x3_peak_abs"] > limit
+    if "stalled" not in df.columns and {"stick_fraction", "mean_speed", "target_speed"} <= set(df.columns):
+        # a CSV written before the stalled rule: the rule applied to its columns
+        from drill_env.agents.evaluation.episodes import is_stalled
+
+        df["stalled"] = [
+            is_stalled(f, m, w)
+            for f, m, w in zip(df["stick_fraction"], df["mean_speed"], df["target_speed"], strict=True)
+        ]
+    if "plant_open_loop_regime" not in df.columns and "regime" in df.columns:
+        df["plant_open_loop_regime"] = ""  # not recorded then
     missing = [c for c in COLUMNS if c not in df.columns]
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing}; expected {list(COLUMNS)}")
     for c in text:
         df[c] = df[c].where(df[c].notna(), "").astype(str)
-    flags = ("beyond_identified_range",)
+    flags = ("beyond_identified_range", "stalled")
     for c in COLUMNS:
         if c not in text and c not in flags:
             df[c] = df[c].astype(float)
@@ -83,6 +93,11 @@ def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any]
         raise ValueError(
             f"out: {out} holds a benchmark with other episode settings ({old.get('episode')}); "
             "use another directory or --fresh to start over"
+        )
+    if old.get("design_model") != json.loads(json.dumps(record.get("design_model"))):
+        raise ValueError(
+            f"out: {out} holds a benchmark designed on another model; use another directory or "
+            "--fresh to start over"
         )
     before = {q["name"]: q for q in old.get("plants", [])}
     for q in json.loads(json.dumps(record.get("plants", []))):

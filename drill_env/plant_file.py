@@ -1,0 +1,98 @@
+"""Plant files: a rig YAML in the preset format (parameters and ``effects:``) that may also
+hold the measurement chain of that rig: ``actuator_delay`` [s] and a ``sensors:`` mapping of
+:class:`~drill_env.sensors.SensorConfig` fields (``angle_noise_std`` [rad],
+``speed_noise_std`` [rad/s], ``counts_per_rev``, ``cutoff_rad_s`` [rad/s], ``filter_order``,
+``sample_rate_hz`` [Hz]). Everything a rig of the standard plant family varies fits in one.
+
+``actuator_delay`` becomes the sensors' ``delay_samples`` (a whole number of sensor samples):
+the environment delays the measurements, which in a loop with constant set points is the
+same as delaying the voltage. :func:`read_plant_file` validates like a preset: a
+:class:`~drill_env.params.ParameterError` naming the field and its allowed range.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from drill_env.params import ParameterError, RigParams, load_yaml
+
+__all__ = ["MAX_ACTUATOR_DELAY", "PLANT_FILE_KEYS", "PlantFile", "read_plant_file"]
+
+PLANT_FILE_KEYS = ("actuator_delay", "sensors")  # beside the rig's parameters
+MAX_ACTUATOR_DELAY = 1.0  # [s]
+
+
+@dataclass(frozen=True)
+class PlantFile:
+    """What a plant file holds."""
+
+    params: RigParams  # the rig, effects included
+    sensors: dict[str, Any] = field(default_factory=dict)  # SensorConfig fields, delay_samples included
+    source: str = ""
+
+    @property
+    def actuator_delay(self) -> float:
+        """[s]"""
+        from drill_env.sensors import SensorConfig
+
+        n = int(self.sensors.get("delay_samples", 0))
+        return n / float(self.sensors.get("sample_rate_hz", SensorConfig().sample_rate_hz))
+
+
+def _sensor_fields() -> list[str]:
+    from drill_env.sensors import SensorConfig
+
+    return sorted(f.name for f in fields(SensorConfig) if f.name != "delay_samples")
+
+
+def _sensors(data: dict[str, Any], where: str) -> dict[str, Any]:
+    from drill_env.sensors import SensorConfig
+
+    allowed = _sensor_fields()
+    sensors = data.pop("sensors", None) or {}
+    if not isinstance(sensors, Mapping):
+        raise ParameterError(f"{where}: sensors: expected a mapping of {allowed}, got {sensors!r}")
+    sensors = dict(sensors)
+    unknown = sorted(set(sensors) - set(allowed))
+    if unknown:
+        hint = " (give the delay as actuator_delay [s])" if "delay_samples" in unknown else ""
+        raise ParameterError(f"{where}: sensors: unknown field(s) {unknown}{hint}; allowed: {allowed}")
+    try:
+        cfg = SensorConfig(**sensors)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{where}: sensors.{exc}") from None
+    if "actuator_delay" in data:
+        d = data.pop("actuator_delay")
+        ok = not isinstance(d, bool) and isinstance(d, (int, float)) and math.isfinite(d)
+        if not (ok and 0 <= d <= MAX_ACTUATOR_DELAY):
+            raise ParameterError(
+                f"{where}: actuator_delay: {d!r} is outside the allowed range [0, {MAX_ACTUATOR_DELAY:g}] s"
+            )
+        n = round(float(d) * cfg.sample_rate_hz)
+        if abs(n - float(d) * cfg.sample_rate_hz) > 1e-6:
+            raise ParameterError(
+                f"{where}: actuator_delay: {d!r} s is not a whole number of sensor samples "
+                f"(1 / sample_rate_hz = {1 / cfg.sample_rate_hz:g} s)"
+            )
+        if n:
+            sensors["delay_samples"] = int(n)
+    return sensors
+
+
+def read_plant_file(path: str | Path) -> PlantFile:
+    """Read and validate a plant file (module docstring)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ParameterError(f"plant: {path} is not a file (a rig YAML in the preset format)")
+    if p.suffix.lower() not in (".yaml", ".yml"):
+        raise ParameterError(f"plant: {path} is not a YAML file (.yaml or .yml)")
+    data = load_yaml(p, error=ParameterError)
+    if not isinstance(data, Mapping):
+        raise ParameterError(f"{p.name}: expected a mapping of parameter names to values")
+    data = dict(data)
+    sensors = _sensors(data, p.name)
+    return PlantFile(params=RigParams.from_dict(data, source=p.name), sensors=sensors, source=str(p))
