@@ -104,7 +104,10 @@ def test_data_beyond_the_identified_speed_are_flagged():
 
     def fake(preset, speed):
         run = SimpleNamespace(t=t, theta_l=speed * t + 0.3 * np.sin(t))
-        return SimpleNamespace(dataset=SimpleNamespace(preset=preset, runs=[run]))
+        # the model the warnings speak of is the nominal one, named after its preset
+        return SimpleNamespace(
+            dataset=SimpleNamespace(preset=preset, runs=[run]), params=SimpleNamespace(name=preset)
+        )
 
     top = DiscrepancyResult.max_lower_speed.fget(fake("brake", 13.0))
     assert top == pytest.approx(13.3, abs=2e-3)  # 13 + 0.3 cos(t) at its peak, over 0.1 s windows
