@@ -334,18 +334,9 @@ BACKENDS = ("process", "ray")  # a local pool of processes; Ray tasks (a local i
 
 def _run_ray(args, workers: int, address: str | None, rows: list, progress) -> None:
     """Every dataset a Ray task (one CPU each); the rows land at their job's index."""
-    try:
-        import ray
-    except ImportError:
-        raise ValueError("backend: 'ray' needs Ray; install it with `pip install drill-env[ray]`") from None
-    started = False
-    if not ray.is_initialized():
-        if address:
-            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-        else:
-            ray.init(num_cpus=workers, ignore_reinit_error=True, log_to_driver=False, include_dashboard=False)
-        started = True
-    try:
+    from drill_env.ray_cluster import ray_cluster
+
+    with ray_cluster(workers, address) as ray:
         remote = ray.remote(num_cpus=1)(_run_job)
         pending = [remote.remote(a) for a in args]
         k = 0
@@ -356,9 +347,6 @@ def _run_ray(args, workers: int, address: str | None, rows: list, progress) -> N
             k += 1
             if progress:
                 progress(k, len(args))
-    finally:
-        if started:
-            ray.shutdown()
 
 
 def _run_jobs(

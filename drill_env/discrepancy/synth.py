@@ -367,6 +367,22 @@ def _random_levels(cfg: SynthConfig, total_s: float, rng: np.random.Generator) -
     return out
 
 
+def _design_record(cfg: SynthConfig, param_error: float | None = None) -> dict[str, Any]:
+    """How a dataset was recorded, for its answer file (``param_error``: the one applied, when
+    the truth does not come from ``cfg``'s)."""
+    return {
+        "voltages": list(cfg.voltages),
+        "random_runs": cfg.random_runs,
+        "duration_s": cfg.duration_s,
+        "pre_roll_s": cfg.pre_roll_s,
+        "sample_rate_hz": cfg.sample_rate_hz,
+        "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
+        "angle_noise_std": cfg.angle_noise_std,
+        "param_error": cfg.param_error if param_error is None else param_error,
+        "time_jitter": cfg.time_jitter,
+    }
+
+
 def _simulate_run(
     truth: RigParams,
     u_levels,
@@ -522,17 +538,7 @@ def make_dataset(
         "parameters_at_nominal_string_stiffness": _at_nominal_stiffness(cfg.preset, truth),
         "seed": seed,
         "preset": cfg.preset,
-        "design": {
-            "voltages": list(cfg.voltages),
-            "random_runs": cfg.random_runs,
-            "duration_s": cfg.duration_s,
-            "pre_roll_s": cfg.pre_roll_s,
-            "sample_rate_hz": cfg.sample_rate_hz,
-            "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
-            "angle_noise_std": cfg.angle_noise_std,
-            "param_error": cfg.param_error,
-            "time_jitter": cfg.time_jitter,
-        },
+        "design": _design_record(cfg),
     }
     return SynthResult(runs=runs, truth=truth, answer=answer)
 
@@ -596,16 +602,7 @@ def make_plant_dataset(
         "parameters_at_nominal_string_stiffness": _at_nominal_stiffness(cfg.preset, truth),
         "seed": seed,
         "preset": cfg.preset,
-        "design": {
-            "voltages": list(cfg.voltages),
-            "random_runs": cfg.random_runs,
-            "duration_s": cfg.duration_s,
-            "pre_roll_s": cfg.pre_roll_s,
-            "sample_rate_hz": cfg.sample_rate_hz,
-            "encoder_counts_per_rev": cfg.encoder_counts_per_rev,
-            "angle_noise_std": cfg.angle_noise_std,
-            "param_error": 0.0,
-        },
+        "design": _design_record(cfg, param_error=0.0),
     }
     return SynthResult(runs=runs, truth=truth, answer=answer)
 

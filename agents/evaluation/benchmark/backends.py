@@ -225,23 +225,9 @@ def _run_process_pool(todo: list[Job], cfg: BenchmarkConfig, workers: int, finis
 
 
 def _run_ray(todo: list[Job], cfg: BenchmarkConfig, workers: int | None, address: str | None, finish) -> None:
-    try:
-        import ray
-    except ImportError:
-        raise ValueError("backend: 'ray' needs Ray; install it with `pip install drill-env[ray]`") from None
-    started = False
-    if not ray.is_initialized():
-        if address:
-            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-        else:
-            ray.init(
-                num_cpus=workers or os.cpu_count() or 1,
-                ignore_reinit_error=True,
-                log_to_driver=False,
-                include_dashboard=False,
-            )
-        started = True
-    try:
+    from drill_env.ray_cluster import ray_cluster
+
+    with ray_cluster(workers, address) as ray:
         remote = ray.remote(num_cpus=1)(_run_chunk)
         size = max(1, min(8, len(todo) // (4 * (workers or 2)) or 1))
         cfg_ref = ray.put(cfg)
@@ -250,6 +236,3 @@ def _run_ray(todo: list[Job], cfg: BenchmarkConfig, workers: int | None, address
             ready, pending = ray.wait(pending, num_returns=1)
             for row in ray.get(ready[0]):
                 finish(row)
-    finally:
-        if started:
-            ray.shutdown()
