@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -23,6 +25,20 @@ def _progress():
         TimeElapsedColumn(),
         transient=True,
     )
+
+
+@contextmanager
+def _stage_progress() -> Iterator[Callable[[str, int, int], None]]:
+    """A progress callback ``(stage, i, n)`` drawing one bar per named stage."""
+    with _progress() as prog:
+        tasks: dict[str, Any] = {}
+
+        def progress(stage: str, i: int, n: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = prog.add_task(stage, total=n)
+            prog.update(tasks[stage], completed=i)
+
+        yield progress
 
 
 DATASET_FILES = ("dataset.json", "*.csv")  # what synth writes into --out
@@ -247,14 +263,7 @@ def discrepancy(
         _fail(f"--out {out}: lies in the dataset folder {data_dir}; keep the analysis apart from the data")
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout else None
     try:
-        with _progress() as prog:
-            tasks: dict[str, int] = {}
-
-            def progress(stage: str, i: int, n: int) -> None:
-                if stage not in tasks:
-                    tasks[stage] = prog.add_task(stage, total=n)
-                prog.update(tasks[stage], completed=i)
-
+        with _stage_progress() as progress:
             res = run_discrepancy(
                 data_dir,
                 out,

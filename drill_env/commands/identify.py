@@ -65,18 +65,11 @@ def identify(
     check_output_folder(out, "--out")
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout is not None else None
     dataset = load_dataset(data_dir)
-    from drill_env.commands.discrepancy import _progress
+    from drill_env.commands.discrepancy import _stage_progress
 
     with output_lock(out, "identify"):
         try:
-            with _progress() as prog:
-                tasks: dict[str, int] = {}
-
-                def progress(stage: str, i: int, n: int) -> None:
-                    if stage not in tasks:
-                        tasks[stage] = prog.add_task(stage, total=n)
-                    prog.update(tasks[stage], completed=i)
-
+            with _stage_progress() as progress:
                 res = run_identify(
                     dataset, structure=structure, known=known_values, heldout=held, progress=progress
                 )
