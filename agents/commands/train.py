@@ -143,11 +143,10 @@ def register(app: typer.Typer) -> None:
                 _fail(str(exc))
         from drill_env.envs import ENV_IDS, ENV_VERSIONS
 
-        # laid out like results/agents: the current version's policies at the top, older
-        # versions' in vN/
+        # laid out like results/agents: the policies of v1 and later at the top, v0's in v0/
         name = algo if ENV_IDS[cfg.env_id] == "brake" else f"{algo}_{ENV_IDS[cfg.env_id]}"
         version = ENV_VERSIONS[cfg.env_id]
-        sub = Path(name) if version == max(ENV_VERSIONS.values()) else Path(f"v{version}") / name
+        sub = Path(name) if version >= 1 else Path(f"v{version}") / name
         agents_dir = None
         if out is None:
             agents_dir = fresh_run_folder(Path("runs") / "train", f"{name}_seed{seed}")

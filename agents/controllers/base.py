@@ -53,7 +53,8 @@ class ControllerSpec:
     """How a controller talks to one environment configuration.
 
     ``physical = obs * observation_scales`` entry by entry (SI units, see the env's
-    observation table); ``volts = action * action_to_volts``.
+    observation table); ``volts = action * action_to_volts``, plus the observed nominal
+    voltage where ``action_offset`` (the correction action of ``DrillString-v2``).
     """
 
     params: RigParams  # the design model, effects left out (its linear, paper model)
@@ -62,6 +63,7 @@ class ControllerSpec:
     observation_scales: tuple[float, ...] = OBSERVATION_SCALES
     action_to_volts: float = VOLTAGE_LIMIT  # [V per action unit]
     voltage_limit: float = VOLTAGE_LIMIT  # [V] the amplifier range
+    action_offset: bool = False  # the action is the correction to the nominal voltage (v2)
     sensors: SensorConfig = field(default_factory=SensorConfig)  # the measurement chain
     env_id: str | None = None
     # the design model's named effects (ModelEffects; None: those of ``params`` as given, then
@@ -109,6 +111,7 @@ class ControllerSpec:
             observation_names=tuple(names),
             observation_scales=tuple(float(s) for s in scales),
             action_to_volts=float(settings.action_to_volts),
+            action_offset=bool(getattr(settings, "action_offset", False)),
             sensors=settings.sensors,
             env_id=None if spec is None else spec.id,
         )
@@ -136,9 +139,18 @@ class ControllerSpec:
             np.float32
         )
 
-    def to_action(self, volts: np.ndarray) -> np.ndarray:
-        """Voltages (n,) -> actions (n, 1), float32, within the amplifier range."""
+    def to_action(self, volts: np.ndarray, physical: np.ndarray | None = None) -> np.ndarray:
+        """Voltages (n,) -> actions (n, 1), float32, within the amplifier range.
+
+        With ``action_offset`` the action is relative to the nominal voltage, read from the
+        physical observations ``physical`` (n, ...), which are then required."""
         v = np.clip(np.asarray(volts, dtype=np.float64), -self.voltage_limit, self.voltage_limit)
+        if self.action_offset:
+            if physical is None:
+                raise ValueError(
+                    "physical: the observations are needed to form a correction action (action_offset)"
+                )
+            v = v - np.asarray(physical, dtype=np.float64)[:, self.index("nominal_voltage")]
         return (v / self.action_to_volts).astype(np.float32).reshape(-1, 1)
 
 
@@ -194,7 +206,7 @@ class Controller:
             raise ValueError(f"observation: expected shape ({n_obs},) or (n, {n_obs}), got {obs.shape}")
         y = self.spec.to_physical(obs.reshape(-1, n_obs))
         volts, state = self.control(y, self.start_state(y, state, episode_start))
-        action = self.spec.to_action(volts)
+        action = self.spec.to_action(volts, y)
         return (action[0] if single else action), state
 
     def start_state(

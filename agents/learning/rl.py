@@ -702,9 +702,11 @@ def _policy_config(path: Path) -> dict[str, Any]:
 
 
 def policy_observation_version(path: str | Path) -> int:
-    """The observation version (see ``drill_env.envs.config.OBSERVATION_VERSIONS``) a saved
-    policy was trained on, read from the observation space stored in its zip (the policy
-    itself is not loaded)."""
+    """The env version (the N of ``DrillString-vN``) a saved policy was trained on, read from
+    the observation space stored in its zip (the policy itself is not loaded) and, where the
+    observation is that of several versions (v1, v2), from the ``env_id`` of the training
+    config next to it."""
+    from drill_env.envs import ENV_VERSIONS
     from drill_env.envs import _core as C
     from drill_env.envs.config import OBSERVATION_VERSIONS
 
@@ -729,6 +731,10 @@ def policy_observation_version(path: str | Path) -> int:
             extra = f" after removing its {list(BASE_OBSERVATIONS)}"
     for v in OBSERVATION_VERSIONS:
         if shape == (C.n_obs(v),):
+            # v2 observes what v1 does: the env of the training config tells them apart
+            env_id = _policy_config(config).get("env_id") if config.is_file() else None
+            if env_id in ENV_VERSIONS and min(ENV_VERSIONS[env_id], 1) == v:
+                return ENV_VERSIONS[env_id]
             return v
     sizes = {v: C.n_obs(v) for v in OBSERVATION_VERSIONS}
     raise ValueError(

@@ -6,9 +6,15 @@ Importing this package (``import drill_env`` does) registers them:
 * ``DrillStringNoBrake-v0``: the rig without the brake;
 * ``DrillString-v1``, ``DrillStringNoBrake-v1``: the same rigs with observation version 1
   (the v0 entries followed by the encoder angles and the integrated speed error of the
-  lower disk; see ``DrillStringEnv``'s "Version History"). The policies in
-  ``results/agents/`` are trained on these; the v0 ids stay registered unchanged, so the
-  v0 policies (``results/agents/v0/``) still load and run.
+  lower disk; see ``DrillStringEnv``'s "Version History");
+* ``DrillString-v2``, ``DrillStringNoBrake-v2``: the v1 rigs whose action is the
+  correction added to the episode's nominal (feedforward) voltage, +-2 V
+  (``action_mode="correction"``): the version to train agents on. The from-scratch
+  policies ``ppo``, ``ppo_no_brake``, ``sac``, ``sac_no_brake`` of ``results/agents/`` are
+  trained on it.
+
+Earlier ids stay registered unchanged, so the policies trained on them (``results/agents/``
+and ``results/agents/v0/``) still load and run.
 
 All have a native vector version: ``gymnasium.make_vec(id, num_envs=N)`` returns a
 :class:`~drill_env.envs.vector.DrillStringVectorEnv` that steps all rigs in one compiled
@@ -21,13 +27,17 @@ from typing import Any
 
 __all__ = ["register_envs", "ENV_IDS", "ENV_VERSIONS", "MAX_EPISODE_STEPS"]
 
-# Every registered id -> its rig preset; ENV_VERSIONS gives its observation version.
+# Every registered id -> its rig preset.
 ENV_IDS = {
     "DrillString-v0": "brake",
     "DrillStringNoBrake-v0": "no_brake",
     "DrillString-v1": "brake",
     "DrillStringNoBrake-v1": "no_brake",
+    "DrillString-v2": "brake",
+    "DrillStringNoBrake-v2": "no_brake",
 }
+# Every registered id -> its version: the observation layout is min(version, 1) (v2 observes
+# what v1 does); v2 changes the action (see DrillStringEnv's "Version History").
 ENV_VERSIONS = {env_id: int(env_id.rsplit("-v", 1)[1]) for env_id in ENV_IDS}
 MAX_EPISODE_STEPS = 400  # 20 s at the default control period of 0.05 s
 
@@ -40,8 +50,11 @@ def register_envs() -> None:
         if env_id in gymnasium.registry:
             continue
         kwargs: dict[str, Any] = {"params": preset}  # v0: exactly as before v1 existed
-        if ENV_VERSIONS[env_id] != 0:
-            kwargs["observation_version"] = ENV_VERSIONS[env_id]
+        version = ENV_VERSIONS[env_id]
+        if version != 0:
+            kwargs["observation_version"] = min(version, 1)
+        if version >= 2:
+            kwargs["action_mode"] = "correction"
         gymnasium.register(
             id=env_id,
             entry_point="drill_env.envs.drill_string:DrillStringEnv",

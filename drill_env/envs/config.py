@@ -49,6 +49,8 @@ __all__ = [
     "OBSERVATION_UNITS",
     "OBSERVATION_SCALES",
     "OBSERVATION_VERSIONS",
+    "ACTION_MODES",
+    "CORRECTION_RANGE",
     "observation_layout",
     "TRUE_STATE_NAMES",
     "REWARD_NAMES",
@@ -134,6 +136,14 @@ OBSERVATION_SCALES_V1 = OBSERVATION_SCALES + (1.0, 1.0, 1.0, 1.0, INTEGRAL_SCALE
 OBSERVATION_LOW_V1 = OBSERVATION_LOW + (-1.0, -1.0, -1.0, -1.0, -INTEGRAL_BOUND)
 OBSERVATION_HIGH_V1 = OBSERVATION_HIGH + (1.0, 1.0, 1.0, 1.0, INTEGRAL_BOUND)
 OBSERVATION_VERSIONS = (0, 1)
+# how an action becomes the requested voltage: normalized u = 5 V a, voltage u = a,
+# correction u = u_nom + action_range a (the episode's nominal voltage plus a correction)
+ACTION_MODES = ("normalized", "voltage", "correction")
+# [V] default action_range of the correction mode (the v2 action): the tuned LQI's largest
+# correction over the benchmark's quick grid is 1.55 V (brake, 5 V: 1.2 V at 4 V, 0.6 V at
+# 1 V; no brake 1.2 V at 1 V), so +-2 V holds every correction a suppressing controller
+# made, and an action of 0.01 is 20 mV
+CORRECTION_RANGE = 2.0
 assert len(OBSERVATION_NAMES) == C.NOBS_V0 and len(OBSERVATION_NAMES_V1) == C.NOBS
 
 
@@ -376,6 +386,7 @@ class EnvSettings:
         observation_version: int = 0,
         start_angle: float | str = 0.0,
         design_params: RigParams | str | Path | None = None,
+        action_range: float | None = None,
     ):
         if params_overrides is not None and not isinstance(params_overrides, Mapping):
             raise ValueError(
@@ -420,9 +431,17 @@ class EnvSettings:
                 raise ValueError(f"start_angle: {start_angle!r} is outside the allowed range [0, 2 pi) rad")
         self.reward_weights = config_from_any(RewardWeights, reward_weights, "reward_weights")
         self.randomization = DomainRandomization.from_any(domain_randomization)
-        if action_mode not in ("normalized", "voltage"):
-            raise ValueError(f"action_mode: {action_mode!r} is not one of ['normalized', 'voltage']")
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode: {action_mode!r} is not one of {list(ACTION_MODES)}")
         self.action_mode = action_mode
+        if action_range is None:
+            action_range = CORRECTION_RANGE if action_mode == "correction" else VOLTAGE_LIMIT
+        elif action_mode != "correction":
+            raise ValueError(
+                f"action_range: applies to action_mode='correction' only (got action_mode={action_mode!r})"
+            )
+        # [V] the voltage of action 1 (normalized: 5 V; voltage: unused)
+        self.action_range = _number("action_range", action_range, 0.0, 2.0 * VOLTAGE_LIMIT, lo_incl=False)
         if not isinstance(normalize_observation, (bool, np.bool_)):
             raise ValueError(f"normalize_observation: expected True or False, got {normalize_observation!r}")
         self.normalize_observation = bool(normalize_observation)
@@ -444,7 +463,9 @@ class EnvSettings:
         self.rtol = _number("rtol", rtol, 1e-14, 1e-3)
         self.atol = _number("atol", atol, 1e-16, 1e-3)
         self.sampler = OperatingPointSampler(self.design_params, self.task)
-        self.action_to_volts = VOLTAGE_LIMIT if action_mode == "normalized" else 1.0
+        self.action_to_volts = 1.0 if action_mode == "voltage" else self.action_range
+        # correction: the action is the voltage added to the episode's nominal voltage
+        self.action_offset = action_mode == "correction"
         settle_time = max(SETTLE_TIME, (self.sensors.delay_samples + 50) * ts)
         self.settle_periods = max(1, int(math.ceil(settle_time / self.control_dt - 1e-9)))
         self.ecfg = self._env_vector()
@@ -469,7 +490,7 @@ class EnvSettings:
         """The action Box: the voltage / 5 V (normalized) or the voltage [V]."""
         from gymnasium import spaces
 
-        amax = 1.0 if self.action_mode == "normalized" else VOLTAGE_LIMIT
+        amax = VOLTAGE_LIMIT if self.action_mode == "voltage" else 1.0
         return spaces.Box(-amax, amax, shape=(1,), dtype=np.float32)
 
     def _env_vector(self) -> np.ndarray:

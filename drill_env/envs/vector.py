@@ -124,6 +124,7 @@ class DrillStringVectorEnv(VectorEnv):
         self._started = np.zeros(n, dtype=bool)  # rigs reset at least once
         self._ts = s.sensors.sample_period
         self._action_to_volts = s.action_to_volts
+        self._action_offset = s.action_offset
 
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None):
@@ -173,6 +174,8 @@ class DrillStringVectorEnv(VectorEnv):
                 f"mapped to [-{VOLTAGE_LIMIT:g}, {VOLTAGE_LIMIT:g}] V)"
             )
         u_req = a * self._action_to_volts
+        if self._action_offset:
+            u_req = u_req + self._EP[:, C.EP_UNOM]
         u = np.clip(u_req, -VOLTAGE_LIMIT, VOLTAGE_LIMIT)
         clipped = u != u_req
         resetting = self._done.copy() if self.autoreset_mode == AutoresetMode.NEXT_STEP else np.zeros(n, bool)
