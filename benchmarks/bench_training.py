@@ -1,52 +1,72 @@
-"""End-to-end RL training speed, against the previous training setup timed in the same run.
-
-Baseline (the setup the version-0 policies were trained with, ``configs/agents/v0/ppo.yaml``
-and ``sac.yaml``): SB3's ``DummyVecEnv`` of 8 single ``DrillString-v0`` envs, PPO with
-n_steps 512, batch 256, 10 epochs, 64x64, one torch thread; SAC on one env, one gradient
-step per env-step. Against it: the shipped configs (``configs/agents/experiments/ppo_from_scratch.yaml``,
-``sac.yaml``: many rigs in the native batched env through ``drill_env.sb3_vec_env``; PPO
-learns each rollout of 128 x 128 steps in 5 epochs of minibatches of 1024, one torch thread).
+"""End-to-end RL training speed, against the previous training setups timed in the same run.
 
 Two measurements:
 
 1. **Throughput**: env-steps per wall second of ``model.learn`` (rollouts and gradient
-   updates, no evaluation), each case for the same number of steps; PPO's cases are timed
-   ``--repeats`` times, baseline and shipped config alternating, and the best of each kept
-   (on a shared machine the best run is the least disturbed); ratio new / baseline.
-   Target: PPO >= 5x (aim 10x).
-2. **Time to a suppressing policy** (``--time-to-policy``): PPO with the warm-start configs
-   of both rigs (``configs/agents/ppo.yaml``, ``ppo_no_brake.yaml``:
-   the policy cloned from the LQI, then PPO; ``--from-scratch``: the shipped configs
-   ``experiments/ppo_from_scratch.yaml``, ``experiments/ppo_from_scratch_no_brake.yaml``), the quick benchmark of the policy after the warm
-   start and every ``--check-every`` env-steps; reports the training wall time (warm start
-   included, benchmark runs excluded) at which the mean suppression first reaches 0.99 in
-   the Hopf-cycle and the stick-slip regime. Target: under 5 minutes per rig on 2 cores. A
-   rig that has not reached it after ``--budget`` seconds is reported as missed.
+   updates, no evaluation), each case for the same number of steps, baseline and shipped
+   config alternating ``--repeats`` times and the best of each kept (on a shared machine the
+   best run is the least disturbed); ratio new / baseline.
+
+   * PPO: the setup the version-0 policies were trained with (``configs/agents/v0/ppo.yaml``:
+     SB3's ``DummyVecEnv`` of 8 single envs, n_steps 512, batch 256, 10 epochs) against the
+     shipped ``configs/agents/ppo.yaml`` (128 rigs of the native batched env). Target >= 5x.
+   * SAC: the former SAC config (``configs/agents/experiments/sac_v1.yaml``: 4 rigs, one
+     gradient step of 256 per env-step) against the shipped ``configs/agents/sac.yaml``
+     (many rigs, large batches, few gradient steps per env-step). Target >= 20x.
+
+2. **Time to a suppressing policy** (``--time-to-policy``): train each algorithm's shipped
+   config of each rig and run the quick benchmark every ``--check-every`` env-steps
+   (``--check-every-sac`` for SAC); report the training wall time (benchmark runs excluded)
+   at which the mean suppression first reaches 0.99 in the Hopf-cycle and the stick-slip
+   regime, per algorithm and rig, the median over ``--seeds``. Target: under 5 minutes per
+   algorithm and rig on 2 cores. ``--from-scratch``: the shipped from-scratch configs
+   (``ppo.yaml``, ``ppo_no_brake.yaml``, ``sac.yaml``, ``sac_no_brake.yaml``; no warm
+   start, no residual base, no controller anywhere in training); without it, the
+   LQI-clone recipes ``ppo_lqi_clone.yaml`` / ``ppo_lqi_clone_no_brake.yaml`` (warm start
+   counted in the training time). A run that has not reached the target after ``--budget``
+   seconds is reported as missed. ``--full-curves`` trains every run to its budget (or its
+   config's ``total_timesteps``) instead of stopping at the target: the learning curves.
+   ``--jobs 2`` runs two trainings at a time (each on one torch thread, as configured).
+   ``--out DIR`` writes ``time_to_policy.json``, ``curves.csv``, ``learning_curves_<rig>.png``
+   and ``summary.md`` there.
 
 Exit code 1 when a target is missed (0 when all measured ones are met).
 
 Run::
 
-    python benchmarks/bench_training.py                    # throughput, ~3 minutes
-    python benchmarks/bench_training.py --time-to-policy   # + both trainings and quick benchmarks
-    python benchmarks/bench_training.py --time-to-policy --from-scratch   # ... without the warm start
+    python benchmarks/bench_training.py                    # throughput, ~4 minutes
+    python benchmarks/bench_training.py --time-to-policy --from-scratch --seeds 1,2,3 --jobs 2
     python benchmarks/bench_training.py --quick            # a smoke test, seconds
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import statistics
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-PPO_SPEEDUP_TARGET = 5.0  # env-steps per wall second, shipped config over the baseline
-TIME_TO_POLICY_TARGET_S = 300.0  # training wall time to a suppressing policy, per rig
+SPEEDUP_TARGET = {"ppo": 5.0, "sac": 20.0}  # env-steps per wall second, shipped config over its baseline
+THROUGHPUT_BASELINE = {"ppo": "v0/ppo.yaml", "sac": "experiments/sac_v1.yaml"}
+TIME_TO_POLICY_TARGET_S = 300.0  # training wall time to a suppressing policy, per algorithm and rig
 SUPPRESSION_TARGET = 0.99  # quick-benchmark mean suppression in every regime with a cycle
+CYCLE_REGIMES = ("limit_cycle", "stick_slip")
+PRESETS = ("brake", "no_brake")
+CONFIGS = ROOT / "configs" / "agents"
+
+
+def config_name(algo: str, preset: str, from_scratch: bool) -> str:
+    """The shipped config of ``algo`` on ``preset`` (``ppo.yaml``, ``sac_no_brake.yaml``, ...;
+    ``ppo_lqi_clone[_no_brake].yaml`` for the warm-start mode)."""
+    name = algo if from_scratch else f"{algo}_lqi_clone"
+    return f"{name}.yaml" if preset == "brake" else f"{name}_{preset}.yaml"
 
 
 def _model(cfg, seed: int = 0):
@@ -84,20 +104,25 @@ def throughput(config: Path, steps: int, **overrides) -> float:
     return steps / (time.perf_counter() - t0)
 
 
-def quick_suppression(model, algo: str, preset: str, folder: Path) -> tuple[dict, dict]:
-    """Mean suppression and RMS speed error per regime of ``model`` in the quick benchmark."""
+def quick_suppression(model, cfg, preset: str, folder: Path) -> tuple[dict, dict]:
+    """Mean suppression and RMS speed error per regime of ``model`` (trained with config
+    ``cfg``) in the quick benchmark."""
     import pandas as pd
+    import yaml
 
     from drill_env.agents.evaluation.benchmark import BenchmarkConfig, run_benchmark
 
     # a folder per check: the benchmark caches controllers per process by their folder
     agents = folder / f"agents_{model.num_timesteps}"
     # where the benchmark looks for it (agents.registry.policy_path: <algo>/ for the braked rig)
-    policy = agents / (algo if preset == "brake" else f"{algo}_{preset}") / "policy.zip"
+    policy = agents / (cfg.algo if preset == "brake" else f"{cfg.algo}_{preset}") / "policy.zip"
     policy.parent.mkdir(parents=True, exist_ok=True)
     model.save(str(policy))
-    bench = BenchmarkConfig.preset_grid((preset,), quick=True, controllers=(algo,), agents_dir=str(agents))
-    csv = run_benchmark(bench, folder / f"bench_{preset}", backend="sequential", fresh=True, report=False)
+    # the training config beside it, as `drill-env train` writes it: the env version (v1 and
+    # v2 observe the same; v2's action is a correction) is read from it
+    (policy.parent / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+    bench = BenchmarkConfig.preset_grid((preset,), quick=True, controllers=(cfg.algo,), agents_dir=str(agents))
+    csv = run_benchmark(bench, folder / f"bench_{preset}_{model.num_timesteps}", backend="sequential", fresh=True, report=False)
     rows = pd.read_csv(csv)
     failed = rows["error"].dropna() if "error" in rows else []
     if len(failed):
@@ -109,37 +134,60 @@ def quick_suppression(model, algo: str, preset: str, folder: Path) -> tuple[dict
     return supp, rms
 
 
-def time_to_policy(config: Path, preset: str, folder: Path, check_every: int, budget_s: float) -> dict:
+def _training_return(model) -> float:
+    """Mean undiscounted return of the last finished training episodes (SB3's
+    ``rollout/ep_rew_mean``, the raw reward: VecMonitor sits below any VecNormalize)."""
+    buf = getattr(model, "ep_info_buffer", None) or []
+    return float(statistics.fmean(e["r"] for e in buf)) if buf else float("nan")
+
+
+def time_to_policy(
+    config: Path, preset: str, folder: Path, check_every: int, budget_s: float, seed: int = 0, full: bool = False
+) -> dict:
     """Train with ``config`` (as ``drill-env train``: one ``learn`` over the config's
     ``total_timesteps``, so the learning-rate schedule is the run's, without its
-    learning-curve evaluations) and run the quick benchmark every ``check_every`` env-steps;
-    the training wall time (benchmark time excluded) at which the mean suppression first
-    reaches 0.99 in every regime with a cycle."""
+    learning-curve evaluations) and run the quick benchmark every ``check_every`` env-steps
+    and at the end; the training wall time (benchmark time excluded) at which the mean
+    suppression first reaches 0.99 in every regime with a cycle. Training stops there
+    (``full``: at ``budget_s`` of training or the end of the config's run)."""
+    import torch
     from stable_baselines3.common.callbacks import BaseCallback
 
     from drill_env.agents.learning.rl import load_config
 
+    torch.manual_seed(seed)
     cfg = load_config(config)
-    model = _model(cfg)
-    state: dict = {"train_s": 0.0, "t0": 0.0, "next": check_every, "result": None}
+    model = _model(cfg, seed)
+    state: dict = {"train_s": 0.0, "t0": 0.0, "next": check_every, "first": None, "curve": []}
+    tag = f"{cfg.algo} {preset} seed {seed}"
 
     def check() -> bool:
         state["train_s"] += time.perf_counter() - state["t0"]
-        supp, rms = quick_suppression(model, cfg.algo, preset, folder)
-        met = bool(supp) and min(supp.values()) >= SUPPRESSION_TARGET
-        row = f"{model.num_timesteps:>10d} steps {state['train_s']:6.0f} s: suppression " + ", ".join(
-            f"{k} {v:.3f}" for k, v in sorted(supp.items())
+        supp, rms = quick_suppression(model, cfg, preset, folder)
+        met = all(supp.get(r, float("-inf")) >= SUPPRESSION_TARGET for r in CYCLE_REGIMES if r in supp) and bool(
+            supp
         )
-        print("    " + row + ("  <- reached" if met else ""), flush=True)
-        state["result"] = {
+        point = {
+            "steps": int(model.num_timesteps),
             "wall_s": state["train_s"],
-            "steps": model.num_timesteps,
+            "training_return": _training_return(model),
             "met": met,
             "suppression": supp,
             "rms_error": rms,
         }
+        state["curve"].append(point)
+        if met and state["first"] is None:
+            state["first"] = point
+        print(
+            f"    {tag}: {point['steps']:>9d} steps {point['wall_s']:6.0f} s: suppression "
+            + ", ".join(f"{k} {v:.3f}" for k, v in sorted(supp.items()))
+            + f"; return {point['training_return']:.1f}"
+            + ("  <- reached" if met else ""),
+            flush=True,
+        )
         state["t0"] = time.perf_counter()
-        return met or state["train_s"] > budget_s
+        done = state["train_s"] >= budget_s
+        return done or (met and not full)
 
     class _Check(BaseCallback):
         def _on_training_start(self) -> None:
@@ -148,109 +196,288 @@ def time_to_policy(config: Path, preset: str, folder: Path, check_every: int, bu
         def _on_step(self) -> bool:
             if self.num_timesteps < state["next"]:
                 return True
-            state["next"] += check_every
+            while state["next"] <= self.num_timesteps:
+                state["next"] += check_every
             return not check()  # False stops the training
 
+    stop = False
     if cfg.warm_start is not None:  # counted in the training time, checked like any policy
         from drill_env.agents.learning.warm_start import warm_start
 
         state["t0"] = time.perf_counter()
-        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, 0)
+        warm = warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed)
         print(
-            f"    warm start: {warm['steps']} steps of {warm['controller']} cloned in {warm['wall_time_s']:.0f} s "
-            f"(action MSE {warm['action_mse_before']:.3g} -> {warm['action_mse_after']:.3g})",
+            f"    {tag}: warm start: {warm['steps']} steps of {warm['controller']} cloned in "
+            f"{warm['wall_time_s']:.0f} s",
             flush=True,
         )
-        if check():
-            return state["result"]
+        stop = check()
+    if not stop:
+        model.learn(cfg.total_timesteps, callback=_Check())
+        if not state["curve"] or state["curve"][-1]["steps"] != model.num_timesteps:
+            check()
+    first = state["first"]
+    return {
+        "algo": cfg.algo,
+        "preset": preset,
+        "seed": seed,
+        "config": str(config.relative_to(ROOT)) if config.is_relative_to(ROOT) else str(config),
+        "met": first is not None and first["wall_s"] < TIME_TO_POLICY_TARGET_S,
+        "time_to_target_s": None if first is None else first["wall_s"],
+        "steps_to_target": None if first is None else first["steps"],
+        "curve": state["curve"],
+    }
 
-    model.learn(cfg.total_timesteps, callback=_Check())
-    if state["result"] is None or state["result"]["steps"] != model.num_timesteps:
-        check()
-    return state["result"]
+
+def _run_case(args: tuple) -> dict:
+    config, preset, check_every, budget, seed, full = args
+    with tempfile.TemporaryDirectory() as tmp:
+        return time_to_policy(Path(config), preset, Path(tmp), check_every, budget, seed, full)
+
+
+def summarise(runs: list[dict]) -> list[dict]:
+    """Per algorithm and rig: the median time to target over seeds (a seed that missed counts
+    as infinitely slow), how many seeds reached it and the final checks' suppression."""
+    out = []
+    keys = sorted({(r["algo"], r["preset"]) for r in runs}, key=lambda k: (k[0], PRESETS.index(k[1])))
+    for algo, preset in keys:
+        rs = [r for r in runs if (r["algo"], r["preset"]) == (algo, preset)]
+        times = sorted(r["time_to_target_s"] if r["time_to_target_s"] is not None else float("inf") for r in rs)
+        median = statistics.median(times)
+        out.append(
+            {
+                "algo": algo,
+                "preset": preset,
+                "seeds": [r["seed"] for r in rs],
+                "reached": sum(r["time_to_target_s"] is not None for r in rs),
+                "time_to_target_s": [r["time_to_target_s"] for r in rs],
+                "steps_to_target": [r["steps_to_target"] for r in rs],
+                "median_time_to_target_s": None if median == float("inf") else median,
+                "met": median < TIME_TO_POLICY_TARGET_S,
+            }
+        )
+    return out
+
+
+def write_curves(runs: list[dict], out: Path) -> None:
+    """``curves.csv`` (one row per check) and ``learning_curves_<rig>.png``: 1 - the smaller
+    of the two cycle regimes' suppression and the training return against env-steps and
+    training wall seconds, the median over seeds with the range of the seeds shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    import pandas as pd
+
+    rows = []
+    for r in runs:
+        for k, p in enumerate(r["curve"]):
+            rows.append(
+                {
+                    "algo": r["algo"],
+                    "preset": r["preset"],
+                    "seed": r["seed"],
+                    "check": k,
+                    "steps": p["steps"],
+                    "wall_s": round(p["wall_s"], 2),
+                    "training_return": p["training_return"],
+                    **{f"suppression_{g}": p["suppression"].get(g, float("nan")) for g in ("equilibrium", *CYCLE_REGIMES)},
+                    **{f"rms_error_{g}": p["rms_error"].get(g, float("nan")) for g in ("equilibrium", *CYCLE_REGIMES)},
+                }
+            )
+    df = pd.DataFrame(rows)
+    df.to_csv(out / "curves.csv", index=False)
+    df["worst"] = df[[f"suppression_{g}" for g in CYCLE_REGIMES]].min(axis=1)
+    colours = {"ppo": "tab:purple", "sac": "tab:brown"}
+    for preset, dp in df.groupby("preset"):
+        fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharey="row")
+        for algo, da in dp.groupby("algo"):
+            # align the seeds by check: the checks fall at the same env-steps in every seed
+            g = da.groupby("check")
+            n = g.size()
+            keep = n[n == da["seed"].nunique()].index
+            agg = g.agg(
+                steps=("steps", "median"),
+                wall=("wall_s", "median"),
+                lo=("worst", "min"),
+                hi=("worst", "max"),
+                mid=("worst", "median"),
+                rlo=("training_return", "min"),
+                rhi=("training_return", "max"),
+                rmid=("training_return", "median"),
+            ).loc[keep]
+            label = f"{algo} (median of {da['seed'].nunique()} seeds, range shaded)"
+            for col, x in ((0, agg["steps"] / 1e6), (1, agg["wall"])):
+                ax = axes[0, col]
+                gap = lambda s: np.clip(1.0 - s, 1e-4, None)  # noqa: E731
+                ax.plot(x, gap(agg["mid"]), color=colours.get(algo), marker="o", ms=3, label=label)
+                ax.fill_between(x, gap(agg["hi"]), gap(agg["lo"]), color=colours.get(algo), alpha=0.2)
+                ax = axes[1, col]
+                ax.plot(x, agg["rmid"], color=colours.get(algo), marker="o", ms=3)
+                ax.fill_between(x, agg["rlo"], agg["rhi"], color=colours.get(algo), alpha=0.2)
+        for col in (0, 1):
+            axes[0, col].axhline(1.0 - SUPPRESSION_TARGET, color="black", ls="--", lw=1)
+            axes[0, col].set_yscale("log")
+            axes[1, col].set_xlabel("training env-steps [millions]" if col == 0 else "training wall time [s]")
+        axes[1, 1].axvline(TIME_TO_POLICY_TARGET_S, color="gray", ls=":", lw=1)
+        axes[0, 1].axvline(TIME_TO_POLICY_TARGET_S, color="gray", ls=":", lw=1)
+        axes[0, 0].set_ylabel("1 - suppression, worse cycle regime [-]\n(dashed: target 0.99)")
+        axes[1, 0].set_ylabel("training return per episode [-]")
+        axes[0, 0].legend(loc="upper right", fontsize=8)
+        fig.suptitle(f"Learning from scratch on the {preset.replace('_', ' ')} rig (quick benchmark)")
+        fig.tight_layout()
+        fig.savefig(out / f"learning_curves_{preset}.png", dpi=110)
+        plt.close(fig)
+
+
+def write_summary(result: dict, out: Path) -> None:
+    lines = [
+        "# Time to a suppressing policy, from scratch",
+        "",
+        f"Quick-benchmark mean suppression >= {SUPPRESSION_TARGET} in the Hopf-cycle and the stick-slip regime; "
+        f"training wall time (quick-benchmark runs excluded), target < {TIME_TO_POLICY_TARGET_S:.0f} s; "
+        f"{result['jobs']} training(s) at a time on {result['cpu_count']} cores, one torch thread each.",
+        "",
+        "| algorithm | rig | config | seeds reaching it | time to target per seed [s] | median [s] | target |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for s in result["summary"]:
+        times = ", ".join("missed" if t is None else f"{t:.0f}" for t in s["time_to_target_s"])
+        med = "missed" if s["median_time_to_target_s"] is None else f"{s['median_time_to_target_s']:.0f}"
+        cfg = config_name(s["algo"], s["preset"], result["from_scratch"])
+        lines.append(
+            f"| {s['algo']} | {s['preset']} | `configs/agents/{cfg}` | {s['reached']} of {len(s['seeds'])} "
+            f"| {times} | {med} | {'met' if s['met'] else 'MISSED'} |"
+        )
+    tp = result.get("throughput")
+    if tp:
+        lines += ["", "Throughput in the same run (env-steps per wall second of `model.learn`):", ""]
+        lines += ["| algorithm | baseline config | baseline | shipped | ratio | target |", "|---|---|---|---|---|---|"]
+        for algo, t in tp.items():
+            lines.append(
+                f"| {algo} | `configs/agents/{THROUGHPUT_BASELINE[algo]}` | {t['baseline']:.0f} | {t['shipped']:.0f} "
+                f"| {t['ratio']:.1f}x | >= {SPEEDUP_TARGET[algo]:g}x: {'met' if t['met'] else 'MISSED'} |"
+            )
+    lines += [
+        "",
+        "Learning curves (`curves.csv`, one row per quick benchmark): `learning_curves_brake.png`, "
+        "`learning_curves_no_brake.png`.",
+        "",
+    ]
+    (out / "summary.md").write_text("\n".join(lines))
+
+
+def _int_list(text: str, name: str, ap: argparse.ArgumentParser) -> list[int]:
+    try:
+        values = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        ap.error(f"--{name}: expected comma-separated integers >= 0, got {text!r}")
+    if not values or any(v < 0 for v in values):
+        ap.error(f"--{name}: expected comma-separated integers >= 0, got {text!r}")
+    return values
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=200_000, help="PPO env-steps timed per case")
-    ap.add_argument("--sac-steps", type=int, default=20_000, help="SAC env-steps timed per case")
+    ap.add_argument("--sac-steps", type=int, default=20_000, help="SAC env-steps timed per case (the shipped config: 10x)")
     ap.add_argument(
         "--repeats",
         type=int,
         default=2,
-        help="PPO cases timed this often, baseline and shipped config alternating; the best of each "
+        help="cases timed this often, baseline and shipped config alternating; the best of each "
         "(the machine is shared: the best run is the one least disturbed)",
     )
-    ap.add_argument(
-        "--time-to-policy", action="store_true", help="also train both rigs and run the quick benchmark"
-    )
-    ap.add_argument(
-        "--check-every",
-        type=int,
-        default=250_000,
-        help="env-steps between quick benchmarks (--time-to-policy)",
-    )
-    ap.add_argument(
-        "--budget",
-        type=float,
-        default=600.0,
-        help="training wall seconds per rig before giving up (--time-to-policy)",
-    )
-    ap.add_argument(
-        "--from-scratch",
-        action="store_true",
-        help="--time-to-policy with the shipped configs (experiments/ppo_from_scratch.yaml, experiments/ppo_from_scratch_no_brake.yaml) instead of the "
-        "warm-start ones",
-    )
+    ap.add_argument("--no-throughput", action="store_true", help="skip the throughput measurement")
+    ap.add_argument("--time-to-policy", action="store_true", help="also train and run the quick benchmark")
+    ap.add_argument("--check-every", type=int, default=250_000, help="PPO env-steps between quick benchmarks")
+    ap.add_argument("--check-every-sac", type=int, default=50_000, help="SAC env-steps between quick benchmarks")
+    ap.add_argument("--budget", type=float, default=300.0, help="training wall seconds per run before giving up")
+    ap.add_argument("--from-scratch", action="store_true", help="the from-scratch configs (see above)")
+    ap.add_argument("--algos", default="ppo,sac", help="algorithms of --time-to-policy (ppo, sac)")
+    ap.add_argument("--presets", default="brake,no_brake", help="rigs of --time-to-policy")
+    ap.add_argument("--seeds", default="1", help="training seeds of --time-to-policy, e.g. 1,2,3")
+    ap.add_argument("--full-curves", action="store_true", help="train every run to its budget (learning curves)")
+    ap.add_argument("--jobs", type=int, default=1, help="trainings run at a time (1 or 2 on 2 cores)")
+    ap.add_argument("--out", type=Path, default=None, help="folder for the JSON, curves, figures and summary")
     ap.add_argument("--quick", action="store_true", help="a smoke test: few steps")
     a = ap.parse_args(argv)
-    for name in ("steps", "sac_steps", "repeats", "check_every"):
+    for name in ("steps", "sac_steps", "repeats", "check_every", "check_every_sac", "jobs"):
         if getattr(a, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be an integer >= 1, got {getattr(a, name)}")
     if not a.budget > 0:
         ap.error(f"--budget must be > 0, got {a.budget}")
+    algos = [x.strip() for x in a.algos.split(",") if x.strip()]
+    presets = [x.strip() for x in a.presets.split(",") if x.strip()]
+    if not algos or any(x not in SPEEDUP_TARGET for x in algos):
+        ap.error(f"--algos: expected a comma-separated subset of {list(SPEEDUP_TARGET)}, got {a.algos!r}")
+    if not presets or any(x not in PRESETS for x in presets):
+        ap.error(f"--presets: expected a comma-separated subset of {list(PRESETS)}, got {a.presets!r}")
+    if not a.from_scratch and "sac" in algos and a.time_to_policy:
+        algos = [x for x in algos if x != "sac"]  # the warm-start mode has PPO recipes only
+    seeds = _int_list(a.seeds, "seeds", ap)
     if a.quick:
         a.steps, a.sac_steps, a.repeats = 20_000, 2_000, 1
-    cfgs = ROOT / "configs" / "agents"
-    print(
-        f"throughput (env-steps/s of model.learn), {a.steps} PPO / {a.sac_steps} SAC steps per case",
-        flush=True,
-    )
     met = True
-    for algo, steps, repeats in (("ppo", a.steps, a.repeats), ("sac", a.sac_steps, 1)):
-        base = new = 0.0
-        for _ in range(repeats):
-            base = max(base, throughput(cfgs / "v0" / f"{algo}.yaml", steps))
-            new = max(new, throughput(cfgs / f"{algo}.yaml", steps))
-        line = f"  {algo}: baseline (v0 config) {base:9.0f}   shipped config {new:9.0f}   ratio {new / base:5.1f}x"
-        if algo == "ppo":
-            ok = new / base >= PPO_SPEEDUP_TARGET
+    result: dict = {"from_scratch": a.from_scratch, "jobs": a.jobs, "cpu_count": __import__("os").cpu_count()}
+    if not a.no_throughput:
+        print(f"throughput (env-steps/s of model.learn), {a.steps} PPO / {a.sac_steps} SAC steps per case", flush=True)
+        result["throughput"] = {}
+        for algo, steps in (("ppo", a.steps), ("sac", a.sac_steps)):
+            base = new = 0.0
+            for _ in range(a.repeats):
+                base = max(base, throughput(CONFIGS / THROUGHPUT_BASELINE[algo], steps))
+                new = max(new, throughput(CONFIGS / f"{algo}.yaml", steps * (10 if algo == "sac" else 1)))
+            ok = new / base >= SPEEDUP_TARGET[algo]
             met &= ok
-            line += f"   (target >= {PPO_SPEEDUP_TARGET:g}x: {'met' if ok else 'MISSED'})"
-        print(line, flush=True)
+            result["throughput"][algo] = {"baseline": base, "shipped": new, "ratio": new / base, "met": ok}
+            print(
+                f"  {algo}: baseline ({THROUGHPUT_BASELINE[algo]}) {base:9.0f}   shipped config {new:9.0f}   "
+                f"ratio {new / base:5.1f}x   (target >= {SPEEDUP_TARGET[algo]:g}x: {'met' if ok else 'MISSED'})",
+                flush=True,
+            )
     if a.time_to_policy:
-        names = (
-            ("experiments/ppo_from_scratch.yaml", "experiments/ppo_from_scratch_no_brake.yaml")
-            if a.from_scratch
-            else ("ppo.yaml", "ppo_no_brake.yaml")
-        )
+        cases = []
+        for algo in algos:
+            for preset in presets:
+                every = a.check_every if algo == "ppo" else a.check_every_sac
+                if a.quick:
+                    every = 2_000
+                for seed in seeds:
+                    config = CONFIGS / config_name(algo, preset, a.from_scratch)
+                    cases.append((str(config), preset, every, 20.0 if a.quick else a.budget, seed, a.full_curves))
         print(
-            f"time to a suppressing policy (training with {' and '.join(names)}, the quick benchmark "
-            f"every {a.check_every} steps; target < {TIME_TO_POLICY_TARGET_S:.0f} s of training per rig)",
+            f"time to a suppressing policy ({len(cases)} trainings, {a.jobs} at a time; quick benchmark every "
+            f"{a.check_every} PPO / {a.check_every_sac} SAC steps; target < {TIME_TO_POLICY_TARGET_S:.0f} s "
+            "of training, median over seeds)",
             flush=True,
         )
-        with tempfile.TemporaryDirectory() as tmp:
-            for preset, name in zip(("brake", "no_brake"), names, strict=True):
-                r = time_to_policy(cfgs / name, preset, Path(tmp), a.check_every, a.budget)
-                supp = ", ".join(f"{k} {v:.4f}" for k, v in sorted(r["suppression"].items()))
-                rms = ", ".join(f"{k} {v:.4f}" for k, v in sorted(r["rms_error"].items()))
-                ok = r["met"] and r["wall_s"] < TIME_TO_POLICY_TARGET_S
-                met &= ok
-                print(
-                    f"  {preset}: {r['steps']} steps in {r['wall_s']:.0f} s "
-                    f"({'target met' if ok else 'target MISSED'}); suppression {supp}; RMS error [rad/s] {rms}",
-                    flush=True,
-                )
+        if a.jobs == 1:
+            runs = [_run_case(c) for c in cases]
+        else:
+            import multiprocessing
+
+            with ProcessPoolExecutor(a.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+                runs = list(pool.map(_run_case, cases))
+        result["runs"] = runs
+        result["summary"] = summarise(runs)
+        for s in result["summary"]:
+            met &= s["met"]
+            times = ", ".join("missed" if t is None else f"{t:.0f} s" for t in s["time_to_target_s"])
+            med = "missed" if s["median_time_to_target_s"] is None else f"{s['median_time_to_target_s']:.0f} s"
+            print(
+                f"  {s['algo']} {s['preset']}: median {med} over seeds {s['seeds']} ({times}); "
+                f"{'target met' if s['met'] else 'target MISSED'}",
+                flush=True,
+            )
+        if a.out is not None:
+            a.out.mkdir(parents=True, exist_ok=True)
+            (a.out / "time_to_policy.json").write_text(json.dumps(result, indent=2) + "\n")
+            write_curves(runs, a.out)
+            write_summary(result, a.out)
+            print(f"wrote {a.out}/time_to_policy.json, curves.csv, learning_curves_*.png, summary.md", flush=True)
+    print(json.dumps({"met": met, **{k: v for k, v in result.items() if k != "runs"}}, default=str))
     return 0 if met else 1
 
 
