@@ -3,20 +3,21 @@
 Baseline (the setup the version-0 policies were trained with, ``configs/agents/v0/ppo.yaml``
 and ``sac.yaml``): SB3's ``DummyVecEnv`` of 8 single ``DrillString-v0`` envs, PPO with
 n_steps 512, batch 256, 10 epochs, 64x64, one torch thread; SAC on one env, one gradient
-step per env-step. Against it: the shipped configs (``configs/agents/experiments/ppo_from_scratch.yaml``,
-``sac.yaml``: many rigs in the native batched env through ``drill_env.sb3_vec_env``; PPO
-learns each rollout of 128 x 128 steps in 5 epochs of minibatches of 1024, one torch thread).
+step per env-step. Against it: the v1 recipes (``configs/agents/ppo_lqi_clone.yaml``, the learner of
+``experiments/ppo_from_scratch.yaml``, timed without its warm start; ``experiments/sac_v1.yaml``:
+many rigs in the native batched env through ``drill_env.sb3_vec_env``; PPO learns each rollout
+of 128 x 128 steps in 5 epochs of minibatches of 1024, one torch thread).
 
 Two measurements:
 
 1. **Throughput**: env-steps per wall second of ``model.learn`` (rollouts and gradient
    updates, no evaluation), each case for the same number of steps; PPO's cases are timed
-   ``--repeats`` times, baseline and shipped config alternating, and the best of each kept
+   ``--repeats`` times, baseline and v1 config alternating, and the best of each kept
    (on a shared machine the best run is the least disturbed); ratio new / baseline.
    Target: PPO >= 5x (aim 10x).
 2. **Time to a suppressing policy** (``--time-to-policy``): PPO with the warm-start configs
-   of both rigs (``configs/agents/ppo.yaml``, ``ppo_no_brake.yaml``:
-   the policy cloned from the LQI, then PPO; ``--from-scratch``: the shipped configs
+   of both rigs (``configs/agents/ppo_lqi_clone.yaml``, ``ppo_lqi_clone_no_brake.yaml``:
+   the policy cloned from the LQI, then PPO; ``--from-scratch``: the recipes
    ``experiments/ppo_from_scratch.yaml``, ``experiments/ppo_from_scratch_no_brake.yaml``), the quick benchmark of the policy after the warm
    start and every ``--check-every`` env-steps; reports the training wall time (warm start
    included, benchmark runs excluded) at which the mean suppression first reaches 0.99 in
@@ -44,7 +45,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-PPO_SPEEDUP_TARGET = 5.0  # env-steps per wall second, shipped config over the baseline
+PPO_SPEEDUP_TARGET = 5.0  # env-steps per wall second, v1 config over the baseline
 TIME_TO_POLICY_TARGET_S = 300.0  # training wall time to a suppressing policy, per rig
 SUPPRESSION_TARGET = 0.99  # quick-benchmark mean suppression in every regime with a cycle
 
@@ -178,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
         "--repeats",
         type=int,
         default=2,
-        help="PPO cases timed this often, baseline and shipped config alternating; the best of each "
+        help="PPO cases timed this often, baseline and v1 config alternating; the best of each "
         "(the machine is shared: the best run is the one least disturbed)",
     )
     ap.add_argument(
@@ -199,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--from-scratch",
         action="store_true",
-        help="--time-to-policy with the shipped configs (experiments/ppo_from_scratch.yaml, experiments/ppo_from_scratch_no_brake.yaml) instead of the "
+        help="--time-to-policy with the recipes (experiments/ppo_from_scratch.yaml, experiments/ppo_from_scratch_no_brake.yaml) instead of the "
         "warm-start ones",
     )
     ap.add_argument("--quick", action="store_true", help="a smoke test: few steps")
@@ -217,12 +218,13 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     met = True
+    recipes = {"ppo": "ppo_lqi_clone.yaml", "sac": "experiments/sac_v1.yaml"}  # the v1 learners
     for algo, steps, repeats in (("ppo", a.steps, a.repeats), ("sac", a.sac_steps, 1)):
         base = new = 0.0
         for _ in range(repeats):
             base = max(base, throughput(cfgs / "v0" / f"{algo}.yaml", steps))
-            new = max(new, throughput(cfgs / f"{algo}.yaml", steps))
-        line = f"  {algo}: baseline (v0 config) {base:9.0f}   shipped config {new:9.0f}   ratio {new / base:5.1f}x"
+            new = max(new, throughput(cfgs / recipes[algo], steps))
+        line = f"  {algo}: baseline (v0 config) {base:9.0f}   v1 config {new:9.0f}   ratio {new / base:5.1f}x"
         if algo == "ppo":
             ok = new / base >= PPO_SPEEDUP_TARGET
             met &= ok
@@ -232,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         names = (
             ("experiments/ppo_from_scratch.yaml", "experiments/ppo_from_scratch_no_brake.yaml")
             if a.from_scratch
-            else ("ppo.yaml", "ppo_no_brake.yaml")
+            else ("ppo_lqi_clone.yaml", "ppo_lqi_clone_no_brake.yaml")
         )
         print(
             f"time to a suppressing policy (training with {' and '.join(names)}, the quick benchmark "
