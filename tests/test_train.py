@@ -83,9 +83,10 @@ def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
     assert a.shape == (1,) and -1.0 <= a[0] <= 1.0
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
-def test_committed_policy_loads_and_is_evaluated(algo):
-    path = policy_path(algo, "brake")
+@pytest.mark.parametrize("name", ["ppo", "sac", "ppo_lqi_clone"])
+def test_committed_policy_loads_and_is_evaluated(name):
+    algo = name.split("_")[0]
+    path = policy_path(name, "brake")
     assert path.parent.parent == default_agents_dir()
     summary = json.loads((path.parent / "training_summary.json").read_text())
     assert SUMMARY_KEYS <= set(summary) and summary["algo"] == algo
@@ -99,8 +100,8 @@ def test_committed_policy_loads_and_is_evaluated(algo):
     settings = EpisodeSettings(duration=10.0, window=5.0, warmup_time=20.0, warmup_jitter=1.0)
     env = make_env("brake", settings, 1)
     policy.check_env(env)
-    m = evaluate(policy, "brake", 1.0, 0, settings, name=algo, env=env)
-    assert m.controller == algo and m.sim_status == 0
+    m = evaluate(policy, "brake", 1.0, 0, settings, name=name, env=env)
+    assert m.controller == name and m.sim_status == 0
     assert np.isfinite(m.amplitude) and 0.0 <= m.u_peak_abs <= 5.0
     # the committed policy learnt something: it beats open loop on the Hopf cycle at 1 V
     assert m.suppression > 0.5
