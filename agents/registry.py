@@ -7,17 +7,21 @@ from their committed policies.
 * ``lqi_angle_ff``: that LQI plus adaptive feedforward on harmonics of the lower disk's
   measured angle (:mod:`drill_env.agents.controllers.angle_feedforward`), for friction locked to the bit's angle;
 * ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
-  ``results/agents/<algo>/policy.zip`` (trained on ``DrillString-v1``, the braked rig)
-  and ``results/agents/<algo>_no_brake/policy.zip`` (on ``DrillStringNoBrake-v1``); a
-  missing one is an error, never the other rig's policy run in its place. Each runs
-  on the observation version it was trained on (:func:`observation_version`), so the
-  version-0 policies of ``results/agents/v0/`` are evaluated with ``agents_dir`` pointing
-  there;
+  ``results/agents/<algo>/policy.zip`` (trained on the braked rig) and
+  ``results/agents/<algo>_no_brake/policy.zip`` (on the rig without the brake), each by its
+  recipe ``configs/agents/<name>.yaml``; a missing one is an error, never the other rig's
+  policy run in its place. Each runs on the observation version it was trained on
+  (:func:`observation_version`), so the version-0 policies of ``results/agents/v0/`` are
+  evaluated with ``agents_dir`` pointing there;
+* ``ppo_lqi_clone``: PPO started as a behaviour clone of the tuned LQI
+  (:mod:`drill_env.agents.learning.warm_start`) and fine-tuned on ``DrillString-v1`` /
+  ``DrillStringNoBrake-v1``, kept as ``results/agents/ppo_lqi_clone[_<preset>]/policy.zip``
+  (``configs/agents/ppo_lqi_clone.yaml``, ``ppo_lqi_clone_no_brake.yaml``);
 * ``ppo_robust``: PPO trained with domain randomisation over the standard plant family, kept
   beside the nominal ones as ``results/agents/ppo_robust[_<preset>]/policy.zip``; the
   committed ones are residual policies on ``lqi_angle_ff`` (:mod:`drill_env.agents.learning.residual`;
   a policy's ``config.yaml`` says which it is): with the brake trained from the base
-  (``configs/agents/ppo_robust.yaml``), without it started as the nominal ``ppo`` plus the
+  (``configs/agents/ppo_robust.yaml``), without it started as ``ppo_lqi_clone`` plus the
   base's angle-locked feedforward (``configs/agents/ppo_robust_no_brake.yaml``,
   :mod:`drill_env.agents.learning.warm_start`);
 * ``sac_robust``: SAC trained with the same randomisation, kept as
@@ -61,9 +65,9 @@ __all__ = [
 # The one list of the benchmark's controllers, in the order of its tables and legends: the
 # figures, the command-line help and the checks of a controller name all derive from these.
 CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi_angle_ff")
-LEARNED = ("ppo", "sac", "ppo_robust", "sac_robust")
+LEARNED = ("ppo", "sac", "ppo_lqi_clone", "ppo_robust", "sac_robust")
 # the algorithm of each learned controller
-_ALGO = {"ppo": "ppo", "sac": "sac", "ppo_robust": "ppo", "sac_robust": "sac"}
+_ALGO = {"ppo": "ppo", "sac": "sac", "ppo_lqi_clone": "ppo", "ppo_robust": "ppo", "sac_robust": "sac"}
 CONTROLLERS = CLASSICAL + LEARNED
 
 
@@ -83,6 +87,7 @@ STYLES = {
     "lqi_angle_ff": ControllerStyle("tab:cyan", "d"),
     "ppo": ControllerStyle("tab:purple", "P"),
     "sac": ControllerStyle("tab:brown", "X"),
+    "ppo_lqi_clone": ControllerStyle("darkgoldenrod", "H"),
 }
 # Styles of controllers added without one of their own, in the order of CONTROLLERS: none of
 # these colours or markers is in STYLES, so a new controller is told apart from every other.

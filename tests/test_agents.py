@@ -374,14 +374,28 @@ def test_a_missing_no_brake_policy_is_an_error_not_the_braked_rigs(tmp_path):
 
     from drill_env.agents.registry import default_agents_dir, policy_path
 
-    (tmp_path / "ppo").mkdir()
-    shutil.copy(default_agents_dir() / "ppo" / "policy.zip", tmp_path / "ppo" / "policy.zip")
-    assert policy_path("ppo", "brake", tmp_path) == tmp_path / "ppo" / "policy.zip"
-    with pytest.raises(ValueError, match=r"preset 'no_brake' at .*ppo_no_brake/policy.zip"):
-        policy_path("ppo", "no_brake", tmp_path)
+    (tmp_path / "ppo_lqi_clone").mkdir()
+    shutil.copy(
+        default_agents_dir() / "ppo_lqi_clone" / "policy.zip", tmp_path / "ppo_lqi_clone" / "policy.zip"
+    )
+    assert policy_path("ppo_lqi_clone", "brake", tmp_path) == tmp_path / "ppo_lqi_clone" / "policy.zip"
+    with pytest.raises(ValueError, match=r"preset 'no_brake' at .*ppo_lqi_clone_no_brake/policy.zip"):
+        policy_path("ppo_lqi_clone", "no_brake", tmp_path)
 
 
-@pytest.mark.parametrize("name", ["ppo", "sac", "ppo_no_brake", "sac_no_brake", "v0/ppo", "v0/sac"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "ppo",
+        "sac",
+        "ppo_no_brake",
+        "sac_no_brake",
+        "ppo_lqi_clone",
+        "ppo_lqi_clone_no_brake",
+        "v0/ppo",
+        "v0/sac",
+    ],
+)
 def test_the_numpy_forward_pass_is_sb3s_deterministic_predict(name):
     from drill_env.agents.learning.rl import load_policy
 
@@ -486,7 +500,9 @@ def test_renamed_objects_maps_former_module_paths_only(tmp_path, former_module):
     assert renamed_objects(tmp_path / "bad.zip") == {}
 
 
-@pytest.mark.parametrize("name", ["ppo", "ppo_robust", "ppo_no_brake", "ppo_robust_no_brake"])
+@pytest.mark.parametrize(
+    "name", ["ppo_lqi_clone", "ppo_robust", "ppo_lqi_clone_no_brake", "ppo_robust_no_brake"]
+)
 def test_committed_policies_saved_before_the_split_load_with_their_schedules(name):
     from stable_baselines3.common.utils import LinearSchedule
 

@@ -383,33 +383,40 @@ def test_the_report_names_each_learned_policy_by_its_path_and_how_it_started(
 
     monkeypatch.delenv(AGENTS_DIR_ENV, raising=False)
     cfg = tiny(
-        controllers=("lqi", "ppo", "ppo_robust"),
+        controllers=("lqi", "ppo_lqi_clone", "ppo_robust"),
         presets=("brake", "no_brake"),
         voltages={"brake": (1.0,), "no_brake": (1.0,)},
     )
     # the committed policies: relative to the project root, whatever the working folder
     monkeypatch.chdir(tmp_path)
     assert _policies_used(cfg) == {
-        "ppo/brake": "results/agents/ppo/policy.zip on DrillString-v1",
-        "ppo/no_brake": "results/agents/ppo_no_brake/policy.zip on DrillStringNoBrake-v1",
+        "ppo_lqi_clone/brake": "results/agents/ppo_lqi_clone/policy.zip on DrillString-v1",
+        "ppo_lqi_clone/no_brake": "results/agents/ppo_lqi_clone_no_brake/policy.zip on DrillStringNoBrake-v1",
         "ppo_robust/brake": "results/agents/ppo_robust/policy.zip on DrillString-v1",
         "ppo_robust/no_brake": "results/agents/ppo_robust_no_brake/policy.zip on DrillStringNoBrake-v1",
     }
     assert _policy_starts(cfg) == {
-        "ppo/brake": "clone of lqi",
-        "ppo/no_brake": "clone of lqi",
+        "ppo_lqi_clone/brake": "clone of lqi",
+        "ppo_lqi_clone/no_brake": "clone of lqi",
         "ppo_robust/brake": "residual on lqi_angle_ff",
-        "ppo_robust/no_brake": "residual on lqi_angle_ff, distilled from ppo",
+        "ppo_robust/no_brake": "residual on lqi_angle_ff, distilled from ppo_lqi_clone",
     }
     # a folder of the user's: as given (absolute or relative), not relative to some parent of it
     deep = tmp_path / "a" / "b" / "agents"
-    shutil.copytree(ROOT / "results" / "agents" / "ppo", deep / "ppo")
-    cfg = tiny(controllers=("ppo",), agents_dir=str(deep))
-    assert _policies_used(cfg) == {"ppo/brake": f"{deep}/ppo/policy.zip on DrillString-v1"}
-    cfg = tiny(controllers=("ppo",), agents_dir="a/b/agents")
-    assert _policies_used(cfg) == {"ppo/brake": "a/b/agents/ppo/policy.zip on DrillString-v1"}
-    assert _policy_starts(cfg) == {"ppo/brake": "clone of lqi"}
+    shutil.copytree(ROOT / "results" / "agents" / "ppo_lqi_clone", deep / "ppo_lqi_clone")
+    cfg = tiny(controllers=("ppo_lqi_clone",), agents_dir=str(deep))
+    assert _policies_used(cfg) == {
+        "ppo_lqi_clone/brake": f"{deep}/ppo_lqi_clone/policy.zip on DrillString-v1"
+    }
+    cfg = tiny(controllers=("ppo_lqi_clone",), agents_dir="a/b/agents")
+    assert _policies_used(cfg) == {
+        "ppo_lqi_clone/brake": "a/b/agents/ppo_lqi_clone/policy.zip on DrillString-v1"
+    }
+    assert _policy_starts(cfg) == {"ppo_lqi_clone/brake": "clone of lqi"}
     text = summary_tables(
         load_results(sequential / "benchmark.csv"), _policies_used(cfg), None, _policy_starts(cfg)
     )
-    assert "Learned policies: ppo: `a/b/agents/ppo/policy.zip` on `DrillString-v1` (clone of lqi).\n" in text
+    assert (
+        "Learned policies: ppo_lqi_clone: `a/b/agents/ppo_lqi_clone/policy.zip` on `DrillString-v1` "
+        "(clone of lqi).\n" in text
+    )

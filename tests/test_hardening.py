@@ -532,11 +532,11 @@ def test_a_run_without_a_terminal_refuses_an_untrusted_policy(tmp_path, monkeypa
     from drill_env.agents.registry import policy_path
 
     agents = tmp_path / "agents"
-    shutil.copytree(policy_path("ppo", "brake").parent, agents / "ppo")
+    shutil.copytree(policy_path("ppo_lqi_clone", "brake").parent, agents / "ppo_lqi_clone")
     args = [
         *BENCH,
         "--controllers",
-        "open_loop,ppo",
+        "open_loop,ppo_lqi_clone",
         "--agents-dir",
         str(agents),
         "--out",

@@ -49,8 +49,11 @@ def _entries(path: Path) -> dict[str, bytes]:
         return {name: zf.read(name) for name in zf.namelist()}
 
 
-def test_the_committed_policy_files_are_the_twelve_policies():
-    assert len(COMMITTED) == 12 and all(p.endswith("/policy.zip") for p in COMMITTED)
+def test_the_committed_policy_files_are_the_benchmarks_and_the_four_v0_ones():
+    from drill_env.agents.registry import LEARNED
+
+    # one per learned controller and rig, and the version-0 ppo, sac on both rigs
+    assert len(COMMITTED) == 2 * len(LEARNED) + 4 and all(p.endswith("/policy.zip") for p in COMMITTED)
 
 
 @pytest.mark.parametrize("relative", COMMITTED)
@@ -151,7 +154,7 @@ def test_the_cli_upgrades_only_trusted_folders_and_finds_the_committed_ones_up_t
     runner = CliRunner()
     res = runner.invoke(app, ["upgrade-policies", str(AGENTS)])
     assert res.exit_code == 0, res.output
-    assert res.output.count(": up to date") == 12
+    assert res.output.count(": up to date") == len(COMMITTED)
     shutil.copytree(FORMER, tmp_path / "agents" / "ppo_robust")
     res = runner.invoke(app, ["upgrade-policies", str(tmp_path / "agents")])
     assert res.exit_code == 2 and "not one of the committed policies" in res.output
@@ -176,12 +179,10 @@ def test_policy_start_names_each_kind_of_start():
 
 
 SHIPPED_STARTS = {
-    "ppo": "clone of lqi",
-    "ppo_no_brake": "clone of lqi",
+    "ppo_lqi_clone": "clone of lqi",
+    "ppo_lqi_clone_no_brake": "clone of lqi",
     "ppo_robust": "residual on lqi_angle_ff",
-    "ppo_robust_no_brake": "residual on lqi_angle_ff, distilled from ppo",
-    "sac": "from scratch",
-    "sac_no_brake": "from scratch",
+    "ppo_robust_no_brake": "residual on lqi_angle_ff, distilled from ppo_lqi_clone",
     "sac_robust": "residual on lqi_angle_ff",
     "sac_robust_no_brake": "residual on lqi_angle_ff",
     "v0/ppo": "from scratch",
@@ -202,22 +203,23 @@ def test_the_committed_cards_are_what_the_code_writes_from_each_folder(name):
 
 def test_the_cli_writes_a_card_per_policy_and_the_table(tmp_path):
     agents = tmp_path / "agents"
-    for name in ("ppo", "sac_robust"):
+    for name in ("ppo_lqi_clone", "sac_robust"):
         shutil.copytree(AGENTS / name, agents / name)
         (agents / name / "policy.md").unlink()
     res = CliRunner().invoke(app, ["policy-cards", str(agents)])
     assert res.exit_code == 0, res.output
-    assert [p.name for p in policy_folders(agents)] == ["ppo", "sac_robust"]
+    assert [p.name for p in policy_folders(agents)] == ["ppo_lqi_clone", "sac_robust"]
     table = (agents / "README.md").read_text()
     rows = [line for line in table.splitlines() if line.startswith("| [")]
     assert rows == [
-        "| [`ppo`](ppo/policy.md) | PPO | `DrillString-v1` | clone of lqi | `configs/agents/ppo.yaml` "
+        "| [`ppo_lqi_clone`](ppo_lqi_clone/policy.md) | PPO | `DrillString-v1` | clone of lqi "
+        "| `configs/agents/ppo_lqi_clone.yaml` "
         "| 1 015 808 | -93.9 | yes |",
         "| [`sac_robust`](sac_robust/policy.md) | SAC | `DrillString-v1` | residual on lqi_angle_ff "
         "| `configs/agents/sac_robust.yaml` | 90 000 | -161.0 | no |",
     ]
-    card = (agents / "ppo" / "policy.md").read_text()
-    assert "| start | clone of lqi |" in card and f'load_policy("{agents}/ppo/policy.zip")' in card
+    card = (agents / "ppo_lqi_clone" / "policy.md").read_text()
+    assert "| start | clone of lqi |" in card and f'load_policy("{agents}/ppo_lqi_clone/policy.zip")' in card
     assert "behaviour cloning, 3 rounds of 50 000 env-steps" in card
     res = CliRunner().invoke(app, ["policy-cards", str(tmp_path / "empty")])
     assert res.exit_code == 2 and res.output.startswith("error: AGENTS_DIR:")

@@ -34,12 +34,12 @@ def test_the_committed_directory_is_the_registrys_default():
 def test_committed_policy_loads_without_a_warning():
     with warnings.catch_warnings(record=True) as record:
         warnings.simplefilter("always")
-        load_policy(policy_path("ppo", "brake"))
+        load_policy(policy_path("ppo_lqi_clone", "brake"))
     assert untrusted_warnings(record) == []
 
 
 def test_a_copy_elsewhere_warns_and_still_loads_the_same_policy(tmp_path):
-    committed = policy_path("ppo", "brake")
+    committed = policy_path("ppo_lqi_clone", "brake")
     copy = tmp_path / "ppo" / "policy.zip"
     copy.parent.mkdir()
     shutil.copy(committed, copy)
@@ -56,10 +56,10 @@ def test_a_copy_elsewhere_warns_and_still_loads_the_same_policy(tmp_path):
 
 def test_a_link_out_of_the_committed_directory_is_not_trusted(tmp_path):
     link = tmp_path / "policy.zip"
-    link.symlink_to(policy_path("sac", "brake"))
+    link.symlink_to(policy_path("sac_robust", "brake"))
     assert untrusted_policy_note(link) is None  # it resolves to the committed file
     outside = tmp_path / "elsewhere.zip"
-    shutil.copy(policy_path("sac", "brake"), outside)
+    shutil.copy(policy_path("sac_robust", "brake"), outside)
     assert untrusted_policy_note(outside) is not None
     # a path that names results/agents/ but leaves it with ..
     sneaky = COMMITTED_POLICY_DIR / ".." / ".." / "outside.zip"
@@ -67,13 +67,13 @@ def test_a_link_out_of_the_committed_directory_is_not_trusted(tmp_path):
 
 
 def test_benchmark_controllers_from_another_agents_dir_warn(tmp_path):
-    shutil.copytree(policy_path("ppo", "brake").parent, tmp_path / "ppo")
+    shutil.copytree(policy_path("ppo_lqi_clone", "brake").parent, tmp_path / "ppo_lqi_clone")
     env = gym.make("DrillString-v1")
     with pytest.warns(UntrustedPolicyWarning, match=str(tmp_path)):
-        build_controller("ppo", env, "brake", agents_dir=tmp_path)
+        build_controller("ppo_lqi_clone", env, "brake", agents_dir=tmp_path)
     with warnings.catch_warnings(record=True) as record:
         warnings.simplefilter("always")
-        build_controller("ppo", env, "brake")  # the committed one
+        build_controller("ppo_lqi_clone", env, "brake")  # the committed one
     assert untrusted_warnings(record) == []
 
 
@@ -89,7 +89,7 @@ def test_the_warning_comes_before_any_unpickling(tmp_path):
     import cloudpickle
 
     evil = tmp_path / "policy.zip"
-    with zipfile.ZipFile(policy_path("ppo", "brake")) as src, zipfile.ZipFile(evil, "w") as dst:
+    with zipfile.ZipFile(policy_path("ppo_lqi_clone", "brake")) as src, zipfile.ZipFile(evil, "w") as dst:
         for item in src.infolist():
             content = src.read(item.filename)
             if item.filename == "data":

@@ -62,7 +62,7 @@ def zoo_train(tmp_path: Path, algo: str, steps: int, *params: str) -> Path:
 
 
 def test_every_file_covers_the_v1_ids_with_known_algorithms():
-    assert {f.stem for f in FILES} == {"ppo", "sac", "tqc", "ppo_lstm"}
+    assert {f.stem for f in FILES} == {"ppo", "tqc", "ppo_lstm"}
     for f in FILES:
         data = yaml.safe_load(f.read_text())
         assert sorted(data) == V1_IDS, f
@@ -72,13 +72,12 @@ def test_every_file_covers_the_v1_ids_with_known_algorithms():
             assert hp["n_timesteps"] > 0 and hp["n_envs"] >= 1
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
+@pytest.mark.parametrize("algo", ["ppo"])
 def test_zoo_files_mirror_the_training_configs(algo):
-    # the same hyperparameters as the drill-env train config each file names: sac.yml the
-    # shipped sac's (configs/agents/sac[_no_brake].yaml), ppo.yml PPO from scratch
-    # (configs/agents/experiments/ppo_from_scratch[_no_brake].yaml), not the shipped ppo's clone
+    # the same hyperparameters as the drill-env train config each file names: ppo.yml PPO from
+    # scratch (configs/agents/experiments/ppo_from_scratch[_no_brake].yaml), not ppo_lqi_clone
     zoo = yaml.safe_load((ZOO / f"{algo}.yml").read_text())
-    recipe = {"ppo": "experiments/ppo_from_scratch", "sac": "sac"}[algo]
+    recipe = {"ppo": "experiments/ppo_from_scratch"}[algo]
     header = (ZOO / f"{algo}.yml").read_text().split("\nDrillString")[0]
     assert f"configs/agents/{recipe}.yaml" in header
     for env_id, hp in zoo.items():
@@ -117,8 +116,8 @@ def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("algo", ["sac", "tqc", "ppo_lstm"])
+@pytest.mark.parametrize("algo", ["tqc", "ppo_lstm"])
 def test_rl_zoo3_trains_the_other_algorithms(tmp_path, algo):
-    params = ("learning_starts:200", "n_envs:2") if algo in ("sac", "tqc") else ("n_envs:4", "batch_size:128")
+    params = ("learning_starts:200", "n_envs:2") if algo == "tqc" else ("n_envs:4", "batch_size:128")
     path = zoo_train(tmp_path, algo, 1000, *params)
     assert path.stat().st_size > 0

@@ -46,8 +46,8 @@ SUMMARY_KEYS = {
 
 
 def small_config(algo: str, steps: int) -> TrainConfig:
-    # PPO from scratch (the shipped ppo starts from a clone of the LQI)
-    name = {"ppo": "experiments/ppo_from_scratch", "sac": "sac"}[algo]
+    # PPO and SAC from scratch on the v1 rigs (ppo_lqi_clone starts from a clone of the LQI)
+    name = {"ppo": "experiments/ppo_from_scratch", "sac": "experiments/sac_v1"}[algo]
     cfg = load_config(CONFIGS / f"{name}.yaml").to_dict()
     cfg.update(total_timesteps=steps, n_envs=2 if algo == "ppo" else 1)
     cfg["evaluation"] = {"every_steps": steps // 2, "episodes_per_regime": 1, "seed": 7}
@@ -83,9 +83,10 @@ def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
     assert a.shape == (1,) and -1.0 <= a[0] <= 1.0
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
-def test_committed_policy_loads_and_is_evaluated(algo):
-    path = policy_path(algo, "brake")
+@pytest.mark.parametrize("name", ["ppo", "sac", "ppo_lqi_clone"])
+def test_committed_policy_loads_and_is_evaluated(name):
+    algo = name.split("_")[0]
+    path = policy_path(name, "brake")
     assert path.parent.parent == default_agents_dir()
     summary = json.loads((path.parent / "training_summary.json").read_text())
     assert SUMMARY_KEYS <= set(summary) and summary["algo"] == algo
@@ -99,8 +100,8 @@ def test_committed_policy_loads_and_is_evaluated(algo):
     settings = EpisodeSettings(duration=10.0, window=5.0, warmup_time=20.0, warmup_jitter=1.0)
     env = make_env("brake", settings, 1)
     policy.check_env(env)
-    m = evaluate(policy, "brake", 1.0, 0, settings, name=algo, env=env)
-    assert m.controller == algo and m.sim_status == 0
+    m = evaluate(policy, "brake", 1.0, 0, settings, name=name, env=env)
+    assert m.controller == name and m.sim_status == 0
     assert np.isfinite(m.amplitude) and 0.0 <= m.u_peak_abs <= 5.0
     # the committed policy learnt something: it beats open loop on the Hopf cycle at 1 V
     assert m.suppression > 0.5
@@ -135,15 +136,17 @@ def test_config_validation_names_the_field(tmp_path):
     bad.write_text("algo: ppo\nlearning_rate: 0.1\n")
     with pytest.raises(ValueError, match="learning_rate"):
         load_config(bad)
-    for algo in ("ppo", "sac"):
-        assert load_config(CONFIGS / f"{algo}.yaml").algo == algo
+    shipped = sorted(p for p in CONFIGS.glob("*.yaml") if p.name != "controllers.yaml")
+    assert shipped
+    for path in shipped:  # each recipe's algorithm is the first word of its name
+        assert load_config(path).algo == path.stem.split("_")[0], path
 
 
 def test_cli_train_rejects_bad_input(tmp_path):
     runner = CliRunner()
-    res = runner.invoke(app, ["train", "--algo", "dqn", "--config", str(CONFIGS / "ppo.yaml")])
+    res = runner.invoke(app, ["train", "--algo", "dqn", "--config", str(CONFIGS / "ppo_lqi_clone.yaml")])
     assert res.exit_code == 2 and "--algo" in res.output
-    res = runner.invoke(app, ["train", "--algo", "sac", "--config", str(CONFIGS / "ppo.yaml")])
+    res = runner.invoke(app, ["train", "--algo", "sac", "--config", str(CONFIGS / "ppo_lqi_clone.yaml")])
     assert res.exit_code == 2 and "does not match" in res.output
     res = runner.invoke(app, ["train", "--algo", "ppo", "--config", str(tmp_path / "none.yaml")])
     assert res.exit_code == 2 and "no such file" in res.output
@@ -292,7 +295,8 @@ def test_max_wall_time_stops_the_training_and_keeps_the_best_policy(tmp_path, mo
 @pytest.mark.parametrize("bad", ["0", "-5", "nan", "inf", "x"])
 def test_cli_max_wall_time_must_be_a_positive_number(bad):
     res = CliRunner().invoke(
-        app, ["train", "--algo", "ppo", "--config", str(CONFIGS / "ppo.yaml"), "--max-wall-time", bad]
+        app,
+        ["train", "--algo", "ppo", "--config", str(CONFIGS / "ppo_lqi_clone.yaml"), "--max-wall-time", bad],
     )
     assert res.exit_code == 2, res.output
     assert "--max-wall-time" in res.output and "Traceback" not in res.output

@@ -148,7 +148,7 @@ def test_training_with_a_warm_start_records_it(tmp_path, one_torch_thread):
 
 @pytest.mark.parametrize("suffix", ["", "_no_brake"])
 def test_warm_start_configs_differ_from_the_shipped_ones_only_where_they_say(suffix):
-    warm = load_config(CONFIGS / f"ppo{suffix}.yaml").to_dict()
+    warm = load_config(CONFIGS / f"ppo_lqi_clone{suffix}.yaml").to_dict()
     scratch = load_config(CONFIGS / "experiments" / f"ppo_from_scratch{suffix}.yaml").to_dict()
     assert warm.pop("warm_start")["controller"] == "lqi"
     assert warm.pop("ignored_observations") == ANGLES
@@ -190,13 +190,13 @@ def test_the_trained_policy_does_not_depend_on_ignored_observations(tmp_path, al
     assert np.abs(c - a).max() > 1e-4
 
 
-def test_the_committed_no_brake_ppo_keeps_the_integral_action():
+def test_the_committed_no_brake_ppo_lqi_clone_keeps_the_integral_action():
     # at the slip equilibrium of each stable operating point, a bit further ahead of its
     # reference angle must get less voltage (as the LQI it was cloned from); PPO on 20 s
     # episodes reversed this at 1.8-5 V and steady offsets then grew without bound
     import gymnasium as gym
 
-    path = ROOT / "results" / "agents" / "ppo_no_brake" / "policy.zip"
+    path = ROOT / "results" / "agents" / "ppo_lqi_clone_no_brake" / "policy.zip"
     policy = load_policy(path)
     env = gym.make("DrillStringNoBrake-v1", start="equilibrium")
     lag = np.linspace(-2.0, 2.0, 5)  # [rad] integrated lower speed error
@@ -226,10 +226,13 @@ def test_distillation_config_names_the_field():
         WarmStartConfig.from_any({"controller": "lqi", "policy": "ppo"})
     for bad in ("mpc", "ppo_robust", 3):
         with pytest.raises(
-            ValueError, match=rf"^warm_start\.policy: {bad!r} is not one of \['ppo', 'sac'\]$"
+            ValueError,
+            match=rf"^warm_start\.policy: {bad!r} is not one of \['ppo', 'sac', 'ppo_lqi_clone'\]$",
         ):
             WarmStartConfig.from_any({"policy": bad})
     assert WarmStartConfig().controller == "lqi" and WarmStartConfig(policy="sac").controller is None
+    for teacher in ("ppo", "ppo_lqi_clone"):
+        assert WarmStartConfig.from_any({"policy": teacher}).policy == teacher
     residual = load_config(CONFIGS / "ppo_robust.yaml").to_dict()
     with pytest.raises(ValueError, match=r"^warm_start\.controller: a residual policy starts as its base"):
         TrainConfig(**{**residual, "warm_start": {"controller": "lqi"}})
@@ -257,9 +260,9 @@ def test_distilled_configs_differ_from_the_residual_ones_only_where_they_say(suf
     residual_name = {"": "ppo_robust", "_no_brake": "experiments/ppo_robust_residual_no_brake"}[suffix]
     distilled = load_config(CONFIGS / f"{distilled_name}.yaml").to_dict()
     residual = load_config(CONFIGS / f"{residual_name}.yaml").to_dict()
-    warm = load_config(CONFIGS / f"ppo{suffix}.yaml").to_dict()
+    warm = load_config(CONFIGS / f"ppo_lqi_clone{suffix}.yaml").to_dict()
     ws = distilled.pop("warm_start")
-    assert ws.pop("policy") == "ppo" and ws == {
+    assert ws.pop("policy") == "ppo_lqi_clone" and ws == {
         k: v for k, v in warm["warm_start"].items() if k != "controller"
     }
     assert distilled.pop("ignored_observations") == ANGLES
@@ -270,7 +273,7 @@ def test_distilled_configs_differ_from_the_residual_ones_only_where_they_say(suf
     assert (
         distilled.pop("total_timesteps") == 200_000 and distilled.pop("evaluation")["every_steps"] == 50_000
     )
-    if suffix == "_no_brake":  # 90 s training episodes, as ppo_warm_start_no_brake.yaml
+    if suffix == "_no_brake":  # 90 s training episodes, as ppo_lqi_clone_no_brake.yaml
         assert distilled["env_kwargs"].pop("max_episode_steps") == 1800
     hp = distilled.pop("hyperparameters")
     assert (hp["learning_rate"], hp["n_epochs"], hp["batch_size"]) == ("lin_3.0e-5", 5, 1024)
@@ -314,10 +317,12 @@ def test_the_distillation_label_makes_the_residual_voltage_the_teachers_plus_the
     kwargs = {**cfg.env_kwargs, "max_episode_steps": 600}
     scale = cfg.residual.scale
     labels = ResidualLabels(
-        teacher_policy("ppo", env_id, kwargs), base_controller(cfg.residual, env_id, kwargs), scale
+        teacher_policy(cfg.warm_start.policy, env_id, kwargs),
+        base_controller(cfg.residual, env_id, kwargs),
+        scale,
     )
     env = gym.make(env_id, **kwargs)
-    teacher = build_controller("ppo", env, ENV_IDS[env_id])  # the benchmark's, loaded anew
+    teacher = build_controller(cfg.warm_start.policy, env, ENV_IDS[env_id])  # the benchmark's, loaded anew
     env.close()
     base = labels.base
     n = 3
@@ -364,14 +369,17 @@ def test_a_tiny_distillation_moves_the_residual_policy_to_the_teacher(one_torch_
     cfg = TrainConfig(**cfg)
     model = _model(cfg)
     ignore_observations(model, cfg)
-    with pytest.raises(ValueError, match="warm_start.policy: 'ppo' must be loaded by the caller"):
+    with pytest.raises(ValueError, match="warm_start.policy: 'ppo_lqi_clone' must be loaded by the caller"):
         warm_start(model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed=3, residual=cfg.residual)
-    teacher = teacher_policy("ppo", cfg.env_id, cfg.env_kwargs)
+    teacher = teacher_policy("ppo_lqi_clone", cfg.env_id, cfg.env_kwargs)
     info = warm_start(
         model, cfg.warm_start, cfg.env_id, cfg.env_kwargs, seed=3, residual=cfg.residual, teacher=teacher
     )
     assert (
-        info["policy"] == "ppo" and "controller" not in info and info["steps"] >= 800 and info["rounds"] == 2
+        info["policy"] == "ppo_lqi_clone"
+        and "controller" not in info
+        and info["steps"] >= 800
+        and info["rounds"] == 2
     )
     assert info["action_mse_after"] < 0.2 * info["action_mse_before"]
     assert info["value_mse_after"] < info["value_mse_before"]
@@ -413,7 +421,7 @@ def _labeller(cfg):
     from drill_env.agents.learning.warm_start import ResidualLabels
 
     return ResidualLabels(
-        teacher_policy("ppo", cfg.env_id, cfg.env_kwargs),
+        teacher_policy(cfg.warm_start.policy, cfg.env_id, cfg.env_kwargs),
         base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs),
         cfg.residual.scale,
     )
@@ -427,14 +435,16 @@ def test_training_with_a_distillation_records_it(tmp_path, one_torch_thread):
     cfg["env_kwargs"] = {**cfg["env_kwargs"], "warmup_time": 2.0, "warmup_jitter": 0.5}
     cfg["warm_start"].update(steps=200, rounds=2, epochs=2)
     cfg = TrainConfig(**cfg)
-    teacher = teacher_policy("ppo", cfg.env_id, cfg.env_kwargs)
+    teacher = teacher_policy("ppo_lqi_clone", cfg.env_id, cfg.env_kwargs)
     summary = train(cfg, 1, tmp_path / "out", tmp_path / "run", progress_bar=False, teacher=teacher)
     ws = summary["warm_start"]
-    assert ws["policy"] == "ppo" and ws["steps"] >= 400 and ws["wall_time_s"] <= summary["wall_time_s"]
-    assert summary["config"]["warm_start"]["policy"] == "ppo"
+    assert (
+        ws["policy"] == "ppo_lqi_clone" and ws["steps"] >= 400 and ws["wall_time_s"] <= summary["wall_time_s"]
+    )
+    assert summary["config"]["warm_start"]["policy"] == "ppo_lqi_clone"
     saved = load_config(tmp_path / "out" / "config.yaml")
     assert saved.warm_start == WarmStartConfig(
-        policy="ppo", steps=200, rounds=2, epochs=2, learning_rate=3e-3
+        policy="ppo_lqi_clone", steps=200, rounds=2, epochs=2, learning_rate=3e-3
     )
     assert saved.residual.base == "lqi_angle_ff"
 
@@ -447,7 +457,7 @@ def test_train_command_refuses_a_bad_or_missing_teacher_before_training(tmp_path
 
     config = (CONFIGS / "ppo_robust_no_brake.yaml").read_text()
     bad = tmp_path / "bad.yaml"
-    bad.write_text(config.replace("  policy: ppo ", "  policy: ppo_robust "))
+    bad.write_text(config.replace("  policy: ppo_lqi_clone ", "  policy: ppo_robust "))
     runner = CliRunner()
     args = ["train", "--algo", "ppo", "--seed", "0", "--out", str(tmp_path / "out")]
     res = runner.invoke(app, [*args, "--config", str(bad)])
@@ -457,15 +467,15 @@ def test_train_command_refuses_a_bad_or_missing_teacher_before_training(tmp_path
     res = runner.invoke(app, [*args, "--config", str(CONFIGS / "ppo_robust_no_brake.yaml")])
     assert res.exit_code == 2 and "Traceback" not in res.output
     assert (
-        f"no trained ppo policy for preset 'no_brake' at {tmp_path}/agents/ppo_no_brake/policy.zip"
+        f"no trained ppo_lqi_clone policy for preset 'no_brake' at {tmp_path}/agents/ppo_lqi_clone_no_brake/policy.zip"
         in res.output
     )
     assert not (tmp_path / "out").exists()  # nothing trained
 
 
-def test_the_committed_no_brake_ppo_robust_applies_the_nominal_ppo_plus_the_feedforward(one_torch_thread):
+def test_the_committed_no_brake_ppo_robust_applies_ppo_lqi_clone_plus_the_feedforward(one_torch_thread):
     """The shipped ppo_robust without the brake is what its config says: on randomised rigs it
-    did not see, driven by itself, its voltage is the nominal ppo's plus lqi_angle_ff's
+    did not see, driven by itself, its voltage is ppo_lqi_clone's plus lqi_angle_ff's
     feedforward, far closer than the base alone is (the distillation kept, PPO's fine-tuning
     small)."""
     import gymnasium as gym
@@ -474,7 +484,7 @@ def test_the_committed_no_brake_ppo_robust_applies_the_nominal_ppo_plus_the_feed
 
     folder = ROOT / "results" / "agents" / "ppo_robust_no_brake"
     cfg = load_config(folder / "config.yaml")
-    assert cfg.warm_start is not None and cfg.warm_start.policy == "ppo"
+    assert cfg.warm_start is not None and cfg.warm_start.policy == "ppo_lqi_clone"
     labels = _labeller(cfg)
     env = gym.make(cfg.env_id)
     policy = build_controller("ppo_robust", env, "no_brake")

@@ -93,7 +93,7 @@ def test_a_missing_policy_names_its_file_and_a_command_that_works_anywhere(tmp_p
 
 def test_config_names_resolve_to_the_shipped_configs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert resolve_config(Path("ppo")) == ROOT / "configs" / "agents" / "ppo.yaml"
+    assert resolve_config(Path("ppo_lqi_clone")) == ROOT / "configs" / "agents" / "ppo_lqi_clone.yaml"
     assert resolve_config(Path("v0/sac_no_brake")) == ROOT / "configs" / "agents" / "v0" / "sac_no_brake.yaml"
     assert (
         resolve_config(Path("experiments/ppo_from_scratch"))
@@ -104,7 +104,9 @@ def test_config_names_resolve_to_the_shipped_configs(tmp_path, monkeypatch):
     assert resolve_config(Path("ppo")) == Path("ppo")
     # a path is left to the loader, which names the missing file
     assert resolve_config(Path("elsewhere/ppo.yaml")) == Path("elsewhere/ppo.yaml")
-    with pytest.raises(ValueError, match=r"config: no file 'pop' and no config of that name \(names: ppo, "):
+    with pytest.raises(
+        ValueError, match=r"config: no file 'pop' and no config of that name \(names: .*\bppo_lqi_clone, "
+    ):
         resolve_config(Path("pop"))
     with pytest.raises(ValueError, match="no config of that name"):
         resolve_config(Path("controllers"))  # the gains file is no training config
@@ -194,7 +196,7 @@ def test_the_installed_wheel_runs_the_benchmark_from_any_folder(tmp_path):
     (wheel,) = wheels.glob("drill_env-*.whl")
     with zipfile.ZipFile(wheel) as zf:
         names = set(zf.namelist())
-    assert "drill_env/_results/agents/ppo_no_brake/policy.zip" in names
+    assert "drill_env/_results/agents/ppo_lqi_clone_no_brake/policy.zip" in names
     _check_controllers_inside_the_package(sorted(names))
     assert not any(n.startswith("drill_env/_results/agents/v0/") for n in names)
 
@@ -228,7 +230,7 @@ def test_the_installed_wheel_runs_the_benchmark_from_any_folder(tmp_path):
     env["PYTHONWARNINGS"] = "always::UserWarning"  # every UntrustedPolicyWarning reaches stderr
     where = subprocess.run(
         [str(python), "-c", "from pathlib import Path; import drill_env.agents.controllers.gains as g, drill_env.agents.commands.train as t; "
-         "print(g.__file__, g.gains_path(), t.resolve_config(Path('ppo')))"],
+         "print(g.__file__, g.gains_path(), t.resolve_config(Path('ppo_lqi_clone')))"],
         cwd=work, env=env, check=True, capture_output=True, text=True,
     ).stdout.split()  # fmt: skip
     assert len(where) == 3 and all(Path(p).resolve().is_relative_to(site.resolve()) for p in where), where
@@ -236,7 +238,7 @@ def test_the_installed_wheel_runs_the_benchmark_from_any_folder(tmp_path):
     # the learned policies on both rigs, a tuned classical controller, the open-loop reference
     out = work / "bench"
     run = subprocess.run(
-        [str(env_dir / "bin" / "drill-env"), "benchmark", "--quick", "--controllers", "open_loop,lqi,ppo,sac",
+        [str(env_dir / "bin" / "drill-env"), "benchmark", "--quick", "--controllers", "open_loop,lqi,ppo_lqi_clone,sac_robust",
          "--voltages", "1.0", "--workers", "2", "--no-timeseries", "--out", "bench"],
         cwd=work, env=env, capture_output=True, text=True,
     )  # fmt: skip
@@ -245,9 +247,11 @@ def test_the_installed_wheel_runs_the_benchmark_from_any_folder(tmp_path):
     with open(out / "benchmark.csv") as f:
         rows = list(csv.DictReader(f))
     done = {(r["controller"], r["preset"]) for r in rows if not r.get("error")}
-    assert done == {(c, p) for c in ("open_loop", "lqi", "ppo", "sac") for p in PRESETS}, rows
+    assert done == {(c, p) for c in ("open_loop", "lqi", "ppo_lqi_clone", "sac_robust") for p in PRESETS}, (
+        rows
+    )
     summary = (out / "summary.md").read_text()
-    assert "_results/agents/ppo_no_brake/policy.zip" in summary  # the installed copy
+    assert "_results/agents/ppo_lqi_clone_no_brake/policy.zip" in summary  # the installed copy
     # nothing was written into the source tree or looked up there
     assert not (work / "results").exists()
     shutil.rmtree(env_dir)

@@ -58,7 +58,7 @@ def register(app: typer.Typer) -> None:
             ...,
             help="Training config: a YAML file, or the name of one shipped with the package "
             "(from configs/agents/, works from any folder): the recipe of a committed policy by its "
-            "name (ppo, sac, ppo_robust, sac_no_brake, ...), a recipe tried and not kept "
+            "name (ppo, sac, ppo_lqi_clone, ppo_robust, sac_no_brake, ...), a recipe tried and not kept "
             "(experiments/ppo_from_scratch, ...) or an earlier one (v0/ppo, ...).",
         ),
         seed: int = typer.Option(0, min=0, help="Random seed of the training run (>= 0)."),

@@ -23,7 +23,7 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML map
                                         # base_options: {variable_step: true} sets lqi_angle_ff's own options
     warm_start: {controller: lqi, steps: 100000}  # optional: clone a classical controller into the
                                         # policy before the first rollout (drill_env.agents.learning.warm_start);
-                                        # with residual: {policy: ppo, ...} distils a trained policy
+                                        # with residual: {policy: ppo_lqi_clone, ...} distils a trained policy
     ignored_observations: [lower_angle_sin, ...]  # optional: entries the policy network takes
                                         # no weights from (zeroed and frozen; the value still sees them)
 

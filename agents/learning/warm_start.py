@@ -30,7 +30,7 @@ current observation only, the controller may keep state.
 Distillation into a residual policy
 -----------------------------------
 A residual config (:mod:`drill_env.agents.learning.residual`) starts as its base controller already,
-so ``warm_start.controller`` is refused there; ``warm_start: {policy: ppo, ...}`` instead
+so ``warm_start.controller`` is refused there; ``warm_start: {policy: ppo_lqi_clone, ...}`` instead
 starts it as a *trained* policy (the teacher: a learned controller of the benchmark,
 :data:`WARM_START_POLICIES`, loaded as the benchmark loads it for the training env's preset,
 from the default agents folder) plus the base's adaptive feedforward. The correction
@@ -75,7 +75,7 @@ WARM_START_CONTROLLERS = ("lqi", "lqi_angle_ff", "torque_feedback", "pi_upper", 
 # The trained policies a residual policy can be distilled from: the plain learned controllers
 # of the benchmark (drill_env.agents.registry.LEARNED without ppo_robust and sac_robust,
 # themselves residual policies on lqi_angle_ff whose voltage carries the feedforward already).
-WARM_START_POLICIES = ("ppo", "sac")
+WARM_START_POLICIES = ("ppo", "sac", "ppo_lqi_clone")
 
 
 @dataclass(frozen=True)

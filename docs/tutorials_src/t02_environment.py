@@ -5,7 +5,8 @@ The Gymnasium environment: a random and a trained policy
 ``import drill_env`` registers ``DrillString-v1`` (the braked rig of the paper's
 experiments). Each episode starts on the open-loop behaviour at an operating point the
 analysis predicts; the policy then drives the amplifier voltage. Here a random policy and
-the committed PPO policy (``results/agents/ppo/``) run the same episode.
+the committed PPO policy cloned from the LQI (``results/agents/ppo_lqi_clone/``, trained on
+``DrillString-v1``) run the same episode.
 """
 
 # %%
@@ -48,7 +49,7 @@ t_rand, x3_rand, ret_rand = episode(lambda obs: rng.uniform(-1, 1, size=1).astyp
 # The committed PPO policy, loaded as the benchmark loads it. ``load_policy`` returns an
 # object with the same ``predict``; policies outside ``results/agents/`` load with a
 # warning, since a policy file is code (see the how-to on policy files).
-ppo = load_policy(policy_path("ppo", "brake"))
+ppo = load_policy(policy_path("ppo_lqi_clone", "brake"))
 t_ppo, x3_ppo, ret_ppo = episode(lambda obs: ppo.predict(obs, deterministic=True)[0])
 print(f"return: random policy {ret_rand:.1f}, PPO {ret_ppo:.1f}")
 
@@ -57,7 +58,7 @@ print(f"return: random policy {ret_rand:.1f}, PPO {ret_ppo:.1f}")
 # its target speed within a few seconds.
 fig, ax = plt.subplots(figsize=(7, 3.2))
 ax.plot(t_rand, x3_rand, color="tab:gray", label="random policy")
-ax.plot(t_ppo, x3_ppo, color="tab:green", label="PPO (results/agents/ppo)")
+ax.plot(t_ppo, x3_ppo, color="tab:green", label="PPO (results/agents/ppo_lqi_clone)")
 ax.axhline(info["target_speed"], color="k", ls="--", lw=1, label="target speed")
 ax.set_xlabel("time since the controller was switched on [s]")
 ax.set_ylabel("lower-disk speed [rad/s]")

@@ -2,8 +2,8 @@
 Train an agent in minutes
 =========================
 
-Train PPO on ``DrillString-v1`` with a tiny budget. The shipped recipe
-(``configs/agents/ppo.yaml``) starts the policy as a clone of the tuned LQI
+Train PPO on ``DrillString-v1`` with a tiny budget. The recipe of ``ppo_lqi_clone``
+(``configs/agents/ppo_lqi_clone.yaml``) starts the policy as a clone of the tuned LQI
 controller and then runs PPO; here both stages are cut down so that the whole run takes
 well under a minute. What it shows is the workflow, not a policy as good as the committed
 one (that one trains for 1 M steps, about a minute of wall time plus the warm start).
@@ -22,8 +22,8 @@ import pandas as pd
 from drill_env.agents.commands.train import resolve_config
 from drill_env.agents.learning.rl import load_config, train
 
-# The name of a shipped config, as `drill-env train --config ppo` takes it:
-cfg = load_config(resolve_config(Path("ppo")), n_envs=16, total_timesteps=8192)
+# The name of a shipped config, as `drill-env train --config ppo_lqi_clone` takes it:
+cfg = load_config(resolve_config(Path("ppo_lqi_clone")), n_envs=16, total_timesteps=8192)
 print(cfg.algo, cfg.env_id, "warm start:", cfg.warm_start is not None)
 
 # %%
@@ -51,6 +51,6 @@ fig.tight_layout()
 
 # %%
 # ``out`` now holds ``policy.zip``, ``config.yaml``, ``training_summary.json`` and
-# ``learning_curve.png``, laid out like ``results/agents/ppo/``: pass the parent folder to
+# ``learning_curve.png``, laid out like ``results/agents/ppo_lqi_clone/``: pass the parent folder to
 # ``drill-env benchmark --agents-dir`` to benchmark it.
 print(sorted(p.name for p in out.iterdir()))
