@@ -40,6 +40,7 @@ from typing import Any, NamedTuple
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.agents.controllers.base import ControllerSpec
 from drill_env.agents.controllers.gains import classical_controller, gains_path, load_gains
+from drill_env.envs import make_version
 
 __all__ = [
     "CLASSICAL",
@@ -248,14 +249,13 @@ def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any
     :data:`drill_env.agents.learning.warm_start.WARM_START_POLICIES`) as the benchmark loads it for the
     preset of ``env_id`` from the default agents folder (:func:`build_controller`: a missing
     file is an error naming it), checked against the spaces of the training environment."""
-    import gymnasium as gym
 
     from drill_env.agents.learning.warm_start import WARM_START_POLICIES
     from drill_env.envs import ENV_IDS
 
     if name not in WARM_START_POLICIES:
         raise ValueError(f"warm_start.policy: {name!r} is not one of {list(WARM_START_POLICIES)}")
-    env = gym.make(env_id, **env_kwargs)
+    env = make_version(env_id, **env_kwargs)
     try:
         return build_controller(name, env, ENV_IDS[env_id])
     finally:

@@ -28,9 +28,13 @@ ROOT = Path(__file__).resolve().parent.parent
 ZOO = ROOT / "configs" / "agents" / "rl_zoo3"
 FILES = sorted(ZOO.glob("*.yml"))
 V1_IDS = sorted(i for i in ENV_IDS if ENV_VERSIONS[i] == 1)
+V2_IDS = sorted(i for i in ENV_IDS if ENV_VERSIONS[i] == 2)
+# the files of the shipped from-scratch recipes (v2) and the others (v1)
+SHIPPED = ("ppo", "sac")
 
 
 def zoo_train(tmp_path: Path, algo: str, steps: int, *params: str) -> Path:
+    env_id = "DrillString-v2" if algo in SHIPPED else "DrillString-v1"
     cmd = [
         sys.executable,
         "-m",
@@ -38,7 +42,7 @@ def zoo_train(tmp_path: Path, algo: str, steps: int, *params: str) -> Path:
         "--algo",
         algo,
         "--env",
-        "DrillString-v1",
+        env_id,
         "--gym-packages",
         "drill_env",
         "-conf",
@@ -56,28 +60,28 @@ def zoo_train(tmp_path: Path, algo: str, steps: int, *params: str) -> Path:
         cmd += ["-params", *params]
     res = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert res.returncode == 0, res.stderr[-3000:]
-    models = list((tmp_path / "logs" / algo).glob("DrillString-v1_*/DrillString-v1.zip"))
+    models = list((tmp_path / "logs" / algo).glob(f"{env_id}_*/{env_id}.zip"))
     assert len(models) == 1, res.stdout[-2000:]
     return models[0]
 
 
-def test_every_file_covers_the_v1_ids_with_known_algorithms():
-    assert {f.stem for f in FILES} == {"ppo", "tqc", "ppo_lstm"}
+def test_every_file_covers_its_ids_with_known_algorithms():
+    assert {f.stem for f in FILES} == {"ppo", "sac", "tqc", "ppo_lstm"}
     for f in FILES:
         data = yaml.safe_load(f.read_text())
-        assert sorted(data) == V1_IDS, f
+        assert sorted(data) == (V2_IDS if f.stem in SHIPPED else V1_IDS), f
         for env_id, hp in data.items():
             gym.spec(env_id)  # registered by drill_env
             assert hp["policy"] in ("MlpPolicy", "MlpLstmPolicy")
             assert hp["n_timesteps"] > 0 and hp["n_envs"] >= 1
 
 
-@pytest.mark.parametrize("algo", ["ppo"])
+@pytest.mark.parametrize("algo", SHIPPED)
 def test_zoo_files_mirror_the_training_configs(algo):
-    # the same hyperparameters as the drill-env train config each file names: ppo.yml PPO from
-    # scratch (configs/agents/experiments/ppo_from_scratch[_no_brake].yaml), not ppo_lqi_clone
+    # the same hyperparameters as the shipped drill-env train configs: ppo.yml
+    # configs/agents/ppo[_no_brake].yaml, sac.yml configs/agents/sac[_no_brake].yaml
     zoo = yaml.safe_load((ZOO / f"{algo}.yml").read_text())
-    recipe = {"ppo": "experiments/ppo_from_scratch"}[algo]
+    recipe = algo
     header = (ZOO / f"{algo}.yml").read_text().split("\nDrillString")[0]
     assert f"configs/agents/{recipe}.yaml" in header
     for env_id, hp in zoo.items():
@@ -95,7 +99,7 @@ def test_zoo_files_mirror_the_training_configs(algo):
 
 
 def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
-    # the command: python -m rl_zoo3.train --algo ppo --env DrillString-v1
+    # the command: python -m rl_zoo3.train --algo ppo --env DrillString-v2
     #   --gym-packages drill_env -conf configs/agents/rl_zoo3/ppo.yml -n 5000
     path = zoo_train(tmp_path, "ppo", 5000)
     with zipfile.ZipFile(path) as zf:
@@ -107,7 +111,7 @@ def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
     schedules = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.2}
     model = PPO.load(str(path), device="cpu", custom_objects=schedules)
     assert "rl_zoo3" not in sys.modules
-    env = gym.make("DrillString-v1")
+    env = gym.make("DrillString-v2")
     obs, _ = env.reset(seed=0)
     assert model.observation_space.shape == obs.shape == (13,)
     action, _ = model.predict(obs, deterministic=True)

@@ -93,12 +93,15 @@ def test_committed_policy_loads_and_is_evaluated(name):
     assert summary["total_timesteps"] >= 10_000 and summary["wall_time_s"] > 0
     assert isinstance(summary["converged"], bool)
     cfg = yaml.safe_load((path.parent / "config.yaml").read_text())
-    assert cfg["algo"] == algo and cfg["env_id"] == "DrillString-v1"
-    assert policy_observation_version(path) == 1
+    # the from-scratch policies on v2 (the correction action), the LQI clone on v1
+    version = 1 if name == "ppo_lqi_clone" else 2
+    assert cfg["algo"] == algo and cfg["env_id"] == f"DrillString-v{version}"
+    assert policy_observation_version(path) == version
+    assert ("warm_start" in cfg) == (name == "ppo_lqi_clone") and "residual" not in cfg
     policy = load_policy(path)
     assert isinstance(policy, SB3Policy)
     settings = EpisodeSettings(duration=10.0, window=5.0, warmup_time=20.0, warmup_jitter=1.0)
-    env = make_env("brake", settings, 1)
+    env = make_env("brake", settings, version)
     policy.check_env(env)
     m = evaluate(policy, "brake", 1.0, 0, settings, name=name, env=env)
     assert m.controller == name and m.sim_status == 0

@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.agents.learning._config import config_section
+from drill_env.envs import make_version
 
 __all__ = [
     "BASE_OBSERVATIONS",
@@ -298,14 +299,13 @@ def critic_burn_in_callback(model: Any, cfg: ResidualConfig):
 def base_controller(cfg: ResidualConfig, env_id: str, env_kwargs: Mapping[str, Any]):
     """The classical base of a residual policy, designed on the nominal model of the training
     environment (``env_kwargs`` without its domain randomisation)."""
-    import gymnasium as gym
 
     from drill_env.agents.controllers.base import ControllerSpec
     from drill_env.agents.controllers.gains import classical_controller
     from drill_env.envs import ENV_IDS
 
     kwargs = {k: v for k, v in env_kwargs.items() if k != "domain_randomization"}
-    env = gym.make(env_id, **kwargs)
+    env = make_version(env_id, **kwargs)
     try:
         spec = ControllerSpec.from_env(env)
     finally:

@@ -79,7 +79,7 @@ import yaml
 
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.agents.learning._config import config_section
-from drill_env.envs import ENV_IDS
+from drill_env.envs import ENV_IDS, make_version
 from drill_env.envs.task import REGIMES
 from drill_env.params import load_yaml
 
@@ -829,13 +829,12 @@ def update_convergence(out_dir: str | Path) -> dict[str, Any]:
 
 def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
     """Open-loop and LQI returns on the evaluation episodes (context for the curve)."""
-    import gymnasium as gym
 
     from drill_env.agents.controllers.base import ControllerSpec
     from drill_env.agents.controllers.gains import classical_controller
     from drill_env.agents.controllers.open_loop import OpenLoop
 
-    env = gym.make(cfg.env_id, **cfg.env_kwargs)
+    env = make_version(cfg.env_id, **cfg.env_kwargs)
     spec = ControllerSpec.from_env(env)
     preset = ENV_IDS[cfg.env_id]
     refs = {"open_loop": OpenLoop(spec)}
@@ -992,7 +991,7 @@ def train(
     ignore_observations(model, cfg)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
 
-    eval_env = gym.make(cfg.env_id, **cfg.env_kwargs)
+    eval_env = make_version(cfg.env_id, **cfg.env_kwargs)
     episodes = evaluation_episodes(cfg.evaluation)
     base = None
     callbacks: list[Any] = []

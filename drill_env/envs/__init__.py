@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["register_envs", "ENV_IDS", "ENV_VERSIONS", "MAX_EPISODE_STEPS"]
+__all__ = ["register_envs", "make_version", "ENV_IDS", "ENV_VERSIONS", "MAX_EPISODE_STEPS"]
 
 # Every registered id -> its rig preset.
 ENV_IDS = {
@@ -62,6 +62,19 @@ def register_envs() -> None:
             max_episode_steps=MAX_EPISODE_STEPS,
             kwargs=kwargs,
         )
+
+
+def make_version(env_id: str, **kwargs: Any):
+    """``gymnasium.make(env_id, **kwargs)`` without Gymnasium's "out of date, consider vN"
+    warning: for code that makes the version a policy was trained on, on purpose (a v1
+    residual policy's base, the evaluation env of a v1 config)."""
+    import warnings
+
+    import gymnasium
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*is out of date", category=DeprecationWarning)
+        return gymnasium.make(env_id, **kwargs)
 
 
 def __getattr__(name: str):
