@@ -179,6 +179,10 @@ def test_policy_start_names_each_kind_of_start():
 
 
 SHIPPED_STARTS = {
+    "ppo": "from scratch",
+    "ppo_no_brake": "from scratch",
+    "sac": "from scratch",
+    "sac_no_brake": "from scratch",
     "ppo_lqi_clone": "clone of lqi",
     "ppo_lqi_clone_no_brake": "clone of lqi",
     "ppo_robust": "residual on lqi_angle_ff",

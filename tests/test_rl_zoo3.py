@@ -120,8 +120,12 @@ def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("algo", ["tqc", "ppo_lstm"])
+@pytest.mark.parametrize("algo", ["sac", "tqc", "ppo_lstm"])
 def test_rl_zoo3_trains_the_other_algorithms(tmp_path, algo):
-    params = ("learning_starts:200", "n_envs:2") if algo == "tqc" else ("n_envs:4", "batch_size:128")
+    params = (
+        ("learning_starts:200", "n_envs:2", "batch_size:64")
+        if algo in ("sac", "tqc")
+        else ("n_envs:4", "batch_size:128")
+    )
     path = zoo_train(tmp_path, algo, 1000, *params)
     assert path.stat().st_size > 0

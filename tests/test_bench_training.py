@@ -1,0 +1,95 @@
+"""``benchmarks/bench_training.py --time-to-policy``: the time to a suppressing policy and the
+learning curves, run as a user runs it, and the committed ``results/training`` checked
+against its own rows."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+TRAINING = ROOT / "results" / "training"
+
+
+def test_time_to_policy_writes_the_json_curves_and_figures(tmp_path):
+    out = tmp_path / "training"
+    res = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "benchmarks" / "bench_training.py"),
+            "--quick",
+            "--no-throughput",
+            "--time-to-policy",
+            "--from-scratch",
+            "--algos",
+            "ppo",
+            "--presets",
+            "no_brake",
+            "--seeds",
+            "3",
+            "--out",
+            str(out),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert res.returncode in (0, 1) and "Traceback" not in res.stderr, res.stderr[-3000:]
+    result = json.loads((out / "time_to_policy.json").read_text())
+    (run,) = result["runs"]
+    assert (run["algo"], run["preset"], run["seed"]) == ("ppo", "no_brake", 3)
+    assert run["config"] == "configs/agents/ppo_no_brake.yaml"
+    curve = run["curve"]
+    assert curve and all(p["steps"] > 0 and p["wall_s"] > 0 for p in curve)
+    steps = [p["steps"] for p in curve]
+    assert steps == sorted(steps)
+    for p in curve:  # the quick benchmark ran: both cycle regimes scored
+        assert set(p["suppression"]) == {"limit_cycle", "stick_slip"}
+        assert set(p["rms_error"]) == {"equilibrium", "limit_cycle", "stick_slip"}
+    rows = pd.read_csv(out / "curves.csv")
+    assert len(rows) == len(curve)
+    assert rows["suppression_stick_slip"].tolist() == pytest.approx([p["suppression"]["stick_slip"] for p in curve])
+    assert (out / "learning_curves_no_brake.png").stat().st_size > 10_000
+    assert "| ppo | no_brake | `configs/agents/ppo_no_brake.yaml` |" in (out / "summary.md").read_text()
+    # bad input: exit 2 with the field named
+    bad = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_training.py"), "--seeds", "1,x"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2 and "--seeds" in bad.stderr and "Traceback" not in bad.stderr
+
+
+@pytest.mark.skipif(not (TRAINING / "time_to_policy.json").is_file(), reason="results/training not generated")
+def test_committed_time_to_policy_follows_from_its_curves():
+    """The committed summary is what its own checks give: the first check at or above 0.99 in
+    both cycle regimes, the median over seeds, and the rows of curves.csv."""
+    result = json.loads((TRAINING / "time_to_policy.json").read_text())
+    rows = pd.read_csv(TRAINING / "curves.csv")
+    assert result["from_scratch"] is True
+    for s in result["summary"]:
+        runs = [r for r in result["runs"] if (r["algo"], r["preset"]) == (s["algo"], s["preset"])]
+        assert len(runs) >= 3 and 0 not in s["seeds"]  # seeds other than the tuning seed 0
+        times = []
+        for r in runs:
+            first = next(
+                (p for p in r["curve"] if min(p["suppression"]["limit_cycle"], p["suppression"]["stick_slip"]) >= 0.99),
+                None,
+            )
+            times.append(float("inf") if first is None else first["wall_s"])
+            mine = rows[(rows.algo == r["algo"]) & (rows.preset == r["preset"]) & (rows.seed == r["seed"])]
+            assert len(mine) == len(r["curve"])
+        median = statistics.median(times)
+        assert (s["median_time_to_target_s"] is None) == (median == float("inf"))
+        if s["median_time_to_target_s"] is not None:
+            assert s["median_time_to_target_s"] == pytest.approx(median)
+        assert s["met"] == (median < 300.0)
