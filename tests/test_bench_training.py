@@ -55,7 +55,9 @@ def test_time_to_policy_writes_the_json_curves_and_figures(tmp_path):
         assert set(p["rms_error"]) == {"equilibrium", "limit_cycle", "stick_slip"}
     rows = pd.read_csv(out / "curves.csv")
     assert len(rows) == len(curve)
-    assert rows["suppression_stick_slip"].tolist() == pytest.approx([p["suppression"]["stick_slip"] for p in curve])
+    assert rows["suppression_stick_slip"].tolist() == pytest.approx(
+        [p["suppression"]["stick_slip"] for p in curve]
+    )
     assert (out / "learning_curves_no_brake.png").stat().st_size > 10_000
     assert "| ppo | no_brake | `configs/agents/ppo_no_brake.yaml` |" in (out / "summary.md").read_text()
     # bad input: exit 2 with the field named
@@ -82,7 +84,11 @@ def test_committed_time_to_policy_follows_from_its_curves():
         times = []
         for r in runs:
             first = next(
-                (p for p in r["curve"] if min(p["suppression"]["limit_cycle"], p["suppression"]["stick_slip"]) >= 0.99),
+                (
+                    p
+                    for p in r["curve"]
+                    if min(p["suppression"]["limit_cycle"], p["suppression"]["stick_slip"]) >= 0.99
+                ),
                 None,
             )
             times.append(float("inf") if first is None else first["wall_s"])

@@ -596,7 +596,8 @@ def test_committed_robust_policies_are_at_least_the_nominal_ones_on_the_worst_ca
             # from-scratch policy of the v2 envs, without the brake at 1.15 and 1.35 V by less
             # than 0.002 (0.0017 and 0.0013 in the committed results): nowhere by more
             assert all(
-                unreachable(worst[robust][v][1], v) or margin > -0.002 for v, margin in verdict["behind"].items()
+                unreachable(worst[robust][v][1], v) or margin > -0.002
+                for v, margin in verdict["behind"].items()
             ), verdict
     _, voltage = worst_case_verdict(worst, "ppo_robust", "ppo")["smallest"]
     suppression, plant_name = worst["ppo_robust"][voltage]
