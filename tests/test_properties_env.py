@@ -115,12 +115,14 @@ def rollout(env, seed, options, acts):
     out = [obs]
     rewards, volts = [], []
     scale = env.unwrapped.settings.action_to_volts
+    # v2: the action is the correction to the episode's nominal voltage
+    offset = float(info["nominal_voltage"]) if env.unwrapped.settings.action_offset else 0.0
     for a in acts:
         obs, reward, terminated, truncated, info = env.step(a)
         check_obs(env.observation_space, obs)
         assert math.isfinite(reward) and reward <= 0.0
         assert not terminated and not truncated  # at most 8 steps, far below the time limit
-        requested = float(np.asarray(a, dtype=np.float64).reshape(-1)[0]) * scale
+        requested = offset + float(np.asarray(a, dtype=np.float64).reshape(-1)[0]) * scale
         assert info["voltage_requested"] == requested
         assert info["voltage"] == min(max(requested, -VOLTAGE_LIMIT), VOLTAGE_LIMIT)
         assert info["voltage_clipped"] == (abs(requested) > VOLTAGE_LIMIT)
