@@ -129,14 +129,15 @@ def quick_suppression(model, cfg, preset: str, folder: Path) -> tuple[dict, dict
 
     from drill_env.agents.learning.rl import UntrustedPolicyWarning
 
-    warnings.simplefilter("ignore", UntrustedPolicyWarning)  # the policy this process just trained
-    csv = run_benchmark(
-        bench,
-        folder / f"bench_{preset}_{model.num_timesteps}",
-        backend="sequential",
-        fresh=True,
-        report=False,
-    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UntrustedPolicyWarning)  # the policy this process just trained
+        csv = run_benchmark(
+            bench,
+            folder / f"bench_{preset}_{model.num_timesteps}",
+            backend="sequential",
+            fresh=True,
+            report=False,
+        )
     rows = pd.read_csv(csv)
     failed = rows["error"].dropna() if "error" in rows else []
     if len(failed):

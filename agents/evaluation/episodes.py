@@ -54,7 +54,6 @@ from __future__ import annotations
 import functools
 import math
 import time
-import warnings
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
@@ -63,7 +62,7 @@ import gymnasium as gym
 import numpy as np
 
 from drill_env.agents.controllers.base import PolicyPredictor
-from drill_env.envs import ENV_IDS, ENV_VERSIONS
+from drill_env.envs import ENV_IDS, ENV_VERSIONS, make_version
 from drill_env.envs.task import VOLTAGE_LIMIT
 from drill_env.metrics import stick_slip_metrics
 from drill_env.params import IDENTIFIED_SPEED_RAD_S
@@ -192,18 +191,15 @@ def make_env(
         kwargs["design_params"] = preset if design_params is None else design_params
     elif design_params is not None:
         kwargs["design_params"] = design_params
-    with warnings.catch_warnings():
-        # v0 is chosen on purpose (the classical controllers' and v0 policies' observation):
-        # gymnasium's "out of date, consider v1" is not news to the user here
-        warnings.filterwarnings("ignore", message=".*is out of date", category=DeprecationWarning)
-        env = gym.make(
-            env_id_of(preset, observation_version),
-            max_episode_steps=10**9,  # the evaluation decides the length
-            warmup_time=settings.warmup_time,
-            warmup_jitter=settings.warmup_jitter,
-            **kwargs,
-        )
-    return env
+    # an older version is chosen on purpose (the classical controllers' and a policy's own):
+    # gymnasium's "out of date" is not news to the user here
+    return make_version(
+        env_id_of(preset, observation_version),
+        max_episode_steps=10**9,  # the evaluation decides the length
+        warmup_time=settings.warmup_time,
+        warmup_jitter=settings.warmup_jitter,
+        **kwargs,
+    )
 
 
 @dataclass
