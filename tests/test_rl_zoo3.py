@@ -27,14 +27,16 @@ for _module in ("rl_zoo3", "sb3_contrib"):
 ROOT = Path(__file__).resolve().parent.parent
 ZOO = ROOT / "configs" / "agents" / "rl_zoo3"
 FILES = sorted(ZOO.glob("*.yml"))
-V1_IDS = sorted(i for i in ENV_IDS if ENV_VERSIONS[i] == 1)
-V2_IDS = sorted(i for i in ENV_IDS if ENV_VERSIONS[i] == 2)
-# the files of the shipped from-scratch recipes (v2) and the others (v1)
-SHIPPED = ("ppo", "sac")
+# the files of the shipped from-scratch recipes (PPO on v3, SAC on v2) and the others (v1)
+SHIPPED = {"ppo": 3, "sac": 2}
+
+
+def ids_of(version: int) -> list[str]:
+    return sorted(i for i in ENV_IDS if ENV_VERSIONS[i] == version)
 
 
 def zoo_train(tmp_path: Path, algo: str, steps: int, *params: str) -> Path:
-    env_id = "DrillString-v2" if algo in SHIPPED else "DrillString-v1"
+    env_id = f"DrillString-v{SHIPPED.get(algo, 1)}"
     cmd = [
         sys.executable,
         "-m",
@@ -69,7 +71,7 @@ def test_every_file_covers_its_ids_with_known_algorithms():
     assert {f.stem for f in FILES} == {"ppo", "sac", "tqc", "ppo_lstm"}
     for f in FILES:
         data = yaml.safe_load(f.read_text())
-        assert sorted(data) == (V2_IDS if f.stem in SHIPPED else V1_IDS), f
+        assert sorted(data) == ids_of(SHIPPED.get(f.stem, 1)), f
         for env_id, hp in data.items():
             gym.spec(env_id)  # registered by drill_env
             assert hp["policy"] in ("MlpPolicy", "MlpLstmPolicy")
@@ -99,7 +101,7 @@ def test_zoo_files_mirror_the_training_configs(algo):
 
 
 def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
-    # the command: python -m rl_zoo3.train --algo ppo --env DrillString-v2
+    # the command: python -m rl_zoo3.train --algo ppo --env DrillString-v3
     #   --gym-packages drill_env -conf configs/agents/rl_zoo3/ppo.yml -n 5000
     path = zoo_train(tmp_path, "ppo", 5000)
     with zipfile.ZipFile(path) as zf:
@@ -111,7 +113,7 @@ def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
     schedules = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.2}
     model = PPO.load(str(path), device="cpu", custom_objects=schedules)
     assert "rl_zoo3" not in sys.modules
-    env = gym.make("DrillString-v2")
+    env = gym.make("DrillString-v3")
     obs, _ = env.reset(seed=0)
     assert model.observation_space.shape == obs.shape == (13,)
     action, _ = model.predict(obs, deterministic=True)

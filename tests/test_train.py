@@ -93,8 +93,9 @@ def test_committed_policy_loads_and_is_evaluated(name):
     assert summary["total_timesteps"] >= 10_000 and summary["wall_time_s"] > 0
     assert isinstance(summary["converged"], bool)
     cfg = yaml.safe_load((path.parent / "config.yaml").read_text())
-    # the from-scratch policies on v2 (the correction action), the LQI clone on v1
-    version = 1 if name == "ppo_lqi_clone" else 2
+    # from scratch: PPO on v3 (the correction action, the absolute tracking term), SAC on v2
+    # (the correction action); the LQI clone on v1
+    version = {"ppo": 3, "sac": 2, "ppo_lqi_clone": 1}[name]
     assert cfg["algo"] == algo and cfg["env_id"] == f"DrillString-v{version}"
     assert policy_observation_version(path) == version
     assert ("warm_start" in cfg) == (name == "ppo_lqi_clone") and "residual" not in cfg

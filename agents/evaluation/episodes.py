@@ -46,7 +46,10 @@ Metrics (:class:`RunMetrics`), over the window unless stated:
   exceeds the speed up to which the preset's friction was identified
   (:data:`IDENTIFIED_SPEED`: 12.6 rad/s for the brake, Sec. 4 of the paper), i.e. the run
   left what the model vouches for;
-* ``episode_return``: the environment's reward summed over the episode.
+* ``episode_return``: the environment's reward summed over the episode, on the env version
+  the controller runs on (v0 for the classical controllers, a policy's own version for a
+  learned one): from v3 the tracking term is the absolute speed error, so returns compare
+  within a version only.
 """
 
 from __future__ import annotations

@@ -9,9 +9,11 @@ Importing this package (``import drill_env`` does) registers them:
   lower disk; see ``DrillStringEnv``'s "Version History");
 * ``DrillString-v2``, ``DrillStringNoBrake-v2``: the v1 rigs whose action is the
   correction added to the episode's nominal (feedforward) voltage, +-2 V
-  (``action_mode="correction"``): the version to train agents on. The from-scratch
-  policies ``ppo``, ``ppo_no_brake``, ``sac``, ``sac_no_brake`` of ``results/agents/`` are
-  trained on it.
+  (``action_mode="correction"``);
+* ``DrillString-v3``, ``DrillStringNoBrake-v3``: the v2 rigs whose reward scores speed
+  errors in rad/s at every operating point (``tracking_cost="absolute"``): the version to
+  train agents on. The from-scratch policies ``ppo``, ``ppo_no_brake``, ``sac``,
+  ``sac_no_brake`` of ``results/agents/`` are trained on it.
 
 Earlier ids stay registered unchanged, so the policies trained on them (``results/agents/``
 and ``results/agents/v0/``) still load and run.
@@ -35,9 +37,12 @@ ENV_IDS = {
     "DrillStringNoBrake-v1": "no_brake",
     "DrillString-v2": "brake",
     "DrillStringNoBrake-v2": "no_brake",
+    "DrillString-v3": "brake",
+    "DrillStringNoBrake-v3": "no_brake",
 }
-# Every registered id -> its version: the observation layout is min(version, 1) (v2 observes
-# what v1 does); v2 changes the action (see DrillStringEnv's "Version History").
+# Every registered id -> its version: the observation layout is min(version, 1) (v2 and v3
+# observe what v1 does); v2 changes the action, v3 the reward's speed scale (see
+# DrillStringEnv's "Version History").
 ENV_VERSIONS = {env_id: int(env_id.rsplit("-v", 1)[1]) for env_id in ENV_IDS}
 MAX_EPISODE_STEPS = 400  # 20 s at the default control period of 0.05 s
 
@@ -55,6 +60,8 @@ def register_envs() -> None:
             kwargs["observation_version"] = min(version, 1)
         if version >= 2:
             kwargs["action_mode"] = "correction"
+        if version >= 3:
+            kwargs["tracking_cost"] = "absolute"
         gymnasium.register(
             id=env_id,
             entry_point="drill_env.envs.drill_string:DrillStringEnv",

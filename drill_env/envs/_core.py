@@ -74,7 +74,10 @@ EC_SETTLE = 9  # control periods run at the end of an open-loop warm-up to settl
 EC_MAX_STEPS = 10  # integration step cap per control period
 EC_OBS_VERSION = 11  # observation version: 0 (NOBS_V0 entries) or 1 (NOBS entries)
 EC_INT_BOUND = 12  # clip bound of the integrated lower speed error [rad]
-EC_SCALE = 13  # NOBS observation divisors (all 1 for physical units; entries beyond the version's unused)
+EC_TRACK_ABS = (
+    13  # tracking term: 0 ((x3 - w*) / max(w*, EC_SPEED_REF))^2 (up to v2); 1 |x3 - w*| / EC_SPEED_REF (v3)
+)
+EC_SCALE = 14  # NOBS observation divisors (all 1 for physical units; entries beyond the version's unused)
 NOBS_V0 = 8  # entries of observation version 0
 NOBS = 13  # entries of observation version 1 (the largest): the v0 entries, then the encoder extras
 NEC = EC_SCALE + NOBS
@@ -236,6 +239,8 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
         ep[EP_INT_QL0] = ql0
         ep[EP_INT_TARGET] = target
     inv_sref = 1.0 / max(target, ecfg[EC_SPEED_REF])
+    track_abs = ecfg[EC_TRACK_ABS] != 0.0
+    inv_ref = 1.0 / ecfg[EC_SPEED_REF]
     noise = ws[1]
     dirty = ws[10]
     if scfg[C_ANGLE_NOISE] > 0.0 or scfg[C_SPEED_NOISE] > 0.0:
@@ -250,8 +255,11 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
     for k in range(n):
         thl = ybuf[k, L.THL]
         sensor_sample(scfg, sst, ybuf[k, L.X1] + thl, thl, noise, k)
-        e = (ybuf[k, L.X3] - target) * inv_sref
-        track += e * e
+        if track_abs:
+            track += abs(ybuf[k, L.X3] - target) * inv_ref
+        else:
+            e = (ybuf[k, L.X3] - target) * inv_sref
+            track += e * e
         r = (ybuf[k, L.X2] - ybuf[k, L.X3]) * inv_sref
         osc += r * r
         if mbuf[k, 1] == 0:

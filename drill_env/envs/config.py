@@ -170,7 +170,10 @@ def observation_layout(version: int) -> dict[str, tuple]:
 
 TRUE_STATE_NAMES = ("twist", "upper_speed", "lower_speed", "upper_angle", "lower_angle")
 REWARD_NAMES = ("tracking", "stick", "oscillation", "effort")
-SPEED_REF_FLOOR = 1.0  # [rad/s] reward terms are normalised by max(target speed, this)
+SPEED_REF_FLOOR = 1.0  # [rad/s] reward terms are normalised by max(target speed, this) or by this
+# The tracking term: "relative_squared" ((x3 - w*) / max(w*, 1 rad/s))^2 (up to v2) or
+# "absolute" |x3 - w*| / (1 rad/s) (v3: an error costs the same at every operating point).
+TRACKING_COSTS = ("relative_squared", "absolute")
 SETTLE_TIME = 0.2  # [s] sensors run at the end of an open-loop warm-up before the episode
 MAX_RANDOMIZATION_TRIES = 100
 MAX_WARMUP_RETRIES = 5
@@ -387,6 +390,7 @@ class EnvSettings:
         start_angle: float | str = 0.0,
         design_params: RigParams | str | Path | None = None,
         action_range: float | None = None,
+        tracking_cost: str = "relative_squared",
     ):
         if params_overrides is not None and not isinstance(params_overrides, Mapping):
             raise ValueError(
@@ -430,6 +434,9 @@ class EnvSettings:
             if self.start_angle >= 2.0 * math.pi:
                 raise ValueError(f"start_angle: {start_angle!r} is outside the allowed range [0, 2 pi) rad")
         self.reward_weights = config_from_any(RewardWeights, reward_weights, "reward_weights")
+        if not isinstance(tracking_cost, str) or tracking_cost not in TRACKING_COSTS:
+            raise ValueError(f"tracking_cost: {tracking_cost!r} is not one of {list(TRACKING_COSTS)}")
+        self.tracking_cost = tracking_cost
         self.randomization = DomainRandomization.from_any(domain_randomization)
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode: {action_mode!r} is not one of {list(ACTION_MODES)}")
@@ -504,6 +511,7 @@ class EnvSettings:
         e[C.EC_W_OSC] = w.oscillation
         e[C.EC_W_EFFORT] = w.effort
         e[C.EC_SPEED_REF] = SPEED_REF_FLOOR
+        e[C.EC_TRACK_ABS] = 1.0 if self.tracking_cost == "absolute" else 0.0
         e[C.EC_VMAX] = VOLTAGE_LIMIT
         e[C.EC_SETTLE] = self.settle_periods
         e[C.EC_MAX_STEPS] = max(100_000, 20_000 * self.n_sub)
