@@ -25,7 +25,7 @@ from typing import Any
 from drill_env.measurement import MeasurementModel
 from drill_env.params import ParameterError, RigParams, load_yaml
 
-__all__ = ["MAX_ACTUATOR_DELAY", "PLANT_FILE_KEYS", "PlantFile", "read_plant_file"]
+__all__ = ["MAX_ACTUATOR_DELAY", "PLANT_FILE_KEYS", "PlantFile", "read_plant_file", "without_measurement"]
 
 PLANT_FILE_KEYS = ("actuator_delay", "sensors", "measurement")  # beside the rig's parameters
 MAX_ACTUATOR_DELAY = 1.0  # [s]
@@ -113,3 +113,19 @@ def read_plant_file(path: str | Path) -> PlantFile:
         source=str(p),
         measurement=measurement,
     )
+
+
+def without_measurement(plant: PlantFile, reader: str) -> PlantFile:
+    """``plant`` when it has no measurement model; else a ParameterError: ``reader`` (a command
+    whose sensor model has no encoder eccentricity) would drop it."""
+    if plant.measurement.active:
+        from drill_env.measurement import measurement_text
+
+        name = Path(plant.source).name or "plant"
+        raise ParameterError(
+            f"{name}: measurement: {reader} simulates the rig's encoders without eccentricity and cannot "
+            f"apply this file's ({measurement_text(plant.measurement)}); allowed: a plant file without a "
+            "measurement section (delete it to use the plant alone; drill-env synth --plant records "
+            "through it)"
+        )
+    return plant
