@@ -11,9 +11,12 @@ model's response to the reading error,
 on the disk whose encoder errs (inertia, string, viscous and Stribeck terms of its own
 equation) and ``-k_theta K[e] / h^2`` on the other disk (the twist). With ``e = c cos
 theta + s sin theta`` that is two columns, linear in ``(c, s)``, fitted like a candidate's
-(coefficients common to the runs: the encoder is the same in every run). Both explanations
-are scored on the same residual and listed side by side in the report, so that a lab user
-looks at the encoder as well as at the brake.
+(coefficients common to the runs: the encoder is the same in every run). The columns
+(:func:`~drill_env.discrepancy.effects.eccentricity_columns`) make the library's measurement
+candidates ``encoder_eccentricity_<disk>``, judged by the held-out rules like every other;
+here, for a line that stays ``unexplained``, both explanations are scored on the same
+residual and listed side by side in the report, so that a lab user looks at the encoder as
+well as at the brake.
 """
 
 from __future__ import annotations
