@@ -258,6 +258,22 @@ class RigParams:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], *, source: str = "parameters") -> RigParams:
         data = dict(data)
+        if "measurement" in data:
+            # how the angles are read (drill_env.measurement), not how the rig moves: checked, and
+            # refused rather than dropped by a reader of the plant alone
+            from drill_env.measurement import MeasurementModel
+
+            try:
+                m = MeasurementModel.from_mapping(data["measurement"], source=source)
+            except ValueError as exc:
+                raise ParameterError(str(exc)) from None
+            raise ParameterError(
+                f"{source}: measurement: the file holds a measurement model ({', '.join(m.active) or 'no'} "
+                "encoder eccentricity: how the angles are read, not how the rig moves), which a rig "
+                "parameter file has not; allowed: a plant file reader (drill-env synth --plant, "
+                "drill_env.plant_file.read_plant_file) applies it to the readings; to use the plant "
+                "alone, delete the measurement section"
+            )
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:

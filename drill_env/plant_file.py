@@ -2,7 +2,11 @@
 hold the measurement chain of that rig: ``actuator_delay`` [s] and a ``sensors:`` mapping of
 :class:`~drill_env.sensors.SensorConfig` fields (``angle_noise_std`` [rad],
 ``speed_noise_std`` [rad/s], ``counts_per_rev``, ``cutoff_rad_s`` [rad/s], ``filter_order``,
-``sample_rate_hz`` [Hz]). Everything a rig of the standard plant family varies fits in one.
+``sample_rate_hz`` [Hz]) and a ``measurement:`` mapping of its encoders' reading errors
+(:class:`~drill_env.measurement.MeasurementModel`: ``lower_encoder_eccentricity`` [rad],
+``lower_encoder_phase`` [rad], the same for the upper encoder; the discrepancy workflow writes
+it when it finds an eccentric encoder). Everything a rig of the standard plant family varies
+fits in one.
 
 ``actuator_delay`` becomes the sensors' ``delay_samples`` (a whole number of sensor samples):
 the environment delays the measurements, which in a loop with constant set points is the
@@ -18,11 +22,12 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from drill_env.measurement import MeasurementModel
 from drill_env.params import ParameterError, RigParams, load_yaml
 
-__all__ = ["MAX_ACTUATOR_DELAY", "PLANT_FILE_KEYS", "PlantFile", "read_plant_file"]
+__all__ = ["MAX_ACTUATOR_DELAY", "PLANT_FILE_KEYS", "PlantFile", "read_plant_file", "without_measurement"]
 
-PLANT_FILE_KEYS = ("actuator_delay", "sensors")  # beside the rig's parameters
+PLANT_FILE_KEYS = ("actuator_delay", "sensors", "measurement")  # beside the rig's parameters
 MAX_ACTUATOR_DELAY = 1.0  # [s]
 
 
@@ -33,6 +38,7 @@ class PlantFile:
     params: RigParams  # the rig, effects included
     sensors: dict[str, Any] = field(default_factory=dict)  # SensorConfig fields, delay_samples included
     source: str = ""
+    measurement: MeasurementModel = field(default_factory=MeasurementModel)  # the encoders' reading errors
 
     @property
     def actuator_delay(self) -> float:
@@ -95,4 +101,31 @@ def read_plant_file(path: str | Path) -> PlantFile:
         raise ParameterError(f"{p.name}: expected a mapping of parameter names to values")
     data = dict(data)
     sensors = _sensors(data, p.name)
-    return PlantFile(params=RigParams.from_dict(data, source=p.name), sensors=sensors, source=str(p))
+    measurement = MeasurementModel()
+    if "measurement" in data:
+        try:
+            measurement = MeasurementModel.from_mapping(data.pop("measurement"), source=p.name)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+    return PlantFile(
+        params=RigParams.from_dict(data, source=p.name),
+        sensors=sensors,
+        source=str(p),
+        measurement=measurement,
+    )
+
+
+def without_measurement(plant: PlantFile, reader: str) -> PlantFile:
+    """``plant`` when it has no measurement model; else a ParameterError: ``reader`` (a command
+    whose sensor model has no encoder eccentricity) would drop it."""
+    if plant.measurement.active:
+        from drill_env.measurement import measurement_text
+
+        name = Path(plant.source).name or "plant"
+        raise ParameterError(
+            f"{name}: measurement: {reader} simulates the rig's encoders without eccentricity and cannot "
+            f"apply this file's ({measurement_text(plant.measurement)}); allowed: a plant file without a "
+            "measurement section (delete it to use the plant alone; drill-env synth --plant records "
+            "through it)"
+        )
+    return plant

@@ -112,8 +112,10 @@ def test_cli_end_to_end(tmp_path):
         "effects",
         "model_written",
         "model_check",
+        "measurement",
     }
     assert result["model_written"] is True and result["model_check"]["worse"] == []
+    assert result["measurement"] == {}  # a physical effect: the readings are exact
     assert result["effect"] in RESULT_EFFECTS and result["effect"] == "friction_drift"
     assert abs(result["parameters"]["friction_drift"]) == pytest.approx(0.001, rel=0.1)
     assert (

@@ -96,10 +96,11 @@ def test_position_friction_is_explained_as_physical():
     assert rows[0]["parameters"]["lower_position_amp_1"] == pytest.approx(truth, rel=0.2)
 
 
-def test_unexplained_rotation_line_lists_physical_and_sensor_explanations(tmp_path):
-    """The workflow on an eccentric encoder: unexplained (no library effect is a reading error),
-    and the verdict and the report's "What to look for" name the encoder first, position
-    friction second, with their scores; nothing says both "locked" and "not locked"."""
+def test_an_eccentric_encoder_is_named_and_its_report_lists_position_friction_beside_it(tmp_path):
+    """The workflow on an eccentric encoder: named as the measurement candidate (it is in the
+    library now), the verdict calls it a sensor effect, and the report's "Sensor or friction?"
+    lists it beside position friction with both held-out scores; nothing says both "locked" and
+    "not locked"."""
     from drill_env.discrepancy.dataset import MeasuredDataset
     from drill_env.discrepancy.report import write_report
     from drill_env.discrepancy.scoring import DecisionRule
@@ -108,16 +109,11 @@ def test_unexplained_rotation_line_lists_physical_and_sensor_explanations(tmp_pa
     syn = make_dataset("encoder_eccentricity_lower", seed=21, magnitude=0.01, config=ROT)
     ds = MeasuredDataset(preset="brake", encoder_counts_per_rev=2000, runs=tuple(syn.runs))
     res = analyse(ds, simulate_gaps=False, rule=DecisionRule(bootstrap=20))
-    assert res.effect == "unexplained", res.decision.reason
-    sig = res.signature
-    assert sig.locked_to == "lower disk rotation" and sig.harmonic == 1
-    assert [e["explanation"] for e in sig.explanations] == [
-        "encoder_eccentricity_lower",
-        "position_friction_lower",
-    ]
-    assert "explained as encoder_eccentricity_lower (sensor" in res.verdict_line()
+    assert res.effect == "encoder_eccentricity_lower", res.decision.reason
+    assert "a sensor effect, no torque: the lower encoder reads wrong" in res.verdict_line()
     text = write_report(res, tmp_path, figures=False).read_text()
-    assert (
-        "| encoder_eccentricity_lower | sensor |" in text and "| position_friction_lower | physical |" in text
-    )
+    section = text.split("## Sensor or friction?", 1)[1].split("\n## ", 1)[0]
+    assert "| encoder_eccentricity_lower | sensor |" in section
+    assert "| position_friction_lower | physical |" in section
+    assert "look at the lower encoder's mounting" in section
     assert "not locked to rotation" not in text

@@ -11,6 +11,8 @@ from drill_env.discrepancy.dataset import MeasuredDataset
 from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.study import (
     CONDITIONS,
+    JITTER,
+    JITTERED,
     PAIRS,
     Truth,
     _Job,
@@ -87,6 +89,59 @@ def test_the_grid_covers_the_real_conditions():
     assert Truth(()).expected(0.0) == "none" and Truth(()).expected(0.02) == "recalibrated"
     assert Truth(("motor_inductance",)).expected(0.05) == "motor_inductance"
     assert Truth(("external_torque",)).expected(0.0) == "unexplained"
+
+
+def test_the_grid_holds_eccentric_encoders_and_jittered_clocks():
+    """Cells for an eccentric encoder on either disk (a measurement effect of the library: the
+    right verdict is its name) and for recordings whose time stamps jitter by +-8 % of the
+    period (the verdict of the same truth on a uniform clock), on seeds of their own."""
+    labels = [t.label for t in truths()]
+    for disk in ("lower", "upper"):
+        name = f"encoder_eccentricity_{disk}"
+        assert name in labels and Truth((name,)).in_library and HIDDEN_EFFECTS[name].kind == "measurement"
+        assert Truth((name,)).expected(0.05) == name
+    assert (
+        JITTER == 0.08 and "none, jittered 8%" in labels and "position_friction_lower, jittered 8%" in labels
+    )
+    assert Truth((), JITTER).expected(0.0) == "none" and Truth((), JITTER).expected(0.02) == "recalibrated"
+    assert Truth(("position_friction_lower",), JITTER).expected(0.02) == "position_friction_lower"
+    jobs = _jobs(1, 1)
+    keys = [(j.part, j.effects, j.seed, j.angle_noise, j.param_error, j.time_jitter) for j in jobs]
+    assert len(set(keys)) == len(keys)
+    jittered = [j for j in jobs if j.time_jitter]
+    assert len(jittered) == len(JITTERED) * len(CONDITIONS)
+    assert all(15_000 <= j.seed < 16_000 and j.time_jitter == JITTER for j in jittered)
+    assert {j.effects for j in jobs if j.part.startswith("magnitude:")} >= {
+        ("encoder_eccentricity_lower",),
+        ("encoder_eccentricity_upper",),
+    }
+
+
+@pytest.mark.slow
+def test_the_new_cells_give_their_verdicts_through_the_study():
+    """The rows the study writes for the eccentricity and jittered cells (one condition: no added
+    noise, 2 % parameter error) on a small design: each verdict right (about 50 s)."""
+    jobs = [
+        j
+        for j in _jobs(1, 1)
+        if j.part == "grid"
+        and (j.time_jitter or any(e.startswith("encoder_eccentricity") for e in j.effects))
+        and (j.angle_noise, j.param_error) == (0.0, 0.02)
+    ]
+    assert len(jobs) == 4
+    base = SynthConfig(
+        voltages=(0.2, 0.7, 2.0, 4.5), random_runs=2, duration_s=60.0, pre_roll_s=40.0, sample_rate_hz=250.0
+    )
+    rows = _run_jobs(jobs, base, 20, 1, None)
+    for r in rows:
+        assert r["correct"] and r["verdict"] == r["expected"], (r["truth"], r["verdict"], r["reason"])
+    assert {r["truth"] for r in rows} == {
+        "encoder_eccentricity_lower",
+        "encoder_eccentricity_upper",
+        "none, jittered 8%",
+        "position_friction_lower, jittered 8%",
+    }
+    assert all(r["time_jitter"] == (0.08 if "jittered" in r["truth"] else 0.0) for r in rows)
 
 
 def test_first_seed_gives_datasets_the_default_study_never_saw():

@@ -68,10 +68,10 @@ def sim_to_real(
         _fail(f"--magnitude must lie in [0.01, 0.2] (a1 of the lower position friction), got {magnitude!r}")
     if truth is not None:
         from drill_env.params import ParameterError
-        from drill_env.plant_file import read_plant_file
+        from drill_env.plant_file import read_plant_file, without_measurement
 
         try:
-            read_plant_file(truth)
+            without_measurement(read_plant_file(truth), "sim-to-real's closed loop")
         except (ParameterError, ValueError) as exc:
             _fail(f"--truth {truth}: {exc}")
     ctrl_list = None

@@ -116,10 +116,10 @@ class Plant:
     def from_path(cls, path: str | Path) -> Plant:
         """A plant from a plant file (module docstring); its name is the file's stem. Raises
         ``ParameterError`` (a ValueError) naming the field for a bad file."""
-        from drill_env.plant_file import read_plant_file
+        from drill_env.plant_file import read_plant_file, without_measurement
 
         p = Path(path)
-        f = read_plant_file(p)
+        f = without_measurement(read_plant_file(p), "the benchmark")
         params, sensors = f.params, f.sensors
         if p.stem in (NOMINAL, FAMILY):
             raise ValueError(f"plant: {path}: the name {p.stem!r} is reserved; rename the file")

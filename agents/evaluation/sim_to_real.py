@@ -117,8 +117,10 @@ class SimToRealConfig:
 
         if not isinstance(self.synth, SynthConfig):
             raise ValueError(f"synth: expected a SynthConfig, got {type(self.synth).__name__}")
-        if self.effect not in HIDDEN_EFFECTS or self.effect == "none":
-            allowed = sorted(e for e in HIDDEN_EFFECTS if e != "none")
+        # the closed loop runs the environment's sensors, which have no encoder eccentricity: a
+        # measurement effect of the truth would be dropped there, so it is no truth here
+        allowed = sorted(e for e, h in HIDDEN_EFFECTS.items() if e != "none" and h.kind == "plant")
+        if self.effect not in allowed:
             raise ValueError(f"effect: {self.effect!r} is not one of {allowed}")
         for name, rel in self.parameter_errors.items():
             if name not in IDENTIFIED:
@@ -133,9 +135,10 @@ class SimToRealConfig:
             if c not in ALLOWED:
                 raise ValueError(f"controllers: {c!r} is not one of {list(ALLOWED)}")
         if self.truth_file is not None:
-            from drill_env.plant_file import read_plant_file
+            from drill_env.plant_file import read_plant_file, without_measurement
 
-            read_plant_file(self.truth_file)  # a ParameterError naming the field
+            # a ParameterError naming the field
+            without_measurement(read_plant_file(self.truth_file), "sim-to-real's closed loop")
             object.__setattr__(self, "truth_file", str(self.truth_file))
         uc1 = load_params(self.synth.preset).uc1
         if not self.voltages:
@@ -355,7 +358,19 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     disc = run_discrepancy(data, out / "discrepancy", seed=0)
     result = json.loads((out / "discrepancy" / "result.json").read_text())
     model_file = out / "discrepancy" / "model.yaml"
-    corrected = load_params(model_file) if model_file.is_file() else load_params(preset)
+    corrected = load_params(preset)
+    if model_file.is_file():
+        from drill_env.plant_file import read_plant_file
+
+        found = read_plant_file(model_file)  # its measurement section (an eccentric encoder), if any,
+        corrected = found.params  # is how the truth's angles were read, not what a design needs
+        if found.measurement.active:
+            from drill_env.measurement import measurement_text
+
+            say(
+                "      the corrected model's measurement section is no part of the design (the plant is): "
+                + measurement_text(found.measurement)
+            )
     say(f"      {disc.verdict_line()}")
     files += [out / "discrepancy" / "result.json", out / "discrepancy" / "report.md"]
     timings["discrepancy"] = time.perf_counter() - t0

@@ -48,15 +48,17 @@ def synth(
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
     effect: str | None = typer.Option(
         None,
-        help="Hidden effect: none, a library effect, external_torque, or encoder_eccentricity_lower "
-        "(a reading error of the lower encoder); or give --plant.",
+        help="Hidden effect: none, a library effect (encoder_eccentricity_lower/_upper are reading "
+        "errors of an encoder), or external_torque (outside the library); or give --plant.",
     ),
     plant: Path | None = typer.Option(
         None,
         "--plant",
         help="Record this truth plant instead of the preset with a drawn effect: a plant file (rig "
-        "YAML with effects, optionally actuator_delay [s] and sensors:, whose counts_per_rev and "
-        "angle_noise_std replace --counts and --angle-noise). Its preset (friction family) is --preset.",
+        "YAML with effects, optionally actuator_delay [s], sensors: (whose counts_per_rev and "
+        "angle_noise_std replace --counts and --angle-noise) and measurement: (encoder eccentricity, "
+        "applied to the recorded angles), e.g. a model.yaml of drill-env discrepancy). Its preset "
+        "(friction family) is --preset.",
     ),
     magnitude: float | None = typer.Option(
         None,
@@ -206,6 +208,7 @@ def synth(
                         config=cfg,
                         delay_s=truth_file.actuator_delay,
                         source=str(plant),
+                        measurement=truth_file.measurement,
                         progress=lambda i, n: prog.update(task, completed=i),
                     )
                 else:

@@ -5,7 +5,8 @@
   hidden effect;
 * :mod:`~drill_env.discrepancy.equation_error` -- the filtered equation error and its
   noise floor;
-* :mod:`~drill_env.discrepancy.effects` -- the candidate library;
+* :mod:`~drill_env.discrepancy.effects` -- the candidate library: physical effects and the
+  encoders' eccentricity (a measurement effect, :mod:`drill_env.measurement`);
 * :mod:`~drill_env.discrepancy.scoring` -- per-run statistics, joint fits, held-out scores
   and the false-discovery step;
 * :mod:`~drill_env.discrepancy.spectral_lines` -- lines common to the runs and what they
@@ -14,8 +15,8 @@
   intervals;
 * :mod:`~drill_env.discrepancy.verdict` -- the decision rule, the bootstrap, a second effect
   (:mod:`~drill_env.discrepancy.decide` re-exports the public names);
-* :mod:`~drill_env.discrepancy.sensor_effects` -- a rotation-locked line as an encoder's
-  reading error (eccentricity) beside position friction;
+* :mod:`~drill_env.discrepancy.sensor_effects` -- an unexplained rotation-locked line as an
+  encoder's reading error (eccentricity) beside position friction;
 * :mod:`~drill_env.discrepancy.compare` -- sensor-space comparison by simulation;
 * :mod:`~drill_env.discrepancy.workflow`, :mod:`~drill_env.discrepancy.report` -- the
   command's whole run and its report;

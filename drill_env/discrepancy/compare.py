@@ -17,6 +17,10 @@ Three views:
   dominant period and fraction of time stuck over the second half of the run (the
   points of an experimental bifurcation diagram).
 
+With a measurement model (an eccentric encoder, :class:`~drill_env.measurement.MeasurementModel`)
+the simulated angles are read through it before the chain, and each simulation starts from
+the true state behind the measured readings.
+
 Each gap is quoted with a noise floor: the angle noise for angles, the noise of the
 measured speed (measured speed minus a smooth fit) for speeds and spectra.
 """
@@ -125,13 +129,23 @@ def sensor_speed(eq: RunEquations, theta_u, theta_l, *, counts=None, noise=0.0, 
     return m.lower_speed, m.lower_angle, smooth
 
 
-def _state(eq: RunEquations, k: int) -> dict[str, float]:
+def _state(eq: RunEquations, k: int, measurement=None) -> dict[str, float]:
     vmin = eq.config.min_speed_rad_s
     x2 = float(eq.speed_u[k])
     x3 = float(eq.speed_l[k])
+    theta_l = float(eq.theta_l[k])
+    twist = float(eq.twist[k])
+    if measurement is not None and measurement.active:
+        # the readings of an eccentric encoder: the true angles and speeds behind them
+        theta_u = theta_l + twist
+        true_u = measurement.true_angle("upper", theta_u)
+        true_l = measurement.true_angle("lower", theta_l)
+        x2 /= measurement.reading_slope("upper", true_u)
+        x3 /= measurement.reading_slope("lower", true_l)
+        theta_l, twist = true_l, true_u - true_l
     return {
-        "theta_l": float(eq.theta_l[k]),
-        "x1": float(eq.twist[k]),
+        "theta_l": theta_l,
+        "x1": twist,
         "x2": x2 if abs(x2) >= vmin else 0.0,
         "x3": x3 if abs(x3) >= vmin else 0.0,
     }
@@ -147,8 +161,9 @@ def _thermal(params: RigParams, eq: RunEquations) -> np.ndarray:
     return cache[params]
 
 
-def _simulate(params: RigParams, eq: RunEquations, k0: int, k1: int):
-    """Simulate samples k0..k1-1 from the measured state at k0; (theta_u, theta_l, x2, x3, stopped)."""
+def _simulate(params: RigParams, eq: RunEquations, k0: int, k1: int, measurement=None):
+    """Simulate samples k0..k1-1 from the measured state at k0; (theta_u, theta_l, x2, x3, stopped):
+    the readings of the simulated angles through ``measurement`` when given."""
     import warnings
 
     from drill_env.simulator import simulate
@@ -156,7 +171,7 @@ def _simulate(params: RigParams, eq: RunEquations, k0: int, k1: int):
     dt = eq.dt
     t0 = float(eq.t_rel[k0])
     n = k1 - k0
-    x0 = _state(eq, k0)
+    x0 = _state(eq, k0, measurement)
     if params.effects.friction_heating != 0.0:
         x0["thermal_state"] = float(_thermal(params, eq)[k0])
     with warnings.catch_warnings(record=True) as caught:
@@ -169,7 +184,12 @@ def _simulate(params: RigParams, eq: RunEquations, k0: int, k1: int):
         ok = np.isfinite(thu) & np.isfinite(thl)
         m = int(np.argmin(ok)) if not ok.all() else thu.size
         thu, thl = thu[:m], thl[:m]
-    return thu, thl, res.x2[0], res.x3[0], stopped
+    v2, v3 = res.x2[0], res.x3[0]
+    if measurement is not None and measurement.active:
+        v2 *= measurement.reading_slope("upper", float(res.theta_u[0]))
+        v3 *= measurement.reading_slope("lower", float(res.theta_l[0]))
+        thu, thl = measurement.read(thu, thl)
+    return thu, thl, v2, v3, stopped
 
 
 OSCILLATION_AVERAGE_S = 0.25  # [s] moving average before the oscillation test (see _features)
@@ -212,7 +232,11 @@ def compare_run(
     config: CompareConfig | None = None,
     *,
     measured_cache: dict | None = None,
+    measurement=None,
 ) -> RunComparison:
+    """``params`` against one run in sensor space; ``measurement`` (a
+    :class:`~drill_env.measurement.MeasurementModel`) reads the simulated angles as the rig's
+    encoders do (None: exact readings)."""
     cfg = config or CompareConfig()
     run = eq.run
     n = run.t.size
@@ -235,7 +259,7 @@ def compare_run(
     stopped = 0
     for k0 in range(0, n - 1, step):
         k1 = min(n, k0 + step + 1)
-        thu, thl, v2, v3, stop = _simulate(params, eq, k0, k1)
+        thu, thl, v2, v3, stop = _simulate(params, eq, k0, k1, measurement)
         stopped += int(stop)
         if thl.size < 8:
             continue
@@ -246,7 +270,7 @@ def compare_run(
     ang_err = np.concatenate(ang_errs) if ang_errs else np.array([np.nan])
     short_speed_rms = float(np.sqrt(np.nanmean((short_speed - meas_speed) ** 2)))
     # free run from the first sample
-    thu, thl, v2, v3, stop = _simulate(params, eq, 0, n)
+    thu, thl, v2, v3, stop = _simulate(params, eq, 0, n, measurement)
     stopped += int(stop)
     free_chain, _, free_speed = sensor_speed(
         eq, thu, thl, counts=counts, noise=sigma_pre, initial=(v2, v3), seed=1

@@ -1,6 +1,9 @@
-"""The candidate library: physical effects the nominal model leaves out.
+"""The candidate library: effects the nominal model leaves out.
 
-Each candidate has a physical parametric form (the one the simulator implements, see
+Most candidates are *physical* (a torque the plant lacks); the two encoder eccentricities
+are *measurement* effects (an angle read wrong, no torque), whose columns are the equation
+error's response to the reading error and whose parameters go to the measurement model
+(:class:`drill_env.measurement.MeasurementModel`), not the plant. Each candidate has a parametric form (the one the simulator implements, see
 :class:`drill_env.params.ModelEffects`), a signature in the equation error (which disk,
 which measured signal it follows) and a map from its fitted parameters to the
 ``effects:`` entries of a rig YAML. In the equation error every candidate is a set of
@@ -23,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drill_env.discrepancy.equation_error import RunEquations, stribeck
+from drill_env.discrepancy.equation_error import RunEquations, stribeck, stribeck_slope
+from drill_env.measurement import MAX_ENCODER_ECCENTRICITY
 
 __all__ = [
     "Candidate",
@@ -32,6 +36,7 @@ __all__ = [
     "thermal_state",
     "thermal_trajectory",
     "THERMAL_TIMES_S",
+    "eccentricity_columns",
 ]
 
 
@@ -49,6 +54,9 @@ class Candidate:
     to_model_effects: Callable[[dict[str, float]], dict[str, float]]
     admissible: Callable[[dict[str, float]], str | None]  # None, or why the fit is unphysical
     tau_grid: np.ndarray | None = None  # time constants tried [s] (lag effects)
+    # "physical": to_model_effects gives RigParams effect fields (the plant); "measurement": it
+    # gives MeasurementModel fields (how the angles are read)
+    kind: str = "physical"
 
     @property
     def is_lag(self) -> bool:
@@ -351,6 +359,88 @@ CANDIDATES: tuple[Candidate, ...] = (
         admissible=_temperature_admissible,
     ),
 )
+
+
+def eccentricity_columns(eq: RunEquations, encoder: str) -> tuple[np.ndarray, np.ndarray]:
+    """(X_upper, X_lower) [N m per rad of reading error]: the equation error's response at the
+    windows of each disk to a reading error ``cos theta`` and ``sin theta`` of ``encoder``
+    ("upper" or "lower"): on the disk whose encoder errs, its inertia, string, viscous and
+    Stribeck terms of the error; on the other disk, the string's (the twist)."""
+    p = eq.params
+    theta = eq.theta_l if encoder == "lower" else eq.theta_u
+    speed = eq.speed_l if encoder == "lower" else eq.speed_u
+    basis = [np.cos(theta), np.sin(theta)]
+    rates = [-np.sin(theta) * speed, np.cos(theta) * speed]  # d/dt of the basis
+    h2 = eq.h**2
+    out: dict[str, np.ndarray] = {}
+    for disk in ("upper", "lower"):
+        w = eq.upper if disk == "upper" else eq.lower
+        cols = []
+        for e, de in zip(basis, rates, strict=True):
+            g = eq.gather(e, w.centers) if len(w) else np.zeros((0, eq.offsets.size))
+            if disk == encoder:
+                if disk == "lower":
+                    lin = (
+                        p.lower_inertia * eq.w_d2
+                        + p.string_stiffness * eq.w_tri
+                        + p.lower_viscous * eq.w_rate
+                    )
+                    col = g @ lin / h2
+                    slope = stribeck_slope(p, np.abs(eq.speed_l)) * np.sign(eq.speed_l)
+                    col = col + w.sign * eq.kernel(slope * de, "lower")
+                else:
+                    b = np.where(w.sign > 0, p.upper_viscous_pos, p.upper_viscous_neg)
+                    col = (p.upper_inertia * (g @ eq.w_d2) + p.string_stiffness * (g @ eq.w_tri)) / h2
+                    col = col + b * (g @ eq.w_rate) / h2
+            else:
+                col = -p.string_stiffness * (g @ eq.w_tri) / h2
+            cols.append(col)
+        out[disk] = np.column_stack(cols) if len(w) else np.zeros((0, 2))
+    return out["upper"], out["lower"]
+
+
+def _eccentricity_parameters(disk: str):
+    # e = c cos(theta) + s sin(theta) = a sin(theta + phi): c = a sin(phi), s = a cos(phi)
+    def conv(coef, tau=None):
+        return {
+            f"{disk}_encoder_eccentricity": math.hypot(coef[0], coef[1]),
+            f"{disk}_encoder_phase": math.atan2(coef[0], coef[1]) % (2 * math.pi),
+        }
+
+    return conv
+
+
+def _eccentricity_admissible(disk: str):
+    def check(par):
+        a = par[f"{disk}_encoder_eccentricity"]
+        if a >= MAX_ENCODER_ECCENTRICITY:
+            return (
+                f"{disk}_encoder_eccentricity = {a:.3g} rad >= {MAX_ENCODER_ECCENTRICITY:g} rad is no "
+                "small once-per-revolution reading error"
+            )
+        return None
+
+    return check
+
+
+def _eccentricity(disk: str) -> Candidate:
+    return Candidate(
+        name=f"encoder_eccentricity_{disk}",
+        title=f"eccentric {disk} encoder (once-per-revolution angle reading error)",
+        form=f"theta_{disk[0]},read = theta_{disk[0]} + a sin(theta_{disk[0]} + phi): a measurement effect, no torque",
+        signature=f"residual on both disks following the model's response to a reading error cos/sin of "
+        f"theta_{disk[0]}: a line at the {disk} disk's rotation rate, largest where the {disk} disk "
+        "accelerates",
+        n_params=2,
+        columns=lambda eq: eccentricity_columns(eq, disk),
+        to_parameters=_eccentricity_parameters(disk),
+        to_model_effects=lambda par: dict(par),
+        admissible=_eccentricity_admissible(disk),
+        kind="measurement",
+    )
+
+
+CANDIDATES = CANDIDATES + (_eccentricity("lower"), _eccentricity("upper"))
 
 
 def candidate_names() -> list[str]:

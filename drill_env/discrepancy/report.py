@@ -351,6 +351,84 @@ def _sensor_lines(res) -> list[str]:
     ]
 
 
+def _rotation_section(res) -> list[str]:
+    """A named effect locked to a disk's rotation: the physical and the sensor explanation side
+    by side, with their held-out scores, and what each means on the rig."""
+    from drill_env.discrepancy.effects import CANDIDATES
+
+    kinds = {c.name: c.kind for c in CANDIDATES}
+    d = res.decision
+    disks = []
+    for e in res.effects:
+        for disk in ("lower", "upper"):
+            if e in (f"position_friction_{disk}", f"encoder_eccentricity_{disk}") and disk not in disks:
+                disks.append(disk)
+    if not disks:
+        return []
+    lines = ["## Sensor or friction?", ""]
+    for disk in disks:
+        names = (f"encoder_eccentricity_{disk}", f"position_friction_{disk}")
+        scores = {s.name: s for s in d.scores if s.name in names}
+        rows = [
+            [
+                n,
+                "sensor" if kinds[n] == "measurement" else "physical",
+                "no torque: the angle is read wrong, a sin(theta + phi) once per revolution"
+                if kinds[n] == "measurement"
+                else "a friction that changes with the disk's angle",
+                scores[n].gain,
+                scores[n].threshold,
+                scores[n].significant,
+                ", ".join(f"{k}={v:.4g}" for k, v in scores[n].parameters.items()),
+                "named" if n in res.effects else "",
+            ]
+            for n in names
+            if n in scores
+        ]
+        named = next(n for n in names if n in res.effects)
+        if kinds[named] == "measurement":
+            m = res.measurement
+            a = getattr(m, f"{disk}_encoder_eccentricity") if m is not None else float("nan")
+            phi = getattr(m, f"{disk}_encoder_phase") if m is not None else float("nan")
+            what = (
+                f"**A sensor effect.** The {disk} encoder reads its disk's angle wrong once per revolution: "
+                f"reading = theta + a sin(theta + phi) with a = {a:.4g} rad ({a * 180 / 3.141592653589793:.3g} "
+                f"deg) and phi = {phi:.4g} rad. It exerts no torque: the rig moves as the plant says, "
+                "and the corrected model's plant has no effect for it; `model.yaml` holds it in its "
+                "`measurement:` section, and the simulated readings of the held-out runs (the checks below) "
+                f"went through it. On the rig: look at the {disk} encoder's mounting (an eccentric or tilted "
+                "code disk, a loose or bent coupling), not at the brake; once it is centred, record again."
+            )
+        else:
+            what = (
+                f"**A physical effect.** A friction of the {disk} disk that changes with its angle: look at "
+                f"the {disk} disk and its contact (brake pads, runout of the disk)."
+            )
+        lines += [
+            what,
+            "",
+            f"A line locked to the {disk} disk's rotation has a physical and a sensor explanation; both "
+            "are candidates of the library, scored on the same held-out runs (held-out gain against its "
+            "threshold), and the larger margin is named:",
+            "",
+            _table(
+                [
+                    "candidate",
+                    "kind",
+                    "what it is",
+                    "held-out gain",
+                    "threshold",
+                    "significant",
+                    "fitted",
+                    "",
+                ],
+                rows,
+            ),
+            "",
+        ]
+    return lines
+
+
 def _signature_section(res) -> list[str]:
     """What to look for on the rig when no library effect explains the residual."""
     sig = getattr(res, "signature", None)
@@ -451,6 +529,15 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
             "absorbs part of something the library does not hold, and would mislead a controller "
             "design. It is kept as `model_rejected.yaml` for inspection; the nominal preset stays "
             "the model to use.",
+            "",
+        ]
+    elif res.corrected is not None and getattr(res, "measurement", None) is not None:
+        lines += [
+            "The chosen model is written as `model.yaml`: the recalibrated plant (its `effects:` entry "
+            "for a physical effect) and a `measurement:` section with the encoders' reading errors. It is "
+            "a plant file: `drill-env synth --plant model.yaml` records data through those encoders and "
+            "`drill_env.plant_file.read_plant_file` reads it; `drill_env.load_params` reads plants alone "
+            "and refuses it (delete the `measurement:` section to simulate the plant alone).",
             "",
         ]
     elif res.corrected is not None:
@@ -579,6 +666,7 @@ def write_report(res, out: Path, *, figures: bool = True) -> Path:
             f"identified parameters refitted jointly): {res.second.get('reason', 'not tried')}.",
             "",
         ]
+    lines += _rotation_section(res)
     lines += _sensor_lines(res)
     lines += [
         "## Gap before and after, held-out runs",

@@ -11,9 +11,12 @@ model's response to the reading error,
 on the disk whose encoder errs (inertia, string, viscous and Stribeck terms of its own
 equation) and ``-k_theta K[e] / h^2`` on the other disk (the twist). With ``e = c cos
 theta + s sin theta`` that is two columns, linear in ``(c, s)``, fitted like a candidate's
-(coefficients common to the runs: the encoder is the same in every run). Both explanations
-are scored on the same residual and listed side by side in the report, so that a lab user
-looks at the encoder as well as at the brake.
+(coefficients common to the runs: the encoder is the same in every run). The columns
+(:func:`~drill_env.discrepancy.effects.eccentricity_columns`) make the library's measurement
+candidates ``encoder_eccentricity_<disk>``, judged by the held-out rules like every other;
+here, for a line that stays ``unexplained``, both explanations are scored on the same
+residual and listed side by side in the report, so that a lab user looks at the encoder as
+well as at the brake.
 """
 
 from __future__ import annotations
@@ -23,47 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.discrepancy.effects import CANDIDATES
-from drill_env.discrepancy.equation_error import RunEquations, stribeck_slope
+from drill_env.discrepancy.effects import CANDIDATES, eccentricity_columns
+from drill_env.discrepancy.equation_error import RunEquations
 
 __all__ = ["eccentricity_columns", "rotation_explanations"]
-
-
-def eccentricity_columns(eq: RunEquations, encoder: str) -> tuple[np.ndarray, np.ndarray]:
-    """(X_upper, X_lower) [N m per rad of reading error]: the equation error's response at the
-    windows of each disk to a reading error ``cos theta`` and ``sin theta`` of ``encoder``
-    ("upper" or "lower")."""
-    p = eq.params
-    theta = eq.theta_l if encoder == "lower" else eq.theta_u
-    speed = eq.speed_l if encoder == "lower" else eq.speed_u
-    basis = [np.cos(theta), np.sin(theta)]
-    rates = [-np.sin(theta) * speed, np.cos(theta) * speed]  # d/dt of the basis
-    h2 = eq.h**2
-    out: dict[str, np.ndarray] = {}
-    for disk in ("upper", "lower"):
-        w = eq.upper if disk == "upper" else eq.lower
-        cols = []
-        for e, de in zip(basis, rates, strict=True):
-            g = eq.gather(e, w.centers) if len(w) else np.zeros((0, eq.offsets.size))
-            if disk == encoder:
-                if disk == "lower":
-                    lin = (
-                        p.lower_inertia * eq.w_d2
-                        + p.string_stiffness * eq.w_tri
-                        + p.lower_viscous * eq.w_rate
-                    )
-                    col = g @ lin / h2
-                    slope = stribeck_slope(p, np.abs(eq.speed_l)) * np.sign(eq.speed_l)
-                    col = col + w.sign * eq.kernel(slope * de, "lower")
-                else:
-                    b = np.where(w.sign > 0, p.upper_viscous_pos, p.upper_viscous_neg)
-                    col = (p.upper_inertia * (g @ eq.w_d2) + p.string_stiffness * (g @ eq.w_tri)) / h2
-                    col = col + b * (g @ eq.w_rate) / h2
-            else:
-                col = -p.string_stiffness * (g @ eq.w_tri) / h2
-            cols.append(col)
-        out[disk] = np.column_stack(cols) if len(w) else np.zeros((0, 2))
-    return out["upper"], out["lower"]
 
 
 def _drop(eqs: list[RunEquations], columns) -> tuple[float, np.ndarray]:

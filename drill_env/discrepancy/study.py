@@ -8,8 +8,10 @@ without ever seeing the answer. The grid (:data:`CONDITIONS` x :func:`truths`):
   and nothing else) and 1 mrad, times a relative error of every identified parameter of
   the truth of 0, 2 % and 5 % (drawn per dataset);
 * truths: no effect (the right verdict is ``none`` with exact parameters and
-  ``recalibrated`` with parameter errors), each library effect alone, two library effects
-  at once (:data:`PAIRS`), and an effect outside the library (``unexplained``).
+  ``recalibrated`` with parameter errors), each library effect alone (the physical ones and
+  the two encoder eccentricities, measurement effects), two library effects at once
+  (:data:`PAIRS`), an effect outside the library (``unexplained``), and recordings whose
+  time stamps jitter (:data:`JITTERED`: the verdict of the same truth on a uniform clock).
 
 It tabulates the confusion matrix (truth x verdict), the accuracy per condition, the
 false-discovery rate (a named effect that is not in the truth), the false-alarm rate
@@ -72,9 +74,15 @@ PAIRS: tuple[tuple[str, str], ...] = (
     ("position_friction_lower", "motor_inductance"),
     ("position_friction_upper", "string_damping"),
 )
+# Jittered sampling: time stamps off by up to +-JITTER of the period (uniform), as a PC-based DAQ
+# or a control loop's log gives them, with no effect and with the paper's effect; the right
+# verdict is the one on a uniform clock. Their seeds are apart from the uniform cells' (see _jobs).
+JITTER = 0.08  # [periods]
+JITTERED: tuple[tuple[tuple[str, ...], float], ...] = (((), JITTER), (("position_friction_lower",), JITTER))
 MAGNITUDE_FACTORS = (0.1, 0.3, 1.0)
 SWEEP_CONDITION = (0.0, 0.02)  # (angle noise [rad], parameter error [-]) of the magnitude sweep
-# Seeds: the grid uses 10000 + 100 * (condition index) + s, the sweep 20000 + 100 * (factor index) + s,
+# Seeds: the grid uses 10000 + 100 * (condition index) + s (its jittered cells 15000 + ...), the
+# sweep 20000 + 100 * (factor index) + s,
 # s from ``first_seed`` on; s below 100 keeps every dataset of the study distinct (a study from
 # another ``first_seed`` is one on datasets the default study never saw).
 MAX_SEEDS = 100
@@ -85,10 +93,12 @@ class Truth:
     """What a dataset of the study holds: its effects (none, one or two) and the right verdict."""
 
     effects: tuple[str, ...]
+    time_jitter: float = 0.0  # [periods] of the recording's time stamps (uniform +-)
 
     @property
     def label(self) -> str:
-        return " + ".join(self.effects) if self.effects else "none"
+        base = " + ".join(self.effects) if self.effects else "none"
+        return f"{base}, jittered {self.time_jitter:.0%}" if self.time_jitter else base
 
     def expected(self, param_error: float) -> str:
         """The right ``effect`` of the verdict (for two effects: either of them)."""
@@ -102,15 +112,16 @@ class Truth:
 
 
 def truths() -> list[Truth]:
-    """The truths of the grid: none, each library effect, the pairs, the outside effect."""
+    """The truths of the grid: none, each library effect (physical and measurement), the pairs,
+    the outside effect, the jittered recordings."""
     library = [e for e, h in HIDDEN_EFFECTS.items() if h.in_library and e != "none"]
-    # the measurement effects (an encoder's reading error) are not cells of this grid
-    outside = [e for e, h in HIDDEN_EFFECTS.items() if not h.in_library and h.kind == "plant"]
+    outside = [e for e, h in HIDDEN_EFFECTS.items() if not h.in_library]
     return (
         [Truth(())]
         + [Truth((e,)) for e in library]
         + [Truth(p) for p in PAIRS]
         + [Truth((e,)) for e in outside]
+        + [Truth(e, j) for e, j in JITTERED]
     )
 
 
@@ -160,11 +171,12 @@ class _Job:
     angle_noise: float
     param_error: float
     magnitude: float | None = None  # one effect: given (sweep) or drawn
+    time_jitter: float = 0.0  # [periods] of the time stamps
 
 
 def _job_fields(job: _Job) -> dict:
     """The fields of a row that describe its dataset (not the workflow's answer)."""
-    truth = Truth(job.effects)
+    truth = Truth(job.effects, job.time_jitter)
     return {
         "part": job.part,
         "truth": truth.label,
@@ -173,6 +185,7 @@ def _job_fields(job: _Job) -> dict:
         "seed": job.seed,
         "angle_noise": job.angle_noise,
         "param_error": job.param_error,
+        "time_jitter": job.time_jitter,
         "expected": truth.expected(job.param_error),
     }
 
@@ -180,8 +193,10 @@ def _job_fields(job: _Job) -> dict:
 def _one(job: _Job, base: SynthConfig, bootstrap: int) -> dict:
     from drill_env.discrepancy.scoring import DecisionRule
 
-    cfg = replace(base, angle_noise_std=job.angle_noise, param_error=job.param_error)
-    truth = Truth(job.effects)
+    cfg = replace(
+        base, angle_noise_std=job.angle_noise, param_error=job.param_error, time_jitter=job.time_jitter
+    )
+    truth = Truth(job.effects, job.time_jitter)
     if len(job.effects) == 2:
         rng = np.random.default_rng([job.seed, 3])
         m1, m2 = (_upper_half(e, rng) for e in job.effects)
@@ -249,8 +264,12 @@ def _jobs(seeds: int, sweep_seeds: int, first_seed: int = 0) -> list[_Job]:
     jobs: list[_Job] = []
     for c, (noise, err) in enumerate(CONDITIONS):
         for tr in truths():
+            # the jittered cells on seeds of their own: datasets apart from the uniform cells'
+            at = 15_000 if tr.time_jitter else 10_000
             for s in range(first_seed, first_seed + seeds):
-                jobs.append(_Job("grid", tr.effects, 10_000 + 100 * c + s, noise, err))
+                jobs.append(
+                    _Job("grid", tr.effects, at + 100 * c + s, noise, err, time_jitter=tr.time_jitter)
+                )
     noise, err = SWEEP_CONDITION
     for k, f in enumerate(MAGNITUDE_FACTORS):
         for e, h in HIDDEN_EFFECTS.items():
@@ -543,9 +562,11 @@ def _write_markdown(
         f"{sum(r['verdict'] == 'error' for r in rows if r['part'] == 'grid')} | 0 |",
         "",
         "Right verdicts: `none` for no effect and exact parameters, `recalibrated` for no effect and "
-        "parameter errors, the effect's name (and no second one) for one library effect, both names "
+        "parameter errors, the effect's name (and no second one) for one library effect (an eccentric "
+        "encoder, `encoder_eccentricity_*`, is one: a measurement effect), both names "
         "(in either order) for two, `unexplained` for the effect outside the library (an external "
-        "torque at a frequency of its own). The recalibrated parameters are compared with the truth at the "
+        "torque at a frequency of its own); a *jittered* truth (time stamps off by up to "
+        f"+-{JITTER:.0%} of the period) has the verdict of the same truth on a uniform clock. The recalibrated parameters are compared with the truth at the "
         "nominal string stiffness, the scale the data cannot fix, on the datasets with a right verdict and "
         "a truth inside the library (where the corrected model can hold the truth; a missed or unexplained "
         "effect leaves its trace in the parameters).",
@@ -587,7 +608,7 @@ def _write_markdown(
         lines.append(f"| {k} | {pct(v)} |")
     lines += ["", "## Detectable ranges", "", "| effect | magnitude | range |", "|---|---|---|"]
     for e, spec in HIDDEN_EFFECTS.items():
-        if e != "none" and spec.kind == "plant":
+        if e != "none":
             lines.append(f"| {e} | {_md_cell(spec.magnitude_meaning)} | [{spec.low:g}, {spec.high:g}] |")
     n0, e0 = SWEEP_CONDITION
     lines += [

@@ -41,6 +41,7 @@ from drill_env.discrepancy.dataset import (
     MeasuredRun,
     write_dataset,
 )
+from drill_env.measurement import MAX_ENCODER_ECCENTRICITY, MeasurementModel
 from drill_env.outputs import atomic_write_text
 from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams, load_params
 from drill_env.sensors import MAX_ANGLE_NOISE_RAD
@@ -113,8 +114,7 @@ def _eccentricity(disk: str) -> Callable[[float, np.random.Generator], dict[str,
 def reading_error(fields_: dict[str, float], disk: str, theta: np.ndarray) -> np.ndarray:
     """The angle reading error of a disk's encoder [rad]: ``a sin(theta + phi)`` for an
     eccentric encoder disk (once per revolution), zero without one."""
-    a = fields_.get(f"{disk}_encoder_eccentricity", 0.0)
-    return a * np.sin(theta + fields_.get(f"{disk}_encoder_phase", 0.0)) if a else np.zeros_like(theta)
+    return MeasurementModel(**fields_).reading_error(disk, theta)
 
 
 def _external(amp: float, rng: np.random.Generator) -> dict[str, float]:
@@ -199,13 +199,21 @@ HIDDEN_EFFECTS: dict[str, HiddenEffect] = {
         HiddenEffect(
             "encoder_eccentricity_lower",
             "a [rad]: once-per-revolution reading error a sin(theta_l + phi) of the lower encoder "
-            "(an eccentric encoder disk; phase uniform), a measurement effect outside the candidate "
-            "library",
+            "(an eccentric encoder disk; phase uniform), a measurement effect: the plant is the preset's",
             2e-3,
             2e-2,
             _eccentricity("lower"),
-            in_library=False,
-            max_magnitude=0.2,
+            max_magnitude=MAX_ENCODER_ECCENTRICITY,
+            kind="measurement",
+        ),
+        HiddenEffect(
+            "encoder_eccentricity_upper",
+            "a [rad]: once-per-revolution reading error a sin(theta_u + phi) of the upper encoder "
+            "(an eccentric encoder disk; phase uniform), a measurement effect: the plant is the preset's",
+            2e-3,
+            2e-2,
+            _eccentricity("upper"),
+            max_magnitude=MAX_ENCODER_ECCENTRICITY,
             kind="measurement",
         ),
     )
@@ -390,7 +398,7 @@ def _simulate_run(
     cfg: SynthConfig,
     rng,
     name: str,
-    reading: dict[str, float] | None = None,
+    reading: MeasurementModel | None = None,
     delay_s: float = 0.0,
 ) -> MeasuredRun:
     from drill_env.sensors import SensorConfig, measure
@@ -445,9 +453,8 @@ def _simulate_run(
         sample_rate_hz=cfg.sample_rate_hz,
         angle_noise_std=cfg.angle_noise_std,
     )
-    if reading:
-        theta_u = theta_u + reading_error(reading, "upper", theta_u)
-        theta_l = theta_l + reading_error(reading, "lower", theta_l)
+    if reading is not None and reading.active:
+        theta_u, theta_l = reading.read(theta_u, theta_l)
     meas = measure(
         theta_u,
         theta_l,
@@ -498,6 +505,11 @@ def make_dataset(
             raise ValueError(f"second_effect: must differ from effect, got {second_effect!r} twice")
         rng2 = np.random.default_rng([seed, 2])
         _, spec2, mag2, fields2 = _truth_params(cfg.preset, second_effect, second_magnitude, rng2)
+        if spec.kind == "measurement" or spec2.kind == "measurement":
+            raise ValueError(
+                "second_effect: two effects are plant effects; a measurement effect "
+                f"({effect if spec.kind == 'measurement' else second_effect}) comes alone"
+            )
         truth = truth.replace(**fields2)
         second = {
             "effect": second_effect,
@@ -516,7 +528,7 @@ def make_dataset(
     for _ in range(cfg.random_runs):
         designs.append(_random_levels(cfg, cfg.pre_roll_s + cfg.duration_s, rng))
     for i, design in enumerate(designs):
-        reading = fields_ if spec.kind == "measurement" else None
+        reading = MeasurementModel(**fields_) if spec.kind == "measurement" else None
         runs.append(_simulate_run(truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}", reading))
         if progress is not None:
             progress(i + 1, total)
@@ -562,15 +574,19 @@ def make_plant_dataset(
     delay_s: float = 0.0,
     source: str = "plant file",
     progress: Callable[[int, int], None] | None = None,
+    measurement: MeasurementModel | None = None,
 ) -> SynthResult:
     """Record a given truth plant (a plant file's rig, effects included) like the rig: the runs
     of ``config`` through its encoders. ``delay_s`` [s] is the plant's actuator delay: the
-    recorded (asked-for) voltage leads the applied one by it. The answer names the plant's
-    effects and parameters."""
+    recorded (asked-for) voltage leads the applied one by it; ``measurement`` the reading errors
+    of its encoders (a plant file's ``measurement:`` section), applied to the true angles before
+    the encoders' quantisation. The answer names the plant's effects and parameters."""
     if not isinstance(truth, RigParams):
         raise ValueError(f"truth: expected RigParams, got {type(truth).__name__}")
     if not (math.isfinite(delay_s) and 0.0 <= delay_s <= 1.0):
         raise ValueError(f"actuator_delay: {delay_s!r} is outside the allowed range [0, 1] s")
+    if measurement is not None and not isinstance(measurement, MeasurementModel):
+        raise ValueError(f"measurement: expected a MeasurementModel, got {type(measurement).__name__}")
     cfg = config or SynthConfig()
     rng = np.random.default_rng(seed)
     total = len(cfg.voltages) + cfg.random_runs
@@ -580,7 +596,9 @@ def make_plant_dataset(
     runs: list[MeasuredRun] = []
     for i, design in enumerate(designs):
         runs.append(
-            _simulate_run(truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}", delay_s=delay_s)
+            _simulate_run(
+                truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}", measurement, delay_s=delay_s
+            )
         )
         if progress is not None:
             progress(i + 1, total)
@@ -591,7 +609,9 @@ def make_plant_dataset(
         "source": source,
         "in_library": True,
         "model_effects": effects,
-        "effects": _named_effects(truth),
+        "measurement_effects": measurement.to_dict() if measurement is not None else {},
+        "effects": _named_effects(truth)
+        + [f"encoder_eccentricity_{d}" for d in (measurement.active if measurement is not None else ())],
         "actuator_delay": delay_s,
         "parameter_errors": {
             n: float(getattr(truth, n)) / float(getattr(nominal, n)) - 1.0

@@ -60,6 +60,7 @@ from drill_env.discrepancy.verdict import (
     sensor_worse,
     split_runs,
 )
+from drill_env.measurement import MeasurementModel, write_model_yaml
 from drill_env.outputs import atomic_write_text, output_lock
 from drill_env.params import ParameterError, RigParams, load_params, validity_warnings
 
@@ -90,6 +91,8 @@ class DiscrepancyResult:
     signature: LineSignature | None = None  # what an unexplained line is locked to
     # the chosen model against the nominal one in sensor space, held-out runs (see model_check)
     model_check: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # the chosen model's measurement model: a named encoder eccentricity (None: exact readings)
+    measurement: MeasurementModel | None = None
 
     @property
     def model_rejected(self) -> bool:
@@ -130,6 +133,7 @@ class DiscrepancyResult:
             "effects": list(self.effects),
             "recalibrated": {f.name: f.as_dict() for f in d.recalibrated},
             "model_written": self.corrected is not None and not self.model_rejected,
+            "measurement": self.measurement.to_dict() if self.measurement is not None else {},
             "model_check": self.model_check,
             "gap_before": self.gap_before,
             "gap_after": self.gap_after,
@@ -218,7 +222,13 @@ class DiscrepancyResult:
         if len(self.effects) > 1:
             par2 = ", ".join(f"{k}={v:.4g}" for k, v in self.second["parameters"].items())
             plus = f"; plus {self.effects[1]} ({par2})"
-        return f"verdict: {d.effect} (confidence {d.confidence:.2f}; {par}){plus}{cal}"
+        sensor = ""
+        if self.measurement is not None:
+            sensor = (
+                f"; a sensor effect, no torque: the {' and '.join(self.measurement.active)} encoder reads "
+                "wrong once per revolution (look at its mounting)"
+            )
+        return f"verdict: {d.effect} (confidence {d.confidence:.2f}; {par}){plus}{sensor}{cal}"
 
 
 def _where_table(eqs: list[RunEquations], nominal: dict[str, RunComparison], rule: DecisionRule):
@@ -256,9 +266,30 @@ def _second_parameters(decision: Decision, second: dict[str, Any]) -> None:
 
 def _with_second(model: RigParams, second: dict[str, Any]) -> RigParams:
     cand = next(c for c in CANDIDATES if c.name == second["named"])
+    if cand.kind == "measurement":  # the plant is unchanged: see _measurement
+        return model.replace(
+            name=f"{model.name}+{cand.name}",
+            description=f"{model.description}; plus {cand.title} (in its measurement section)",
+        )
     return model.replace(**cand.to_model_effects(second["parameters"])).replace(
         name=f"{model.name}+{cand.name}", description=f"{model.description}; plus {cand.title}"
     )
+
+
+def _measurement(decision: Decision, second: dict[str, Any] | None = None) -> MeasurementModel | None:
+    """The measurement model of a decision: the reading errors of the named measurement effects
+    (the first, and the second when ``second`` names one); None when neither is one."""
+    fields_: dict[str, float] = {}
+    named = []
+    if decision.named:
+        named.append((decision.effect, decision.named_winner.parameters))
+    if second and second.get("named"):
+        named.append((second["named"], second["parameters"]))
+    for name, par in named:
+        cand = next(c for c in CANDIDATES if c.name == name)
+        if cand.kind == "measurement":
+            fields_.update(cand.to_model_effects(par))
+    return MeasurementModel(**fields_) if fields_ else None
 
 
 def analyse(
@@ -376,10 +407,14 @@ def analyse(
         p = calibrated_params(params, decision_.parameters)
         if decision_.named:
             cand = next(c for c in CANDIDATES if c.name == decision_.effect)
-            p = p.replace(**cand.to_model_effects(decision_.named_winner.parameters))
+            if cand.kind == "physical":
+                p = p.replace(**cand.to_model_effects(decision_.named_winner.parameters))
+            where = (
+                " (a measurement effect: in the measurement section)" if cand.kind == "measurement" else ""
+            )
             return p.replace(
                 name=f"{params.name}+{decision_.effect}",
-                description=f"{params.description}; plus {cand.title} identified from measured data"
+                description=f"{params.description}; plus {cand.title} identified from measured data{where}"
                 + ("; parameters recalibrated" if decision_.recalibrated else ""),
             )
         if decision_.recalibrated:
@@ -431,6 +466,7 @@ def analyse(
                     dataset.encoder_counts_per_rev,
                     compare_config,
                     measured_cache=cache,
+                    measurement=_measurement(decision),
                 )
                 for eq in held_eqs
             }
@@ -460,10 +496,16 @@ def analyse(
                     kept = decision.parameters, decision.winner
                     _second_parameters(decision, second)  # the parameters refitted with both
                     both = _with_second(named_model(decision), second)
+                    both_meas = _measurement(decision, second)
                     decision.parameters, decision.winner = kept
                     with_both = {
                         eq.run.name: compare_run(
-                            both, eq, dataset.encoder_counts_per_rev, compare_config, measured_cache=cache
+                            both,
+                            eq,
+                            dataset.encoder_counts_per_rev,
+                            compare_config,
+                            measured_cache=cache,
+                            measurement=both_meas,
                         )
                         for eq in held_eqs
                     }
@@ -479,17 +521,24 @@ def analyse(
                         effects.append(second["named"])
                         _second_parameters(decision, second)
         corrected = model_of(decision)
+        measurement = _measurement(decision, second if len(effects) > 1 else None)
         if len(effects) > 1:
             corrected = _with_second(named_model(decision), second)
         if corrected is not None and not after:
             for i, eq in enumerate(held_eqs):
                 after[eq.run.name] = compare_run(
-                    corrected, eq, dataset.encoder_counts_per_rev, compare_config, measured_cache=cache
+                    corrected,
+                    eq,
+                    dataset.encoder_counts_per_rev,
+                    compare_config,
+                    measured_cache=cache,
+                    measurement=measurement,
                 )
                 if progress:
                     progress("simulate corrected", i + 1, len(held_eqs))
     else:
         corrected = model_of(decision)
+        measurement = _measurement(decision)
         if decision.named:
             effects = [decision.effect]
             second = second_effect(decision, stats_cal, setup, rule=rule)
@@ -497,6 +546,7 @@ def analyse(
                 effects.append(second["named"])
                 _second_parameters(decision, second)
                 corrected = _with_second(named_model(decision), second)
+                measurement = _measurement(decision, second)
     second.pop("parameter_fits", None)  # in decision.parameters now
     timings["simulate"] = time.perf_counter() - t2
     where = _where_table(eqs, nominal, rule)
@@ -559,6 +609,7 @@ def analyse(
         timings=timings,
         signature=signature,
         model_check=model_check,
+        measurement=measurement,
     )
 
 
@@ -601,12 +652,13 @@ def run_discrepancy(
         res = analyse(dataset, heldout=heldout, seed=seed, progress=progress, rule=rule, params=params)
         if res.corrected is not None and res.model_rejected:
             worse = ", ".join(res.model_check["worse"])
-            res.corrected.replace(
+            rejected = res.corrected.replace(
                 description=f"{res.corrected.description}; NOT THE RESULT: it makes {worse} worse than "
                 "the nominal model on the held-out runs"
-            ).to_yaml(out / "model_rejected.yaml")
+            )
+            write_model_yaml(rejected, out / "model_rejected.yaml", res.measurement)
         elif res.corrected is not None:
-            res.corrected.to_yaml(out / "model.yaml")
+            write_model_yaml(res.corrected, out / "model.yaml", res.measurement)
         atomic_write_text(out / "result.json", json.dumps(_jsonable(res.result_json()), indent=2) + "\n")
         from drill_env.discrepancy.report import write_report
 
