@@ -282,6 +282,15 @@ def summarise(runs: list[dict]) -> list[dict]:
     return out
 
 
+def _env_id_of(runs: list[dict], algo: str, preset: str) -> str:
+    """The env id of the config the runs of ``algo`` on ``preset`` trained with."""
+    import yaml
+
+    configs = {r["config"] for r in runs if r["algo"] == algo and r["preset"] == preset}
+    ids = sorted({yaml.safe_load((ROOT / c).read_text())["env_id"] for c in configs})
+    return ", ".join(ids)
+
+
 def write_curves(runs: list[dict], out: Path) -> None:
     """``curves.csv`` (one row per check) and ``learning_curves_<rig>.png``: 1 - the smaller
     of the two cycle regimes' suppression and the training return against env-steps and
@@ -336,7 +345,7 @@ def write_curves(runs: list[dict], out: Path) -> None:
                 rhi=("training_return", "max"),
                 rmid=("training_return", "median"),
             ).loc[keep]
-            label = f"{algo} (median of {da['seed'].nunique()} seeds, range shaded)"
+            label = f"{algo} on {_env_id_of(runs, algo, preset)} (median of {da['seed'].nunique()} seeds, range shaded)"
             for col, x in ((0, agg["steps"] / 1e6), (1, agg["wall"])):
                 ax = axes[0, col]
                 gap = lambda s: np.clip(1.0 - s, 1e-4, None)  # noqa: E731
@@ -359,7 +368,7 @@ def write_curves(runs: list[dict], out: Path) -> None:
         axes[1, 0].set_ylabel("training return per episode [-]\n(each config's own training episodes)")
         axes[0, 0].legend(loc="upper right", fontsize=8)
         rig = "the braked rig" if preset == "brake" else "the rig without the brake"
-        fig.suptitle(f"Learning from scratch on {rig} (quick benchmark; v2 envs)")
+        fig.suptitle(f"Learning from scratch on {rig} (quick benchmark)")
         fig.tight_layout()
         fig.savefig(out / f"learning_curves_{preset}.png", dpi=110)
         plt.close(fig)
