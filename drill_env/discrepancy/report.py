@@ -536,8 +536,9 @@ def _timing_section(res) -> list[str]:
         "motor torque by whole samples (positive: the column lags the angles, the motor saw the voltage "
         "of a later row) and gives the drop of the sum of squares (noise units) on the runs with voltage "
         f"steps ({', '.join(lag.runs)}); nothing is fitted. A lag is claimed when it passes "
-        f"{lag.threshold:.3g} (chi-square, 1 degree of freedom, 1e-3 over the lags) on the training and "
-        "the held-out runs and beats every other lag by as much. The data are not shifted: rerun with "
+        f"{lag.threshold:.3g} (chi-square, 1 degree of freedom, 1e-3 over the lags) over all runs, is the "
+        "best lag on the training and on the held-out runs, improves both and beats every other lag by "
+        "as much. The data are not shifted: rerun with "
         "`--voltage-lag K` to analyse them re-timed.",
         "",
         _table(["voltage lag [samples]", "[ms]", "drop, training", "drop, held-out"], rows),

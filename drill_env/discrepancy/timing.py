@@ -16,8 +16,9 @@ u_motor[i - k]``), the motor saw ``u_file[i + k]`` and the residual with the rig
 at the same windows. :func:`voltage_lag_scan` computes the drop of the sum of squares (noise
 units) ``D_k = sum z^2 - sum z_k^2`` for ``k`` in ``-3..3`` over every run, on the training
 and the held-out runs separately. A lag is claimed only when the best nonzero ``k`` drops the
-sum of squares by more than the chi-square level on the training runs *and* on the held-out
-runs, the same ``k`` wins on both, and it beats every other lag clearly. Constant-voltage runs
+sum of squares by more than the chi-square level over all runs, the same ``k`` is the best on
+the training runs and on the held-out runs and improves both, and it beats every other lag
+by the chi-square level. Constant-voltage runs
 carry no information (a shift of a constant is nothing); only runs with voltage steps count.
 
 The data are never shifted here: the finding goes into the verdict and the report as a
@@ -48,7 +49,7 @@ class VoltageLag:
     dt: float  # sample period [s]
     drops_train: dict[int, float]  # per lag, drop of the sum of squares on the training runs
     drops_heldout: dict[int, float]  # the same on the held-out runs
-    threshold: float  # the drop a lag must pass on each run set
+    threshold: float  # the drop a lag must pass over all runs (and beat every other lag by)
     runs: list[str] = field(default_factory=list)  # runs with voltage steps (the evidence)
     best: int = 0  # the best nonzero lag, claimed or not
 
@@ -101,7 +102,8 @@ def _lag_drop(eq, k: int) -> float:
 def voltage_lag_scan(eqs, train: list[str], heldout: list[str], max_lag: int = MAX_VOLTAGE_LAG) -> VoltageLag:
     """Scan whole-sample offsets of the voltage column against the angles (module docstring).
 
-    ``eqs`` are the runs' equations (best at the recalibrated parameters); ``train`` and
+    ``eqs`` are the runs' equations at the nominal parameters (a recalibration absorbs part of
+    the pulses and hides the lag); ``train`` and
     ``heldout`` name the two run sets on which a lag must win."""
     lags = [k for k in range(-max_lag, max_lag + 1) if k != 0]
     stepped = [eq for eq in eqs if not eq.run.is_constant_voltage]
@@ -115,8 +117,9 @@ def voltage_lag_scan(eqs, train: list[str], heldout: list[str], max_lag: int = M
     others = [tr[k] + ho[k] for k in lags if k != best]
     clear = not others or tr[best] + ho[best] > max(others) + threshold
     found = (
-        tr[best] > threshold
-        and ho[best] > threshold
+        tr[best] + ho[best] > threshold
+        and tr[best] > 0.0
+        and ho[best] > 0.0  # the held-out runs confirm it: the shift improves them too
         and max(lags, key=lambda k: tr[k]) == best
         and max(lags, key=lambda k: ho[k]) == best
         and clear
