@@ -537,8 +537,8 @@ def _timing_section(res) -> list[str]:
         "of a later row) and gives the drop of the sum of squares (noise units) on the runs with voltage "
         f"steps ({', '.join(lag.runs)}); nothing is fitted. A lag is claimed when it passes "
         f"{lag.threshold:.3g} (chi-square, 1 degree of freedom, 1e-3 over the lags) over all runs, is the "
-        "best lag on the training and on the held-out runs, improves both and beats every other lag by "
-        "as much. The data are not shifted: rerun with "
+        "best lag on the training runs and improves them, is not contradicted by the held-out runs (no "
+        "other lag better there by the level, no worse by it) and beats every other lag by the level. The data are not shifted: rerun with "
         "`--voltage-lag K` to analyse them re-timed.",
         "",
         _table(["voltage lag [samples]", "[ms]", "drop, training", "drop, held-out"], rows),
