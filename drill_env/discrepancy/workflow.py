@@ -225,7 +225,7 @@ class DiscrepancyResult:
         if d.effect in ("none", "unexplained"):
             extra = ""
             if d.effect == "unexplained" and timing:
-                extra = "; the residual follows the voltage steps, re-timed by the lag below"
+                extra = "; the residual follows the voltage steps: a recording issue (RECORDING below), not the rig"
             elif d.effect == "unexplained" and self.signature is not None:
                 extra = f"; signature: {self.signature.summary()}"
             elif d.effect == "unexplained" and self.line.significant:
