@@ -241,8 +241,23 @@ def discrepancy(
         help="The nominal model as a rig YAML (e.g. the rig.yaml of `drill-env identify`); default: the "
         "preset named in dataset.json.",
     ),
+    voltage_lag: int = typer.Option(
+        0,
+        "--voltage-lag",
+        help="Samples by which the voltage column lags the angles (negative: leads), -3 to 3: the "
+        "motor is taken to have seen u[i + K] at sample i (each run loses |K| samples at one end). "
+        "Use the lag the report's *Timing of the voltage column* names; 0 analyses the file as recorded.",
+    ),
 ) -> None:
     """Find where and why measured data disagree with the nominal model; name the missing effect."""
+    from drill_env.discrepancy.timing import MAX_VOLTAGE_LAG
+
+    if not -MAX_VOLTAGE_LAG <= voltage_lag <= MAX_VOLTAGE_LAG:
+        _fail(
+            f"--voltage-lag: {voltage_lag} samples is beyond the re-timing range; allowed: whole samples "
+            f"from -{MAX_VOLTAGE_LAG} to {MAX_VOLTAGE_LAG} (a larger offset is not one clock's sampling: "
+            "align the files by their time stamps)"
+        )
     from drill_env.discrepancy.dataset import DatasetError
     from drill_env.discrepancy.workflow import run_discrepancy
     from drill_env.outputs import check_output_folder
@@ -275,6 +290,7 @@ def discrepancy(
                 seed=seed,
                 progress=progress,
                 params=nominal,
+                voltage_lag=voltage_lag,
             )
     except (DatasetError, ValueError) as exc:
         _fail(str(exc))

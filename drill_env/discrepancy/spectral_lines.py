@@ -156,6 +156,12 @@ class LineSignature:
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    def largest_residual_run(self) -> str | None:
+        """The run whose residual exceeds the noise floor the most (sum of squares minus the
+        number of windows, both disks), or None when no run's does."""
+        rows = [r for r in self.runs if r.get("excess_ss", 0.0) > 0.0]
+        return max(rows, key=lambda r: r["excess_ss"])["run"] if rows else None
+
     def summary(self) -> str:
         where = [r for r in self.runs if r["shown"]]
         volts = sorted({r["voltage_v"] for r in where if r["voltage_v"] is not None})
@@ -165,8 +171,16 @@ class LineSignature:
         }.get(self.locked_to, f"locked to the {self.locked_to} (harmonic {self.harmonic} of its angle)")
         amp = ", ".join(f"{d} disk {a:.3g} N m" for d, a in self.amplitude_nm.items())
         shown = f"shows in {len(where)} of {len(self.runs)} runs"
-        if volts:
-            shown += " (constant voltages " + ", ".join(f"{v:g}" for v in volts) + " V)"
+        if where:
+            # by name, the run with the largest residual first: where to look on the recordings
+            ranked = sorted(where, key=lambda r: -r.get("excess_ss", r.get("drop", 0.0)))
+            shown += " (" + ", ".join(r["run"] for r in ranked)
+            if volts:
+                shown += "; constant voltages " + ", ".join(f"{v:g}" for v in volts) + " V"
+            shown += ")"
+        top = self.largest_residual_run()
+        if top is not None:
+            shown += f"; largest residual: {top}"
         if not self.significant:
             return f"no line stands out (the strongest, {what}, does not pass its test); {shown}"
         out = f"{what}; torque amplitude {amp}; {shown}"
@@ -264,6 +278,8 @@ def line_signature(eqs: list[RunEquations], frequency_hz: float, alpha: float = 
     amps: dict[str, list[float]] = {"upper": [], "lower": []}
     for eq, res in zip(eqs, fits[best], strict=True):
         shown = any(d > single for d, _ in res.values())
+        # where the residual concentrates: its excess over the noise floor, both disks
+        excess = float(sum(float(w.z @ w.z) - len(w) for w in (eq.upper, eq.lower)))
         row = {
             "run": eq.run.name,
             "voltage_v": eq.run.voltage if eq.run.is_constant_voltage else None,
@@ -271,6 +287,8 @@ def line_signature(eqs: list[RunEquations], frequency_hz: float, alpha: float = 
             "upper_rotation_hz": float(np.mean(np.abs(eq.speed_u))) / (2.0 * math.pi),
             "amplitude_nm": {d: a for d, (_, a) in res.items()},
             "shown": bool(shown),
+            "drop": float(sum(d for d, _ in res.values())),
+            "excess_ss": excess,
         }
         runs.append(row)
         if shown:

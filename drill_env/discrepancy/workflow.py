@@ -51,6 +51,7 @@ from drill_env.discrepancy.parameter_selection import (
 from drill_env.discrepancy.scoring import CalibrationSetup, DecisionRule, run_statistics
 from drill_env.discrepancy.sensor_effects import rotation_explanations
 from drill_env.discrepancy.spectral_lines import LineScan, LineSignature, line_scan, line_signature
+from drill_env.discrepancy.timing import VoltageLag, shift_voltage, voltage_lag_scan
 from drill_env.discrepancy.verdict import (
     NOT_AN_EFFECT,
     Decision,
@@ -93,6 +94,8 @@ class DiscrepancyResult:
     model_check: dict[str, Any] = dataclasses.field(default_factory=dict)
     # the chosen model's measurement model: a named encoder eccentricity (None: exact readings)
     measurement: MeasurementModel | None = None
+    # the voltage column's timing against the angles (a recording issue, see timing.py)
+    voltage_lag: VoltageLag | None = None
 
     @property
     def model_rejected(self) -> bool:
@@ -135,6 +138,15 @@ class DiscrepancyResult:
             "model_written": self.corrected is not None and not self.model_rejected,
             "measurement": self.measurement.to_dict() if self.measurement is not None else {},
             "model_check": self.model_check,
+            "voltage_lag": {
+                "found": bool(self.voltage_lag is not None and self.voltage_lag.found),
+                "samples": self.voltage_lag.lag if self.voltage_lag is not None else 0,
+                "seconds": self.voltage_lag.lag * self.voltage_lag.dt
+                if self.voltage_lag is not None
+                else 0.0,
+                "applied_samples": int(self.dataset.meta.get("voltage_lag_samples", 0)),
+                "scan": self.voltage_lag.as_dict() if self.voltage_lag is not None else None,
+            },
             "gap_before": self.gap_before,
             "gap_after": self.gap_after,
             "heldout_runs": d.heldout_runs,
@@ -181,6 +193,8 @@ class DiscrepancyResult:
 
     def verdict_line(self) -> str:
         line = self._verdict_line()
+        if self.voltage_lag is not None and self.voltage_lag.found:
+            line += "; " + self.voltage_lag.describe()  # a recording issue, not the rig's physics
         far = [f for f in self.decision.recalibrated if f.out_of_prior]
         if far:
             line += "; OUT OF PRIOR: " + ", ".join(
@@ -207,9 +221,12 @@ class DiscrepancyResult:
             what = f"refitted, within their intervals: {', '.join(within)}"
             moved = f"{moved} ({what})" if moved else what
         cal = f"; recalibrated: {moved}" if moved else ""
+        timing = self.voltage_lag is not None and self.voltage_lag.found
         if d.effect in ("none", "unexplained"):
             extra = ""
-            if d.effect == "unexplained" and self.signature is not None:
+            if d.effect == "unexplained" and timing:
+                extra = "; the residual follows the voltage steps: a recording issue (RECORDING below), not the rig"
+            elif d.effect == "unexplained" and self.signature is not None:
                 extra = f"; signature: {self.signature.summary()}"
             elif d.effect == "unexplained" and self.line.significant:
                 rel = "locked to rotation" if self.line.related_to_rotation else "unrelated to rotation"
@@ -389,6 +406,9 @@ def analyse(
     # the residual once the parameters are right: a line (and its signature) is scanned there
     eqs_line = recalibrated_equations(eqs_cal, stats_cal, train, held, setup, rule)
     line = line_scan(eqs_line, rule)
+    # the timing on the nominal model's residual: a recalibration absorbs part of the pulses a
+    # mistimed voltage leaves at each step, and re-timing then leaves the absorbed part behind
+    voltage_lag = voltage_lag_scan(eqs, train, held)
     kinds = {r.name: ("constant" if r.is_constant_voltage else "varying") for r in dataset.runs}
     decision = decide(
         stats_cal,
@@ -610,6 +630,7 @@ def analyse(
         signature=signature,
         model_check=model_check,
         measurement=measurement,
+        voltage_lag=voltage_lag,
     )
 
 
@@ -638,6 +659,7 @@ def run_discrepancy(
     progress: Callable[[str, int, int], None] | None = None,
     rule: DecisionRule | None = None,
     params: RigParams | None = None,
+    voltage_lag: int = 0,
 ) -> DiscrepancyResult:
     """Run the workflow on a dataset folder and write ``report.md``, ``result.json``,
     the figures and the chosen model under ``out``, which is held for this run alone
@@ -645,8 +667,9 @@ def run_discrepancy(
     differs from the nominal one) is ``model.yaml``, unless it simulates worse than the
     nominal model on the held-out runs (:attr:`DiscrepancyResult.model_rejected`): then it is
     ``model_rejected.yaml``, with the reason in its description, and no ``model.yaml`` is
-    written."""
-    dataset = load_dataset(data_dir)
+    written. ``voltage_lag`` re-times the voltage column by whole samples before the analysis
+    (:func:`drill_env.discrepancy.timing.shift_voltage`; 0: as recorded)."""
+    dataset = shift_voltage(load_dataset(data_dir), voltage_lag)
     out = Path(out)
     with output_lock(out, "discrepancy"):
         res = analyse(dataset, heldout=heldout, seed=seed, progress=progress, rule=rule, params=params)
