@@ -113,9 +113,12 @@ def test_cli_end_to_end(tmp_path):
         "model_written",
         "model_check",
         "measurement",
+        "voltage_lag",
     }
     assert result["model_written"] is True and result["model_check"]["worse"] == []
     assert result["measurement"] == {}  # a physical effect: the readings are exact
+    # one clock: no lag claimed, none applied
+    assert result["voltage_lag"]["found"] is False and result["voltage_lag"]["applied_samples"] == 0
     assert result["effect"] in RESULT_EFFECTS and result["effect"] == "friction_drift"
     assert abs(result["parameters"]["friction_drift"]) == pytest.approx(0.001, rel=0.1)
     assert (
