@@ -98,10 +98,11 @@ def test_action_range_and_mode_arguments():
             gym.make("DrillString-v2", **kwargs)
 
 
-def test_native_vector_env_v2_equals_single_envs():
+@pytest.mark.parametrize("env_id", ["DrillStringNoBrake-v2", "DrillString-v3"])
+def test_native_vector_env_equals_single_envs(env_id):
     n = 3
-    vec = gym.make_vec("DrillStringNoBrake-v2", num_envs=n, warmup_time=2.0)
-    singles = [gym.make("DrillStringNoBrake-v2", warmup_time=2.0) for _ in range(n)]
+    vec = gym.make_vec(env_id, num_envs=n, warmup_time=2.0)
+    singles = [gym.make(env_id, warmup_time=2.0) for _ in range(n)]
     obs, _ = vec.reset(seed=[11, 12, 13])
     for k, env in enumerate(singles):
         o, _ = env.reset(seed=11 + k)

@@ -40,6 +40,8 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from drill_env.discrepancy.calibrate import calibration_columns
+
 __all__ = ["MAX_VOLTAGE_LAG", "VoltageLag", "shift_voltage", "voltage_lag_scan"]
 
 MAX_VOLTAGE_LAG = 3  # samples either way: the scan's range and --voltage-lag's bound
@@ -120,8 +122,6 @@ def voltage_lag_scan(eqs, train: list[str], heldout: list[str], max_lag: int = M
     ``heldout`` name the two run sets on which a lag must win."""
     lags = [k for k in range(-max_lag, max_lag + 1) if k != 0]
     stepped = [eq for eq in eqs if not eq.run.is_constant_voltage]
-    from drill_env.discrepancy.calibrate import calibration_columns
-
     cols = {eq.run.name: calibration_columns(eq)[0] for eq in stepped}
     drops = {k: {eq.run.name: _lag_drop(eq, k, cols[eq.run.name]) for eq in stepped} for k in lags}
     tr = {k: float(sum(v for n, v in d.items() if n in train)) for k, d in drops.items()}
