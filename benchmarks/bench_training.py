@@ -15,6 +15,11 @@ Two measurements:
      gradient step of 256 per env-step) against the shipped ``configs/agents/sac.yaml``
      (many rigs, large batches, few gradient steps per env-step). Target >= 20x.
 
+   * ``--contrib``: also sb3-contrib's TQC and CrossQ on the shipped SAC recipe with the
+     algorithm swapped (``configs/agents/experiments/tqc.yaml``, ``crossq.yaml``), for the
+     shipped SAC's number of steps, each against the same SAC baseline (no target: what they
+     cost against SAC on this CPU).
+
 2. **Time to a suppressing policy** (``--time-to-policy``): train each algorithm's shipped
    config of each rig and run the quick benchmark every ``--check-every`` env-steps
    (``--check-every-sac`` for SAC); report the training wall time (benchmark runs excluded)
@@ -37,6 +42,7 @@ Run::
 
     python benchmarks/bench_training.py                    # throughput, ~4 minutes
     python benchmarks/bench_training.py --time-to-policy --from-scratch --seeds 1,2,3 --jobs 2
+    python benchmarks/bench_training.py --algos sac --contrib   # SAC, TQC, CrossQ
     python benchmarks/bench_training.py --quick            # a smoke test, seconds
 """
 
@@ -54,6 +60,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+CONTRIB_CONFIGS = {"tqc": "experiments/tqc.yaml", "crossq": "experiments/crossq.yaml"}  # --contrib
 SPEEDUP_TARGET = {"ppo": 5.0, "sac": 20.0}  # env-steps per wall second, shipped config over its baseline
 THROUGHPUT_BASELINE = {"ppo": "v0/ppo.yaml", "sac": "experiments/sac_v1.yaml"}
 TIME_TO_POLICY_TARGET_S = 300.0  # training wall time to a suppressing policy, per algorithm and rig
@@ -448,6 +455,11 @@ def main(argv: list[str] | None = None) -> int:
         "(the machine is shared: the best run is the one least disturbed)",
     )
     ap.add_argument("--no-throughput", action="store_true", help="skip the throughput measurement")
+    ap.add_argument(
+        "--contrib",
+        action="store_true",
+        help="also time sb3-contrib's TQC and CrossQ on the SAC recipe (needs --algos with sac)",
+    )
     ap.add_argument("--time-to-policy", action="store_true", help="also train and run the quick benchmark")
     ap.add_argument("--check-every", type=int, default=250_000, help="PPO env-steps between quick benchmarks")
     ap.add_argument(
@@ -457,7 +469,7 @@ def main(argv: list[str] | None = None) -> int:
         "--budget", type=float, default=300.0, help="training wall seconds per run before giving up"
     )
     ap.add_argument("--from-scratch", action="store_true", help="the from-scratch configs (see above)")
-    ap.add_argument("--algos", default="ppo,sac", help="algorithms of --time-to-policy (ppo, sac)")
+    ap.add_argument("--algos", default="ppo,sac", help="algorithms measured (ppo, sac)")
     ap.add_argument("--presets", default="brake,no_brake", help="rigs of --time-to-policy")
     ap.add_argument("--seeds", default="1", help="training seeds of --time-to-policy, e.g. 1,2,3")
     ap.add_argument(
@@ -485,6 +497,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--presets: expected a comma-separated subset of {list(PRESETS)}, got {a.presets!r}")
     if not a.from_scratch and "sac" in algos and a.time_to_policy:
         algos = [x for x in algos if x != "sac"]  # the warm-start mode has PPO recipes only
+    if a.contrib and ("sac" not in algos or a.no_throughput):
+        ap.error(
+            "--contrib: times TQC and CrossQ against SAC's baseline; needs sac in --algos and the throughput"
+        )
     seeds = _int_list(a.seeds, "seeds", ap)
     if a.report_only:
         if a.out is None or not (a.out / "time_to_policy.json").is_file():
@@ -505,7 +521,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         result["throughput"] = {}
         # SAC's baseline runs ~140 env-steps/s: timed once (a repeat would cost minutes)
-        for algo, steps, repeats in (("ppo", a.steps, a.repeats), ("sac", a.sac_steps, 1)):
+        cases = (("ppo", a.steps, a.repeats), ("sac", a.sac_steps, 1))
+        for algo, steps, repeats in (c for c in cases if c[0] in algos):
             base = new = 0.0
             for _ in range(repeats):
                 base = max(base, throughput(CONFIGS / THROUGHPUT_BASELINE[algo], steps))
@@ -518,6 +535,21 @@ def main(argv: list[str] | None = None) -> int:
                 f"ratio {new / base:5.1f}x   (target >= {SPEEDUP_TARGET[algo]:g}x: {'met' if ok else 'MISSED'})",
                 flush=True,
             )
+            if algo == "sac" and a.contrib:
+                for other, config in CONTRIB_CONFIGS.items():
+                    rate = throughput(CONFIGS / config, steps * 10)
+                    result["throughput"][other] = {
+                        "config": config,
+                        "baseline": base,
+                        "steps_per_s": rate,
+                        "ratio": rate / base,
+                        "vs_shipped_sac": rate / new,
+                    }
+                    print(
+                        f"  {other}: ({config}) {rate:9.0f}   ratio {rate / base:5.1f}x the SAC baseline, "
+                        f"{rate / new:4.2f}x the shipped SAC",
+                        flush=True,
+                    )
     if a.time_to_policy:
         cases = []
         for algo in algos:

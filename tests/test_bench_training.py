@@ -17,28 +17,32 @@ ROOT = Path(__file__).resolve().parent.parent
 TRAINING = ROOT / "results" / "training"
 
 
-def test_time_to_policy_writes_the_json_curves_and_figures(tmp_path):
-    out = tmp_path / "training"
-    res = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "benchmarks" / "bench_training.py"),
-            "--quick",
-            "--no-throughput",
-            "--time-to-policy",
-            "--from-scratch",
-            "--algos",
-            "ppo",
-            "--presets",
-            "no_brake",
-            "--seeds",
-            "3",
-            "--out",
-            str(out),
-        ],
+def bench_training(*args: str, timeout: float) -> subprocess.CompletedProcess:
+    """``python benchmarks/bench_training.py ARGS`` from the checkout, as a user runs it."""
+    return subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_training.py"), *args],
         cwd=ROOT,
         capture_output=True,
         text=True,
+        timeout=timeout,
+    )
+
+
+def test_time_to_policy_writes_the_json_curves_and_figures(tmp_path):
+    out = tmp_path / "training"
+    res = bench_training(
+        "--quick",
+        "--no-throughput",
+        "--time-to-policy",
+        "--from-scratch",
+        "--algos",
+        "ppo",
+        "--presets",
+        "no_brake",
+        "--seeds",
+        "3",
+        "--out",
+        str(out),
         timeout=600,
     )
     assert res.returncode in (0, 1) and "Traceback" not in res.stderr, res.stderr[-3000:]
@@ -61,13 +65,7 @@ def test_time_to_policy_writes_the_json_curves_and_figures(tmp_path):
     assert (out / "learning_curves_no_brake.png").stat().st_size > 10_000
     assert "| ppo | no_brake | `configs/agents/ppo_no_brake.yaml` |" in (out / "summary.md").read_text()
     # bad input: exit 2 with the field named
-    bad = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "bench_training.py"), "--seeds", "1,x"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    bad = bench_training("--seeds", "1,x", timeout=60)
     assert bad.returncode == 2 and "--seeds" in bad.stderr and "Traceback" not in bad.stderr
 
 
@@ -99,3 +97,20 @@ def test_committed_time_to_policy_follows_from_its_curves():
         if s["median_time_to_target_s"] is not None:
             assert s["median_time_to_target_s"] == pytest.approx(median)
         assert s["met"] == (median < 300.0)
+
+
+@pytest.mark.slow
+def test_contrib_throughput_is_timed_against_the_same_sac_baseline():
+    res = bench_training("--quick", "--algos", "sac", "--contrib", timeout=900)
+    assert res.returncode in (0, 1) and "Traceback" not in res.stderr, res.stderr[-3000:]
+    result = json.loads(res.stdout.strip().splitlines()[-1])["throughput"]
+    assert set(result) == {"sac", "tqc", "crossq"}  # --algos sac: no PPO case
+    sac = result["sac"]
+    for algo in ("tqc", "crossq"):
+        r = result[algo]
+        assert r["config"] == f"experiments/{algo}.yaml" and r["baseline"] == sac["baseline"]
+        assert r["steps_per_s"] > 0
+        assert r["ratio"] == pytest.approx(r["steps_per_s"] / sac["baseline"])
+        assert r["vs_shipped_sac"] == pytest.approx(r["steps_per_s"] / sac["shipped"])
+    bad = bench_training("--algos", "ppo", "--contrib", timeout=60)
+    assert bad.returncode == 2 and "--contrib" in bad.stderr and "Traceback" not in bad.stderr

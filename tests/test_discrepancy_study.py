@@ -387,3 +387,26 @@ def test_a_named_lag_leaves_the_inertia_inside_its_interval(effect, seed, magnit
         (f.name, f.value, truth[f.name], f.ci95) for f in moved if not f.ci95[0] <= truth[f.name] <= f.ci95[1]
     ]
     assert not outside, outside
+
+
+@pytest.mark.parametrize("folder", ["discrepancy", "discrepancy/unseen_seeds"])
+def test_the_committed_studies_are_of_the_present_grid_and_keep_their_targets(folder):
+    """The committed studies (results/README.md) ran the grid the code has now, dataset for
+    dataset, and keep the targets: accuracy >= 95 %, no false discovery or alarm, no error,
+    recalibrated parameters inside their 95 % intervals >= 90 %."""
+    import json
+    from pathlib import Path
+
+    from drill_env.discrepancy.study import _job_fields, _jobs
+
+    root = Path(__file__).resolve().parent.parent / "results"
+    study = json.loads((root / folder / "study.json").read_text())
+    d, s = study["design"], study["summary"]
+    expected = [_job_fields(j) for j in _jobs(d["seeds"], d["sweep_seeds"], d["first_seed"])]
+    assert [{k: r[k] for k in expected[0]} for r in study["rows"]] == expected
+    assert s["accuracy"] >= 0.95 and s["errors"] == 0
+    assert s["false_discoveries"] == 0 and s["false_alarms"] == 0
+    assert s["coverage_per_parameter"] >= 0.90
+    # the page that gives the command says how many datasets it makes
+    if folder == "discrepancy":
+        assert f"on {len(study['rows'])}\nsynthetic datasets" in (root / "README.md").read_text()

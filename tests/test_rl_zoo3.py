@@ -131,3 +131,22 @@ def test_rl_zoo3_trains_the_other_algorithms(tmp_path, algo):
     )
     path = zoo_train(tmp_path, algo, 1000, *params)
     assert path.stat().st_size > 0
+
+
+def test_the_documented_rl_zoo3_commands_name_an_env_their_file_has():
+    import re
+    import shlex
+
+    commands = [
+        line
+        for page in (ROOT / "docs").rglob("*.md")
+        if "_generated" not in page.parts
+        for line in page.read_text().splitlines()
+        if line.startswith("python -m rl_zoo3.train")
+    ]
+    assert len(commands) >= 4
+    for line in commands:
+        args = shlex.split(re.sub(r"\s+#.*$", "", line))
+        algo, env_id, conf = (args[args.index(flag) + 1] for flag in ("--algo", "--env", "-conf"))
+        assert Path(conf).stem == algo, line
+        assert env_id in yaml.safe_load((ROOT / conf).read_text()), line

@@ -19,6 +19,7 @@ from drill_env.agents.learning.rl import (
     load_config,
     load_policy,
     make_train_vec_env,
+    observation_names,
     plateau,
     policy_observation_version,
     train,
@@ -46,8 +47,14 @@ SUMMARY_KEYS = {
 
 
 def small_config(algo: str, steps: int) -> TrainConfig:
-    # PPO and SAC from scratch on the v1 rigs (ppo_lqi_clone starts from a clone of the LQI)
-    name = {"ppo": "experiments/ppo_from_scratch", "sac": "experiments/sac_v1"}[algo]
+    # PPO and SAC from scratch on the v1 rigs (ppo_lqi_clone starts from a clone of the LQI);
+    # TQC and CrossQ (sb3-contrib) as their v2 trials
+    name = {
+        "ppo": "experiments/ppo_from_scratch",
+        "sac": "experiments/sac_v1",
+        "tqc": "experiments/tqc",
+        "crossq": "experiments/crossq",
+    }[algo]
     cfg = load_config(CONFIGS / f"{name}.yaml").to_dict()
     cfg.update(total_timesteps=steps, n_envs=2 if algo == "ppo" else 1)
     cfg["evaluation"] = {"every_steps": steps // 2, "episodes_per_regime": 1, "seed": 7}
@@ -59,7 +66,7 @@ def small_config(algo: str, steps: int) -> TrainConfig:
     return TrainConfig(**cfg)
 
 
-@pytest.mark.parametrize(("algo", "steps"), [("ppo", 256), ("sac", 300)])
+@pytest.mark.parametrize(("algo", "steps"), [("ppo", 256), ("sac", 300), ("tqc", 300), ("crossq", 300)])
 def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
     cfg = small_config(algo, steps)
     summary = train(cfg, 3, tmp_path / "out", tmp_path / "run", progress_bar=False)
@@ -81,6 +88,12 @@ def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
     policy.check_env(env)
     a, _ = policy.predict(env.reset(seed=0)[0], deterministic=True)
     assert a.shape == (1,) and -1.0 <= a[0] <= 1.0
+    # the numpy actor (PPO, SAC, TQC) or SB3's own predict (CrossQ's batch-renormalised
+    # actor, in its evaluation mode) gives the saved model's deterministic action
+    obs = np.stack([env.reset(seed=k)[0] for k in range(8)])
+    sb3, _ = policy.model.predict(obs, deterministic=True)
+    np.testing.assert_allclose(policy.predict(obs, deterministic=True)[0], sb3, atol=1e-5)
+    assert (policy._actor is None) == (algo == "crossq")
 
 
 @pytest.mark.parametrize("name", ["ppo", "sac", "ppo_lqi_clone"])
@@ -109,6 +122,30 @@ def test_committed_policy_loads_and_is_evaluated(name):
     assert np.isfinite(m.amplitude) and 0.0 <= m.u_peak_abs <= 5.0
     # the committed policy learnt something: it beats open loop on the Hopf cycle at 1 V
     assert m.suppression > 0.5
+
+
+def test_contrib_algorithms_train_what_the_config_says_and_refuse_what_they_cannot(tmp_path, monkeypatch):
+    import sys
+
+    import torch
+    from sb3_contrib import TQC, CrossQ
+
+    from drill_env.agents.learning.rl import _algo_class
+
+    assert _algo_class("tqc") is TQC and _algo_class("crossq") is CrossQ
+    cfg = small_config("crossq", 300)
+    assert cfg.ignored_observations  # as the shipped SAC recipe: the angle entries
+    train(cfg, 0, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    model = CrossQ.load(str(tmp_path / "out" / "policy.zip"), device="cpu")
+    first = next(m for m in model.policy.actor.latent_pi if isinstance(m, torch.nn.Linear))
+    columns = [observation_names(cfg.env_id).index(n) for n in cfg.ignored_observations]
+    assert torch.all(first.weight[:, columns] == 0) and torch.any(first.weight != 0)
+    for key, value in (("residual", {"base": "lqi"}), ("warm_start", {"controller": "lqi"})):
+        with pytest.raises(ValueError, match=f"{key}: available with algo ppo or sac, not tqc"):
+            TrainConfig(algo="tqc", env_id="DrillString-v2", **{key: value})
+    monkeypatch.setitem(sys.modules, "sb3_contrib", None)  # as if not installed
+    with pytest.raises(ValueError, match=r"algo: crossq needs sb3-contrib.*drill-env\[zoo\]"):
+        _algo_class("crossq")
 
 
 def test_plateau_criterion():

@@ -74,6 +74,14 @@ class PolicyDescription:
     versions: Mapping[str, str] = field(default_factory=dict)
 
 
+_ALGO_NAMES = {"ppo": "PPO", "sac": "SAC", "tqc": "TQC", "crossq": "CrossQ"}
+
+
+def algo_name(algo: str) -> str:
+    """How the algorithm is written in prose (``crossq`` -> ``CrossQ``)."""
+    return _ALGO_NAMES.get(algo, algo.upper())
+
+
 def policy_start(config: Mapping[str, Any]) -> str:
     """How a policy trained with ``config`` (a training config as a mapping) started: ``from
     scratch``, ``clone of X``, ``residual on X`` or ``residual on X, distilled from Y``."""
@@ -90,7 +98,7 @@ def policy_start(config: Mapping[str, Any]) -> str:
 def _start_details(config: Mapping[str, Any], rig: str) -> str:
     residual = config.get("residual")
     warm = config.get("warm_start") or {}
-    algo = str(config.get("algo", "")).upper()
+    algo = algo_name(str(config.get("algo", "")))
     if warm:
         rounds = warm.get("rounds", 1)
         how = (
@@ -211,7 +219,7 @@ def _steps(n: int) -> str:
 
 def policy_card(d: PolicyDescription) -> str:
     """The markdown of ``policy.md`` for policy ``d``."""
-    algo = d.algo.upper()
+    algo = algo_name(d.algo)
     config = f"`{d.config}`" if d.config else "none of the shipped configs (its `config.yaml` is the record)"
     refs = ", ".join(f"{k.replace('_', ' ')} {v:.1f}" for k, v in d.reference_returns.items())
     plants = (
@@ -318,7 +326,7 @@ def policies_table(descriptions: Sequence[PolicyDescription], agents_dir: str | 
     for d in descriptions:
         name = _relative_name(d, root)
         lines.append(
-            f"| [`{name}`]({name}/{CARD}) | {d.algo.upper()} | `{d.env_id}` | {d.start} | "
+            f"| [`{name}`]({name}/{CARD}) | {algo_name(d.algo)} | `{d.env_id}` | {d.start} | "
             + (f"`{d.config}`" if d.config else "-")
             + f" | {_steps(d.total_timesteps)} | {d.best_eval_return:.1f} | {'yes' if d.converged else 'no'} |"
         )

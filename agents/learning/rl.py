@@ -3,7 +3,7 @@ policies behind the same ``predict`` as the classical controllers.
 
 A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML mapping::
 
-    algo: ppo                       # ppo or sac
+    algo: ppo                       # ppo or sac (stable-baselines3); tqc or crossq (sb3-contrib)
     env_id: DrillString-v1
     env_kwargs: {}                  # DrillStringEnv arguments
     n_envs: 64                      # parallel rigs
@@ -12,7 +12,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML map
     total_timesteps: 2000000
     normalize_reward: true          # VecNormalize on the reward only (nothing needed at inference)
     torch_threads: 1
-    hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...), incl. policy_kwargs;
+    hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...) / TQC(...) / CrossQ(...),
+                                    # incl. policy_kwargs;
                                     # learning_rate / clip_range may be lin_<value> (linear decay),
                                     # policy_kwargs.activation_fn Tanh or ReLU
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
@@ -110,7 +111,9 @@ __all__ = [
     "observation_names",
 ]
 
-ALGOS = ("ppo", "sac")
+ALGOS = ("ppo", "sac", "tqc", "crossq")
+# Algorithms of sb3-contrib (the ``zoo`` extra): off-policy learners with SAC's actor.
+CONTRIB_ALGOS = ("tqc", "crossq")
 VEC_ENVS = ("native", "dummy")
 # The policies of the repository (reviewed with it); any other policy file is untrusted.
 COMMITTED_POLICY_DIR = ROOT / "results" / "agents"
@@ -119,12 +122,21 @@ PACKAGED_POLICY_DIR = PACKAGE_DIR / "_results" / "agents"
 
 
 def _algo_class(algo: str):
+    """The stable-baselines3 (ppo, sac) or sb3-contrib (tqc, crossq) class of ``algo``."""
+    if algo not in ALGOS:
+        raise ValueError(f"algo: {algo!r} is not one of {list(ALGOS)}")
+    if algo in CONTRIB_ALGOS:
+        try:
+            import sb3_contrib
+        except ImportError:
+            raise ValueError(
+                f"algo: {algo} needs sb3-contrib, which is not installed; install it with "
+                "pip install -c constraints.txt 'drill-env[zoo]'"
+            ) from None
+        return {"tqc": sb3_contrib.TQC, "crossq": sb3_contrib.CrossQ}[algo]
     from stable_baselines3 import PPO, SAC
 
-    classes = {"ppo": PPO, "sac": SAC}
-    if algo not in classes:
-        raise ValueError(f"algo: {algo!r} is not one of {list(ALGOS)}")
-    return classes[algo]
+    return {"ppo": PPO, "sac": SAC}[algo]
 
 
 @dataclass(frozen=True)
@@ -237,6 +249,9 @@ class TrainConfig:
             if name not in names:
                 raise ValueError(f"ignored_observations: {name!r} is not one of {list(names)}")
         object.__setattr__(self, "ignored_observations", tuple(ignored))
+        if self.algo in CONTRIB_ALGOS and (self.residual is not None or self.warm_start is not None):
+            key = "residual" if self.residual is not None else "warm_start"
+            raise ValueError(f"{key}: available with algo ppo or sac, not {self.algo}")
         if self.residual is not None and self.residual.critic_burn_in and self.algo != "sac":
             raise ValueError(
                 f"residual.critic_burn_in: allowed only with algo sac (an off-policy critic), not {self.algo}"
@@ -329,7 +344,7 @@ class _DeterministicActor:
                 if type(pol.pi_features_extractor).__name__ != "FlattenExtractor":
                     return None
                 modules, squash = [*pol.mlp_extractor.policy_net, pol.action_net], False
-            elif kind in ("SACPolicy", "MlpPolicy") and hasattr(pol, "actor"):
+            elif kind in ("SACPolicy", "TQCPolicy", "MlpPolicy") and hasattr(pol, "actor"):
                 actor = pol.actor
                 if type(actor.features_extractor).__name__ != "FlattenExtractor" or getattr(
                     actor, "use_sde", False
@@ -903,7 +918,7 @@ def observation_names(env_id: str) -> tuple[str, ...]:
 
 def ignore_observations(model: Any, cfg: TrainConfig) -> None:
     """Zero the weights from ``cfg.ignored_observations`` into the first layer of the policy
-    network (PPO: the actor's MLP; SAC: the actor's) and keep them zero in training (their
+    network (PPO: the actor's MLP; SAC, TQC, CrossQ: the actor's) and keep them zero in training (their
     gradient is masked; Adam then never moves them). The saved policy is a plain MLP that
     does not depend on those entries; the value networks still see them."""
     if not cfg.ignored_observations:
@@ -913,7 +928,9 @@ def ignore_observations(model: Any, cfg: TrainConfig) -> None:
     names = observation_names(cfg.env_id)
     columns = [names.index(n) for n in cfg.ignored_observations]
     pol = model.policy
-    first = pol.actor.latent_pi[0] if hasattr(pol, "actor") else pol.mlp_extractor.policy_net[0]
+    net = pol.actor.latent_pi if hasattr(pol, "actor") else pol.mlp_extractor.policy_net
+    # the first Linear (CrossQ's actor normalises its input first, feature by feature)
+    first = next(m for m in net if isinstance(m, torch.nn.Linear))
     mask = torch.ones_like(first.weight)
     mask[:, columns] = 0.0
     with torch.no_grad():
