@@ -315,3 +315,23 @@ def test_synth_plant_with_a_bad_measurement_section_exits_2(tmp_path):
         in r.output
     )
     assert not (tmp_path / "d").exists()
+
+
+def test_a_reading_error_is_named_second_only_where_the_readings_show_it():
+    """The study's one false discovery before the readings check: position friction at the
+    lower disk under 8 % time-stamp jitter and 5 % parameter errors (seed 15202), where a 0.6
+    mrad eccentricity took 84 % of the residual the friction left in the equation error but
+    moved the held-out angle gap by half the angle noise. The study's own row, as it runs it."""
+    from drill_env.discrepancy.study import _Job, _one
+    from drill_env.discrepancy.verdict import READINGS_CHECK, readings_gain
+
+    row = _one(
+        _Job("grid", ("position_friction_lower",), 15202, 0.0, 0.05, time_jitter=0.08), SynthConfig(), 100
+    )
+    assert row["effects"] == ["position_friction_lower"] and row["correct"] and not row["false_discovery"]
+    # the rule itself: more than one angle noise closer, in the readings' own gap
+    floors = {"angle_rad": 0.001}
+    assert readings_gain({READINGS_CHECK: 0.016}, {READINGS_CHECK: 0.0155}, floors) == pytest.approx(0.5)
+    assert readings_gain({READINGS_CHECK: 0.016}, {READINGS_CHECK: 0.010}, floors) == pytest.approx(6.0)
+    assert readings_gain({}, {READINGS_CHECK: 0.01}, floors) is None
+    assert readings_gain({READINGS_CHECK: 0.016}, {READINGS_CHECK: 0.01}, {"angle_rad": 0.0}) is None

@@ -407,6 +407,111 @@ def test_the_committed_studies_are_of_the_present_grid_and_keep_their_targets(fo
     assert s["accuracy"] >= 0.95 and s["errors"] == 0
     assert s["false_discoveries"] == 0 and s["false_alarms"] == 0
     assert s["coverage_per_parameter"] >= 0.90
-    # the page that gives the command says how many datasets it makes
+    # the page that gives the command says how many datasets it makes; the front page quotes
+    # the headline as it is
     if folder == "discrepancy":
-        assert f"on {len(study['rows'])}\nsynthetic datasets" in (root / "README.md").read_text()
+        commands = " ".join((root / "README.md").read_text().split())
+        assert f"on {len(study['rows'])} synthetic datasets" in commands
+        front = " ".join((root.parent / "README.md").read_text().split())
+        assert (
+            f"right verdict on {100 * s['accuracy']:.1f} % of {s['n_datasets']} synthetic datasets" in front
+        )
+
+
+def _fake_one(calls: list, stop_after: int | None = None):
+    """A stand-in for one dataset's analysis (the orchestration is what is tested): a row from
+    the job's own fields, a verdict that depends on its seed."""
+    from drill_env.discrepancy.study import _job_fields
+
+    def one(job, base, bootstrap):
+        if stop_after is not None and len(calls) == stop_after:
+            raise KeyboardInterrupt
+        calls.append(job.seed)
+        fields = _job_fields(job)
+        right = job.seed % 7 != 0
+        return {
+            **fields,
+            "magnitudes": [],
+            "verdict": fields["expected"] if right else "unexplained",
+            "effects": [],
+            "confidence": 1.0,
+            "correct": right,
+            "false_discovery": False,
+            "false_alarm": False,
+            "parameters": [],
+            "reason": "fake",
+            "seconds": 0.0,
+        }
+
+    return one
+
+
+def test_an_interrupted_study_resumes_with_the_rows_of_one_run(tmp_path, monkeypatch):
+    """Ctrl-C leaves the finished datasets in the partial file; the same study resumed runs only
+    the others and writes what one uninterrupted run writes. Rows of another design or other
+    code, or a line cut short, are not taken."""
+    import json
+
+    import drill_env.discrepancy.study as study
+    from drill_env.discrepancy.study import PARTIAL_ROWS, _jobs, run_study
+
+    monkeypatch.setattr(study, "_plot", lambda *a, **k: None)
+    n = len(_jobs(1, 1))
+    calls: list = []
+    monkeypatch.setattr(study, "_one", _fake_one(calls))
+    run_study(tmp_path / "once", seeds=1, sweep_seeds=1)
+    once = json.loads((tmp_path / "once" / "study.json").read_text())
+    assert len(calls) == n and not (tmp_path / "once" / PARTIAL_ROWS).exists()
+
+    out = tmp_path / "resumed"
+    calls.clear()
+    monkeypatch.setattr(study, "_one", _fake_one(calls, stop_after=40))
+    with pytest.raises(KeyboardInterrupt):
+        run_study(out, seeds=1, sweep_seeds=1)
+    lines = (out / PARTIAL_ROWS).read_text().splitlines()
+    assert len(lines) == 1 + 40 and not (out / "study.json").exists()
+    # a line cut short by the interruption: that dataset runs again
+    (out / PARTIAL_ROWS).write_text("\n".join(lines) + '\n{"index": 40, "row": {"par')
+    for bad, match in ((dict(seeds=2), "design"), (dict(sweep_seeds=2), "design")):
+        with pytest.raises(ValueError, match=f"resume: .* other {match}.*--fresh"):
+            run_study(out, **{"seeds": 1, "sweep_seeds": 1, **bad}, resume=True)
+    monkeypatch.setattr(study, "code_fingerprint", lambda: "0" * 16)
+    with pytest.raises(ValueError, match=r"other code \(drill-env changed since\)"):
+        run_study(out, seeds=1, sweep_seeds=1, resume=True)
+    monkeypatch.undo()
+    monkeypatch.setattr(study, "_plot", lambda *a, **k: None)
+    calls.clear()
+    monkeypatch.setattr(study, "_one", _fake_one(calls))
+    summary = run_study(out, seeds=1, sweep_seeds=1, resume=True)
+    assert len(calls) == n - 40 and summary["resumed_datasets"] == 40
+    resumed = json.loads((out / "study.json").read_text())
+    assert resumed["rows"] == once["rows"] and resumed["design"] == once["design"]
+    for key in ("n_datasets", "accuracy", "false_discoveries", "false_alarms", "confusion"):
+        assert resumed["summary"][key] == once["summary"][key]
+    assert not (out / PARTIAL_ROWS).exists()
+
+
+def test_study_command_resumes_by_default_and_fresh_discards(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    import drill_env.discrepancy.study as study
+    from drill_env.cli import app
+    from drill_env.discrepancy.study import PARTIAL_ROWS, _jobs
+
+    monkeypatch.setattr(study, "_plot", lambda *a, **k: None)
+    n = len(_jobs(1, 1))
+    calls: list = []
+    monkeypatch.setattr(study, "_one", _fake_one(calls, stop_after=30))
+    args = ["discrepancy-study", "--out", str(tmp_path), "--seeds", "1", "--sweep-seeds", "1"]
+    args += ["--workers", "1", "--skip-paper-case"]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 130, r.output
+    assert f"{PARTIAL_ROWS}; the same command goes on from them (--fresh discards them)" in r.output
+    monkeypatch.setattr(study, "_one", _fake_one(calls))
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    assert "resumed: 30 datasets kept from the interrupted run" in r.output and len(calls) == n
+    calls.clear()
+    (tmp_path / PARTIAL_ROWS).write_text("not a header\n")
+    r = CliRunner().invoke(app, [*args, "--fresh"])
+    assert r.exit_code == 0 and "resumed" not in r.output and len(calls) == n

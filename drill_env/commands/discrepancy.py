@@ -324,6 +324,12 @@ def discrepancy_study(
     ),
     paper_case_only: bool = typer.Option(False, "--paper-case-only", help="Only the paper's case."),
     skip_paper_case: bool = typer.Option(False, "--skip-paper-case", help="Skip the paper's case."),
+    fresh: bool = typer.Option(
+        False,
+        "--fresh",
+        help="Discard the datasets an interrupted study left in OUT instead of resuming from them "
+        "(resumed only when made with the same options by the same drill-env).",
+    ),
 ) -> None:
     """Hidden-effect study under real-rig conditions (confusion matrix, false discoveries and
     alarms, interval coverage, detection vs magnitude) and the paper's case."""
@@ -390,15 +396,29 @@ def discrepancy_study(
                         elif i == n or i % max(1, n // 20) == 0:
                             typer.echo(f"{i}/{n} datasets, {time.perf_counter() - t0:.0f} s")
 
-                    summary = run_study(
-                        out,
-                        seeds=seeds,
-                        sweep_seeds=sweep_seeds,
-                        first_seed=first_seed,
-                        workers=workers,
-                        progress=progress,
-                        backend=backend,
-                        ray_address=ray_address,
+                    try:
+                        summary = run_study(
+                            out,
+                            seeds=seeds,
+                            sweep_seeds=sweep_seeds,
+                            first_seed=first_seed,
+                            workers=workers,
+                            progress=progress,
+                            backend=backend,
+                            ray_address=ray_address,
+                            resume=not fresh,
+                        )
+                    except KeyboardInterrupt:
+                        from drill_env.cli import interrupted
+                        from drill_env.discrepancy.study import PARTIAL_ROWS
+
+                        interrupted(
+                            f"the datasets finished so far are in {out / PARTIAL_ROWS}; the same command "
+                            "goes on from them (--fresh discards them)"
+                        )
+                if summary.get("resumed_datasets"):
+                    typer.echo(
+                        f"resumed: {summary['resumed_datasets']} datasets kept from the interrupted run"
                     )
                 typer.echo(
                     f"accuracy {summary['accuracy']:.1%} over {summary['n_datasets']} datasets; "

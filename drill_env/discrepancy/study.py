@@ -314,6 +314,7 @@ def run_study(
     first_seed: int = 0,
     backend: str = "process",
     ray_address: str | None = None,
+    resume: bool = False,
 ) -> dict:
     """Run the study and write ``study.json``, ``confusion.md`` and the figures to ``out``.
 
@@ -323,7 +324,13 @@ def run_study(
     (``backend="process"``, a local pool), or Ray tasks on a local Ray instance with ``workers`` CPUs
     or on the cluster at ``ray_address`` (``backend="ray"``); the rows do not depend on either.
     Nothing is written unless the arguments are valid. ``base`` sets the experiment design
-    (its noise and parameter error are those of each condition)."""
+    (its noise and parameter error are those of each condition).
+
+    Every finished dataset's row is appended to ``out/PARTIAL_ROWS`` as it lands (removed once
+    ``study.json`` is written). ``resume=True`` keeps the rows found there, if the same design
+    and the same code made them (else ValueError naming the difference), and analyses only the
+    other datasets: an interrupted study goes on where it stopped, with the rows it would have
+    given in one go."""
     check_seed_count("seeds", seeds)
     check_seed_count("sweep_seeds", sweep_seeds)
     check_first_seed(first_seed, seeds, sweep_seeds)
@@ -345,27 +352,23 @@ def run_study(
             first_seed,
             backend=backend,
             ray_address=ray_address,
+            resume=resume,
         )
 
 
 BACKENDS = ("process", "ray")  # a local pool of processes; Ray tasks (a local instance or a cluster)
 
 
-def _run_ray(args, workers: int, address: str | None, rows: list, progress) -> None:
-    """Every dataset a Ray task (one CPU each); the rows land at their job's index."""
+def _run_ray(args, workers: int, address: str | None, land: Callable[[int, dict], None]) -> None:
+    """Every dataset a Ray task (one CPU each); each row is handed to ``land`` as it comes."""
     from drill_env.ray_cluster import ray_cluster
 
     with ray_cluster(workers, address) as ray:
         remote = ray.remote(num_cpus=1)(_run_job)
         pending = [remote.remote(a) for a in args]
-        k = 0
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
-            i, row = ray.get(ready[0])
-            rows[i] = row
-            k += 1
-            if progress:
-                progress(k, len(args))
+            land(*ray.get(ready[0]))
 
 
 def _run_jobs(
@@ -376,18 +379,31 @@ def _run_jobs(
     progress,
     backend: str = "process",
     ray_address: str | None = None,
+    done: dict[int, dict] | None = None,
+    on_row: Callable[[int, dict], None] | None = None,
 ) -> list[dict]:
-    """The rows of ``jobs`` in their order, analysed by ``workers`` processes or as Ray tasks."""
+    """The rows of ``jobs`` in their order, analysed by ``workers`` processes or as Ray tasks;
+    ``done`` holds rows already made (by job index; not analysed again), ``on_row`` is called
+    with each new one as it lands."""
     rows: list[dict | None] = [None] * len(jobs)
-    args = [(i, j, base, bootstrap) for i, j in enumerate(jobs)]
+    for i, row in (done or {}).items():
+        rows[i] = row
+    args = [(i, j, base, bootstrap) for i, j in enumerate(jobs) if rows[i] is None]
+    landed = [len(jobs) - len(args)]
+
+    def land(i: int, row: dict) -> None:
+        rows[i] = row
+        if on_row is not None:
+            on_row(i, row)
+        landed[0] += 1
+        if progress:
+            progress(landed[0], len(jobs))
+
     if backend == "ray":
-        _run_ray(args, workers, ray_address, rows, progress)
+        _run_ray(args, workers, ray_address, land)
     elif workers == 1:
-        for k, a in enumerate(args):
-            i, row = _run_job(a)
-            rows[i] = row
-            if progress:
-                progress(k + 1, len(jobs))
+        for a in args:
+            land(*_run_job(a))
     else:
         import multiprocessing
 
@@ -397,11 +413,8 @@ def _run_jobs(
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
         try:
             futures = [pool.submit(_run_job, a) for a in args]
-            for k, fut in enumerate(as_completed(futures)):
-                i, row = fut.result()
-                rows[i] = row
-                if progress:
-                    progress(k + 1, len(jobs))
+            for fut in as_completed(futures):
+                land(*fut.result())
         except BaseException:  # Ctrl-C or a failed dataset: the queue is not drained
             from drill_env.interrupts import stop_pool
 
@@ -409,6 +422,54 @@ def _run_jobs(
             raise
         pool.shutdown(wait=True)
     return [r for r in rows if r is not None]
+
+
+# The rows of a study in progress, one JSON line each after a header line (the design and the
+# code that makes them): what --resume goes on from.
+PARTIAL_ROWS = "study_rows.partial.jsonl"
+
+
+def code_fingerprint() -> str:
+    """A digest of the package's source files: rows made by other code are not resumed."""
+    import hashlib
+
+    package = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        digest.update(path.relative_to(package).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _resumed_rows(path: Path, header: dict, jobs: list[_Job]) -> dict[int, dict]:
+    """The rows of ``path`` (a partial file) for ``jobs``, after checking its header."""
+    lines = path.read_text().splitlines()
+    try:
+        found = json.loads(lines[0]) if lines else None
+    except json.JSONDecodeError:
+        found = None
+    if not isinstance(found, dict):
+        raise ValueError(f"resume: {path} has no header line; run with --fresh to start afresh")
+    for key in ("design", "code"):
+        if found.get(key) != header[key]:
+            what = "code (drill-env changed since)" if key == "code" else f"design {found.get(key)}"
+            raise ValueError(
+                f"resume: the rows in {path} were made by other {what}, not this study's; run with "
+                "--fresh to start afresh"
+            )
+    rows: dict[int, dict] = {}
+    for line in lines[1:]:
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a line cut short by the interruption: that dataset runs again
+        i = entry.get("index")
+        if isinstance(i, int) and 0 <= i < len(jobs):
+            row = entry.get("row", {})
+            fields = _job_fields(jobs[i])
+            if all(row.get(k) == v for k, v in fields.items()):
+                rows[i] = row
+    return rows
 
 
 def _run_study(
@@ -422,16 +483,9 @@ def _run_study(
     first_seed: int = 0,
     backend: str = "process",
     ray_address: str | None = None,
+    resume: bool = False,
 ) -> dict:
     t0 = time.perf_counter()
-    done = _run_jobs(
-        _jobs(seeds, sweep_seeds, first_seed), base, bootstrap, workers, progress, backend, ray_address
-    )
-    summary = _summarise(done)
-    summary["errors"] = sum(r["verdict"] == "error" for r in done)
-    summary["wall_seconds"] = time.perf_counter() - t0
-    summary["workers"] = workers
-    summary["backend"] = backend
     design = {
         "preset": base.preset,
         "voltages": list(base.voltages),
@@ -444,12 +498,38 @@ def _run_study(
         "first_seed": first_seed,
         "bootstrap": bootstrap,
     }
+    jobs = _jobs(seeds, sweep_seeds, first_seed)
+    # the full design (every field of the base config) and the code: what makes a row
+    header = {"design": {**design, "base": repr(base)}, "code": code_fingerprint()}
+    partial = out / PARTIAL_ROWS
+    done = _resumed_rows(partial, header, jobs) if resume and partial.is_file() else {}
+    out.mkdir(parents=True, exist_ok=True)
+    with partial.open("w") as f:  # what is kept, then each new row as it lands
+        f.write(json.dumps(header) + "\n")
+        for i, row in sorted(done.items()):
+            f.write(json.dumps({"index": i, "row": row}, default=float) + "\n")
+        f.flush()
+
+        def keep(i: int, row: dict) -> None:
+            f.write(json.dumps({"index": i, "row": row}, default=float) + "\n")
+            f.flush()
+
+        if progress and done:
+            progress(len(done), len(jobs))
+        rows = _run_jobs(jobs, base, bootstrap, workers, progress, backend, ray_address, done, keep)
+    summary = _summarise(rows)
+    summary["errors"] = sum(r["verdict"] == "error" for r in rows)
+    summary["wall_seconds"] = time.perf_counter() - t0
+    summary["workers"] = workers
+    summary["backend"] = backend
+    summary["resumed_datasets"] = len(done)
     atomic_write_text(
         out / "study.json",
-        json.dumps({"design": design, "rows": done, "summary": summary}, indent=2, default=float) + "\n",
+        json.dumps({"design": design, "rows": rows, "summary": summary}, indent=2, default=float) + "\n",
     )
-    _write_markdown(out, done, summary, base, seeds, sweep_seeds, first_seed)
-    _plot(out, done, summary)
+    _write_markdown(out, rows, summary, base, seeds, sweep_seeds, first_seed)
+    _plot(out, rows, summary)
+    partial.unlink()
     return summary
 
 

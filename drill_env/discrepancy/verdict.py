@@ -98,6 +98,7 @@ __all__ = [
     "demote",
     "second_effect",
     "sensor_worse",
+    "readings_gain",
     "split_runs",
     "SENSOR_CHECKS",
     "SENSOR_RELATIVE_TOLERANCE",
@@ -300,6 +301,27 @@ SENSOR_CHECKS: dict[str, tuple[str, float]] = {
     "steady_period_abs_error_s": ("one", 0.25),
 }
 SENSOR_RELATIVE_TOLERANCE = 0.25
+
+
+# What a reading error must improve to be named on top of another effect: the gap of the
+# angle readings themselves (compare.aggregate key), by more than the angle noise.
+READINGS_CHECK = "short_horizon_angle_rms_rad"
+
+
+def readings_gain(
+    before: dict[str, float], after: dict[str, float], floors: dict[str, float]
+) -> float | None:
+    """How much closer the model ``after`` reads the held-out angles than ``before``, in units
+    of the angle noise (``READINGS_CHECK``; None where either gap is missing). A measurement
+    effect named as the second effect must give more than 1: an equation-error gain that the
+    readings do not show is the first effect's residual, not a sensor (a 0.6 mrad
+    eccentricity on top of position friction under 8 % time-stamp jitter moved the angle gap
+    by 0.5 of the noise)."""
+    b, a = before.get(READINGS_CHECK), after.get(READINGS_CHECK)
+    floor = floors.get("angle_rad", 0.0)
+    if b is None or a is None or not (math.isfinite(a) and math.isfinite(b)) or floor <= 0.0:
+        return None
+    return (b - a) / floor
 
 
 def sensor_worse(before: dict[str, float], after: dict[str, float], floors: dict[str, float]) -> list[str]:

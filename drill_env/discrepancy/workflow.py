@@ -57,6 +57,7 @@ from drill_env.discrepancy.verdict import (
     Decision,
     decide,
     demote,
+    readings_gain,
     second_effect,
     sensor_worse,
     split_runs,
@@ -281,8 +282,12 @@ def _second_parameters(decision: Decision, second: dict[str, Any]) -> None:
         decision.winner = dataclasses.replace(decision.winner, parameters=dict(second["first_parameters"]))
 
 
+def _candidate(name: str):
+    return next(c for c in CANDIDATES if c.name == name)
+
+
 def _with_second(model: RigParams, second: dict[str, Any]) -> RigParams:
-    cand = next(c for c in CANDIDATES if c.name == second["named"])
+    cand = _candidate(second["named"])
     if cand.kind == "measurement":  # the plant is unchanged: see _measurement
         return model.replace(
             name=f"{model.name}+{cand.name}",
@@ -529,11 +534,22 @@ def analyse(
                         )
                         for eq in held_eqs
                     }
-                    worse2 = sensor_worse(after_g, aggregate(list(with_both.values())), floors)
+                    both_g = aggregate(list(with_both.values()))
+                    worse2 = sensor_worse(after_g, both_g, floors)
                     second["sensor_worse"] = worse2
+                    seen = readings_gain(after_g, both_g, floors)
+                    if _candidate(second["named"]).kind == "measurement":
+                        second["readings_gain"] = seen
                     if worse2:
                         second["reason"] += (
                             f"; not named: it makes {', '.join(worse2)} worse on the held-out runs"
+                        )
+                        second["named"] = None
+                    elif _candidate(second["named"]).kind == "measurement" and (seen is None or seen <= 1.0):
+                        second["reason"] += (
+                            "; not named: a reading error must show in the readings, and the held-out "
+                            f"angle gap moved by {'nothing measurable' if seen is None else f'{seen:.2f}'}"
+                            " of the angle noise (more than 1 needed)"
                         )
                         second["named"] = None
                     else:
