@@ -506,14 +506,13 @@ def _run_study(
     out.mkdir(parents=True, exist_ok=True)
     with partial.open("w") as f:  # what is kept, then each new row as it lands
         f.write(json.dumps(header) + "\n")
-        for i, row in sorted(done.items()):
-            f.write(json.dumps({"index": i, "row": row}, default=float) + "\n")
-        f.flush()
 
         def keep(i: int, row: dict) -> None:
             f.write(json.dumps({"index": i, "row": row}, default=float) + "\n")
             f.flush()
 
+        for i, row in sorted(done.items()):
+            keep(i, row)
         if progress and done:
             progress(len(done), len(jobs))
         rows = _run_jobs(jobs, base, bootstrap, workers, progress, backend, ray_address, done, keep)

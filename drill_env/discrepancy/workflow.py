@@ -283,6 +283,7 @@ def _second_parameters(decision: Decision, second: dict[str, Any]) -> None:
 
 
 def _candidate(name: str):
+    """The library candidate named ``name``."""
     return next(c for c in CANDIDATES if c.name == name)
 
 
@@ -308,7 +309,7 @@ def _measurement(decision: Decision, second: dict[str, Any] | None = None) -> Me
     if second and second.get("named"):
         named.append((second["named"], second["parameters"]))
     for name, par in named:
-        cand = next(c for c in CANDIDATES if c.name == name)
+        cand = _candidate(name)
         if cand.kind == "measurement":
             fields_.update(cand.to_model_effects(par))
     return MeasurementModel(**fields_) if fields_ else None
@@ -431,7 +432,7 @@ def analyse(
     def model_of(decision_: Decision) -> RigParams | None:
         p = calibrated_params(params, decision_.parameters)
         if decision_.named:
-            cand = next(c for c in CANDIDATES if c.name == decision_.effect)
+            cand = _candidate(decision_.effect)
             if cand.kind == "physical":
                 p = p.replace(**cand.to_model_effects(decision_.named_winner.parameters))
             where = (
@@ -537,15 +538,16 @@ def analyse(
                     both_g = aggregate(list(with_both.values()))
                     worse2 = sensor_worse(after_g, both_g, floors)
                     second["sensor_worse"] = worse2
-                    seen = readings_gain(after_g, both_g, floors)
-                    if _candidate(second["named"]).kind == "measurement":
+                    sensor = _candidate(second["named"]).kind == "measurement"
+                    seen = readings_gain(after_g, both_g, floors) if sensor else None
+                    if sensor:
                         second["readings_gain"] = seen
                     if worse2:
                         second["reason"] += (
                             f"; not named: it makes {', '.join(worse2)} worse on the held-out runs"
                         )
                         second["named"] = None
-                    elif _candidate(second["named"]).kind == "measurement" and (seen is None or seen <= 1.0):
+                    elif sensor and (seen is None or seen <= 1.0):
                         second["reason"] += (
                             "; not named: a reading error must show in the readings, and the held-out "
                             f"angle gap moved by {'nothing measurable' if seen is None else f'{seen:.2f}'}"
