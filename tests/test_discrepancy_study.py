@@ -389,20 +389,7 @@ def test_a_named_lag_leaves_the_inertia_inside_its_interval(effect, seed, magnit
     assert not outside, outside
 
 
-@pytest.mark.parametrize(
-    "folder",
-    [
-        "discrepancy",
-        pytest.param(
-            "discrepancy/unseen_seeds",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="made before the eccentric-encoder and jittered-clock cells (results/README.md); "
-                "its command regenerates it with them",
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("folder", ["discrepancy", "discrepancy/unseen_seeds"])
 def test_the_committed_studies_are_of_the_present_grid_and_keep_their_targets(folder):
     """The committed studies (results/README.md) ran the grid the code has now, dataset for
     dataset, and keep the targets: accuracy >= 95 %, no false discovery or alarm, no error,
