@@ -397,10 +397,12 @@ def test_true_state_is_only_in_info():
 
 
 def test_reward_is_the_weighted_sum_of_documented_terms():
-    weights = {"tracking": 1.0, "stick": 2.0, "oscillation": 0.3, "effort": 0.7}
+    weights = {"tracking": 1.0, "stick": 2.0, "oscillation": 0.3, "effort": 0.7, "integral": 0.4}
     env = gym.make("DrillString-v0", reward_weights=weights)
     _, info0 = env.reset(seed=9, options={"regime": "stick_slip"})
     target, unom = info0["target_speed"], info0["nominal_voltage"]
+    angle0 = info0["true_state"][4]
+    count = 2.0 * math.pi / env.unwrapped.settings.sensors.counts_per_rev
     s = max(target, 1.0)
     seen_stick = False
     for k in range(100):
@@ -416,10 +418,37 @@ def test_reward_is_the_weighted_sum_of_documented_terms():
         osc = np.mean(((smp["upper_speed"] - smp["lower_speed"]) / s) ** 2)
         assert terms["oscillation"] == pytest.approx(osc, rel=1e-12, abs=1e-300)
         assert terms["effort"] == pytest.approx(((info["voltage"] - unom) / 5.0) ** 2, rel=1e-12, abs=1e-300)
+        # the angle lost against the target since the reset, from the true angle; the term
+        # reads it from the encoder (two readings, each within a count of the truth)
+        lost = info["true_state"][4] - angle0 - target * info["time"]
+        assert terms["integral"] == pytest.approx(
+            min(abs(lost) / (2.0 * math.pi), C.INTEGRAL_TERM_CAP), abs=2.0 * count / (2.0 * math.pi)
+        )
         assert reward == pytest.approx(-sum(weights[k] * terms[k] for k in REWARD_NAMES), rel=1e-12)
         assert all(v >= 0.0 for v in terms.values())
         seen_stick |= terms["stick"] > 0
     assert seen_stick
+    assert terms["integral"] > 0.1  # open-loop stick-slip loses angle: the term is not trivially 0
+
+
+def test_the_integral_term_saturates_at_its_cap():
+    """A bit held at 0 V loses its target speed times the time: the term grows as the angle
+    lost, in revolutions, up to INTEGRAL_TERM_CAP and stays there."""
+    env = gym.make(
+        "DrillString-v0",
+        reward_weights={"integral": 1.0, "tracking": 0.0, "stick": 0.0, "oscillation": 0.0, "effort": 0.0},
+    )
+    _, info0 = env.reset(seed=3, options={"nominal_voltage": 4.0})
+    angle0 = info0["true_state"][4]
+    seen = []
+    for _ in range(200):
+        _, reward, _, _, info = env.step(np.array([0.0], np.float32))
+        lost = abs(info["true_state"][4] - angle0 - info0["target_speed"] * info["time"]) / (2.0 * math.pi)
+        expected = min(lost, C.INTEGRAL_TERM_CAP)
+        assert info["rewards"]["integral"] == pytest.approx(expected, abs=2e-3)
+        assert reward == pytest.approx(-info["rewards"]["integral"], rel=1e-12)
+        seen.append(lost)
+    assert min(seen) < C.INTEGRAL_TERM_CAP < max(seen)  # both sides of the cap were exercised
 
 
 def test_holding_the_nominal_voltage_at_a_stable_point_costs_nothing():

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
 
+from drill_env.envs._core import INTEGRAL_TERM_CAP
+from drill_env.envs.config import OBSERVATION_NAMES_V1
 from drill_env.envs.vector import DrillStringVectorEnv
 
 N = 4
@@ -110,6 +112,30 @@ def test_rewards_and_voltage_limit_in_the_vector_env():
     expected = -sum(w[k] * info["rewards"][k] for k in w)
     np.testing.assert_allclose(rew, expected, rtol=1e-12)
     assert not term.any() and not trunc.any()
+
+
+def test_the_integral_term_is_the_observed_integral_and_weighs_in_the_reward():
+    """On observation version 1 the integral term is the lower_speed_error_integral entry
+    in revolutions (the same encoder readings), in the vector env and the single env alike,
+    and its weight enters the reward."""
+    w = {"tracking": 10.0, "stick": 1.0, "oscillation": 0.5, "effort": 0.1, "integral": 2.0}
+    kw = dict(reward_weights=w, normalize_observation=False)
+    vec = gym.make_vec("DrillString-v2", num_envs=2, **kw)
+    one = gym.make("DrillString-v2", **kw)
+    vec.reset(seed=5, options={"regime": "stick_slip"})
+    one.reset(seed=5, options={"regime": "stick_slip"})
+    k = OBSERVATION_NAMES_V1.index("lower_speed_error_integral")
+    largest = 0.0
+    for _ in range(60):
+        obs, rew, _, _, info = vec.step(np.zeros((2, 1), np.float32))
+        o1, r1, _, _, i1 = one.step(np.zeros(1, np.float32))
+        observed = np.minimum(np.abs(obs[:, k]) / (2 * np.pi), INTEGRAL_TERM_CAP)
+        np.testing.assert_allclose(info["rewards"]["integral"], observed, rtol=1e-6)
+        np.testing.assert_allclose(rew, -sum(w[n] * info["rewards"][n] for n in w), rtol=1e-12)
+        assert i1["rewards"]["integral"] == pytest.approx(info["rewards"]["integral"][0], rel=1e-12)
+        assert r1 == pytest.approx(rew[0], rel=1e-12)
+        largest = max(largest, float(info["rewards"]["integral"].max()))
+    assert largest > 0.05  # open-loop stick-slip loses angle against the target
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf])

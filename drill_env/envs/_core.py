@@ -77,7 +77,8 @@ EC_INT_BOUND = 12  # clip bound of the integrated lower speed error [rad]
 EC_TRACK_ABS = (
     13  # tracking term: 0 ((x3 - w*) / max(w*, EC_SPEED_REF))^2 (up to v2); 1 |x3 - w*| / EC_SPEED_REF (v3)
 )
-EC_SCALE = 14  # NOBS observation divisors (all 1 for physical units; entries beyond the version's unused)
+EC_W_INTEGRAL = 14  # weight of the integral term (0 up to v3's defaults)
+EC_SCALE = 15  # NOBS observation divisors (all 1 for physical units; entries beyond the version's unused)
 NOBS_V0 = 8  # entries of observation version 0
 NOBS = 13  # entries of observation version 1 (the largest): the v0 entries, then the encoder extras
 NEC = EC_SCALE + NOBS
@@ -101,7 +102,13 @@ O_TRUE = 6  # twist, upper speed, lower speed, upper angle, lower angle (true va
 O_UPPER_STUCK = 11
 O_LOWER_STUCK = 12
 O_INT_CLIPPED = 13  # 1 when the integrated lower speed error was clipped to its bound (version 1)
-NOUT = 14
+O_INTEGRAL = 14  # reward term: |integrated lower speed error| at the step's end [revolutions]
+NOUT = 15
+# the integral term saturates at this many revolutions: an angle the bit cannot win back (at the
+# amplifier's limit) then costs the same whatever the voltage asked for
+INTEGRAL_TERM_CAP = 0.5
+# where each reward term (config.REWARD_NAMES, in that order) is in the per-step outputs
+REWARD_SLOTS = (O_TRACK, O_STICK, O_OSC, O_EFFORT, O_INTEGRAL)
 N_TRUE = 5
 
 # -- start states --------------------------------------------------------------------------------
@@ -271,15 +278,21 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
     ep[EP_MEAN_U] = (sst[S_QU] - qu0) / span
     ep[EP_MEAN_L] = (sst[S_QL] - ql0) / span
     de = (u - ep[EP_UNOM]) / ecfg[EC_VMAX]
+    # the integrated speed error the v1 observation shows, unclipped, in revolutions:
+    # theta_l_enc(t) - theta_l_enc(t0) - w* (t - t0), zero on average only when the mean speed
+    # is the target
+    e_int = (sst[S_QL] - ep[EP_INT_QL0]) - target * ((ep[EP_TICK] - ep[EP_INT_TICK0]) * ts)
     out[O_TRACK] = track / n
     out[O_STICK] = stick / n
     out[O_OSC] = osc / n
     out[O_EFFORT] = de * de
+    out[O_INTEGRAL] = min(abs(e_int) / (2.0 * math.pi), INTEGRAL_TERM_CAP)
     out[O_REWARD] = -(
         ecfg[EC_W_TRACK] * out[O_TRACK]
         + ecfg[EC_W_STICK] * out[O_STICK]
         + ecfg[EC_W_OSC] * out[O_OSC]
         + ecfg[EC_W_EFFORT] * out[O_EFFORT]
+        + ecfg[EC_W_INTEGRAL] * out[O_INTEGRAL]
     )
     out[O_STATUS] = status
     _write_true(y, modes, out)

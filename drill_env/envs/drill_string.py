@@ -134,7 +134,7 @@ class DrillStringEnv(gym.Env):
 
     ## Rewards
 
-    Four non-negative cost terms per step, reported unweighted in ``info["rewards"]``
+    Five non-negative cost terms per step, reported unweighted in ``info["rewards"]``
     (averages over the ``control_dt / Ts`` true samples of the step; ``w*`` is the target
     speed, ``s = max(w*, 1 rad/s)``):
 
@@ -144,10 +144,17 @@ class DrillStringEnv(gym.Env):
     * ``stick``: fraction of the samples at which the lower disk is stuck;
     * ``oscillation``: mean of ``((x2 - x3) / s)^2``, the twist rate, zero only when the
       string turns as a rigid body (no torsional vibration);
-    * ``effort``: ``((u - u_nom) / 5 V)^2``, the voltage beyond the feedforward.
+    * ``effort``: ``((u - u_nom) / 5 V)^2``, the voltage beyond the feedforward;
+    * ``integral``: ``|theta_l(t) - theta_l(t0) - w* (t - t0)| / (2 pi rad)`` at the end of
+      the step, from the lower encoder (the unclipped ``lower_speed_error_integral`` of
+      version 1, in revolutions), saturating at 1: the angle the bit has lost or gained
+      against its target since the episode began, zero on average only when the mean speed
+      is the target. The cap keeps an angle that cannot be won back (a bit held below its
+      target by the 5 V limit) from rewarding voltage the amplifier cannot give.
 
-    ``reward = -(1.0 tracking + 1.0 stick + 0.5 oscillation + 0.1 effort)`` with the
-    default ``reward_weights``. The reward uses the true state (the simulator knows it);
+    ``reward = -(1.0 tracking + 1.0 stick + 0.5 oscillation + 0.1 effort + 0 integral)`` with
+    the default ``reward_weights`` (no registered version weights the integral term; a
+    training config may). The reward uses the true state (the simulator knows it);
     a perfect controller at a stable operating point earns 0.
 
     ## Starting State
@@ -200,7 +207,8 @@ class DrillStringEnv(gym.Env):
       [rad/s] (0.1: the equilibrium regime starts at uc1 where the speed is 0).
     * ``start``: ``"open_loop"`` (default), ``"rest"`` or ``"equilibrium"``;
       ``warmup_time`` [s] (20), ``warmup_jitter`` [s] (5).
-    * ``reward_weights``: dict with ``tracking``, ``stick``, ``oscillation``, ``effort``.
+    * ``reward_weights``: dict with ``tracking``, ``stick``, ``oscillation``, ``effort``,
+      ``integral``.
     * ``tracking_cost``: ``"relative_squared"`` (default up to v2) or ``"absolute"`` (v3's):
       the form of the tracking term (see Rewards).
     * ``domain_randomization``: None/False (default), True (defaults of
@@ -401,7 +409,6 @@ class DrillStringEnv(gym.Env):
             self._ubuf,
         )
         self._samples_valid = True
-        terms = out[: C.O_REWARD + 1].tolist()
         info = {
             "true_state": out[C.O_TRUE : C.O_TRUE + C.N_TRUE].copy(),
             "upper_stuck": bool(out[C.O_UPPER_STUCK]),
@@ -410,7 +417,7 @@ class DrillStringEnv(gym.Env):
             "voltage": u,
             "voltage_requested": u_req,
             "voltage_clipped": clipped,
-            "rewards": dict(zip(REWARD_NAMES, terms[:4], strict=True)),
+            "rewards": {name: float(out[j]) for name, j in zip(REWARD_NAMES, C.REWARD_SLOTS, strict=True)},
             "sim_status": status,
         }
         if self._v1:
@@ -428,7 +435,7 @@ class DrillStringEnv(gym.Env):
             self._record_history()
             if self.render_mode == "human":
                 self.render()
-        return self._obs.copy(), terms[C.O_REWARD], False, truncated, info
+        return self._obs.copy(), float(out[C.O_REWARD]), False, truncated, info
 
     def render(self):
         if self.render_mode is None:

@@ -371,7 +371,7 @@ class DrillStringVectorEnv(VectorEnv):
             info["voltage_clipped"] = clipped & stepped
             info["_voltage_clipped"] = stepped.copy()
             rewards: dict[str, Any] = {}
-            for j, name in enumerate(REWARD_NAMES):
+            for name, j in zip(REWARD_NAMES, C.REWARD_SLOTS, strict=True):
                 rewards[name] = np.where(stepped, self._OUT[:, j], 0.0)
                 rewards[f"_{name}"] = stepped.copy()
             info["rewards"] = rewards
