@@ -77,7 +77,7 @@ EC_INT_BOUND = 12  # clip bound of the integrated lower speed error [rad]
 EC_TRACK_ABS = (
     13  # tracking term: 0 ((x3 - w*) / max(w*, EC_SPEED_REF))^2 (up to v2); 1 |x3 - w*| / EC_SPEED_REF (v3)
 )
-EC_W_INTEGRAL = 14  # weight of the integral term (0 up to v3's defaults)
+EC_W_INTEGRAL = 14  # weight of the integral term (0 in every registered version)
 EC_SCALE = 15  # NOBS observation divisors (all 1 for physical units; entries beyond the version's unused)
 NOBS_V0 = 8  # entries of observation version 0
 NOBS = 13  # entries of observation version 1 (the largest): the v0 entries, then the encoder extras

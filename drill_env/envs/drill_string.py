@@ -147,15 +147,16 @@ class DrillStringEnv(gym.Env):
     * ``effort``: ``((u - u_nom) / 5 V)^2``, the voltage beyond the feedforward;
     * ``integral``: ``|theta_l(t) - theta_l(t0) - w* (t - t0)| / (2 pi rad)`` at the end of
       the step, from the lower encoder (the unclipped ``lower_speed_error_integral`` of
-      version 1, in revolutions), saturating at 1: the angle the bit has lost or gained
-      against its target since the episode began, zero on average only when the mean speed
-      is the target. The cap keeps an angle that cannot be won back (a bit held below its
-      target by the 5 V limit) from rewarding voltage the amplifier cannot give.
+      version 1, in revolutions), saturating at 0.5 (``_core.INTEGRAL_TERM_CAP``): the angle
+      the bit has lost or gained against its target since the episode began, zero on
+      average only when the mean speed is the target. The cap keeps an angle that cannot be
+      won back (a bit held below its target at the 5 V limit) from costing more and more.
 
     ``reward = -(1.0 tracking + 1.0 stick + 0.5 oscillation + 0.1 effort + 0 integral)`` with
     the default ``reward_weights`` (no registered version weights the integral term; a
-    training config may). The reward uses the true state (the simulator knows it);
-    a perfect controller at a stable operating point earns 0.
+    training config may). The reward uses the true state (the simulator knows it), the
+    integral term the lower encoder (as the observation does); a perfect controller at a
+    stable operating point earns 0.
 
     ## Starting State
 
