@@ -174,6 +174,13 @@ def _encoder_angle(q, scfg):
 
 
 @nb.njit(**_NO_NRT)
+def _lower_angle_lost(ep, scfg, sst):
+    """theta_l_enc(t) - theta_l_enc(t0) - w* (t - t0) [rad], exact in the encoder readings: the
+    integrated lower speed error of observation version 1 and of the reward's integral term."""
+    return (sst[S_QL] - ep[EP_INT_QL0]) - ep[EP_TARGET] * ((ep[EP_TICK] - ep[EP_INT_TICK0]) * scfg[C_TS])
+
+
+@nb.njit(**_NO_NRT)
 def _write_obs(y, ep, ecfg, scfg, sst, obs, out):
     obs[OB_LOWER_SPEED] = sst[S_VL] / ecfg[EC_SCALE + OB_LOWER_SPEED]
     obs[OB_UPPER_SPEED] = sst[S_VU] / ecfg[EC_SCALE + OB_UPPER_SPEED]
@@ -190,8 +197,7 @@ def _write_obs(y, ep, ecfg, scfg, sst, obs, out):
         obs[OB_LOWER_COS] = math.cos(al)
         obs[OB_UPPER_SIN] = math.sin(au)
         obs[OB_UPPER_COS] = math.cos(au)
-        # theta_l_enc(t) - theta_l_enc(t0) - w* (t - t0), exact in the encoder readings
-        e = (sst[S_QL] - ep[EP_INT_QL0]) - ep[EP_TARGET] * ((ep[EP_TICK] - ep[EP_INT_TICK0]) * scfg[C_TS])
+        e = _lower_angle_lost(ep, scfg, sst)
         bound = ecfg[EC_INT_BOUND]
         clipped = 0.0
         if e > bound:
@@ -278,15 +284,12 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
     ep[EP_MEAN_U] = (sst[S_QU] - qu0) / span
     ep[EP_MEAN_L] = (sst[S_QL] - ql0) / span
     de = (u - ep[EP_UNOM]) / ecfg[EC_VMAX]
-    # the integrated speed error the v1 observation shows, unclipped, in revolutions:
-    # theta_l_enc(t) - theta_l_enc(t0) - w* (t - t0), zero on average only when the mean speed
-    # is the target
-    e_int = (sst[S_QL] - ep[EP_INT_QL0]) - target * ((ep[EP_TICK] - ep[EP_INT_TICK0]) * ts)
     out[O_TRACK] = track / n
     out[O_STICK] = stick / n
     out[O_OSC] = osc / n
     out[O_EFFORT] = de * de
-    out[O_INTEGRAL] = min(abs(e_int) / (2.0 * math.pi), INTEGRAL_TERM_CAP)
+    # the integrated speed error the v1 observation shows, unclipped, in revolutions
+    out[O_INTEGRAL] = min(abs(_lower_angle_lost(ep, scfg, sst)) / (2.0 * math.pi), INTEGRAL_TERM_CAP)
     out[O_REWARD] = -(
         ecfg[EC_W_TRACK] * out[O_TRACK]
         + ecfg[EC_W_STICK] * out[O_STICK]
