@@ -147,6 +147,20 @@ def test_benchmark_columns_are_documented_as_the_file_has_them():
     assert documented == header
 
 
+def test_the_policies_guide_names_the_environment_each_policy_was_trained_on():
+    """The guide's table of the shipped policies is written by hand: each row's rig must be the
+    env_id of the policy's committed config (and every shipped policy has a row)."""
+    import yaml
+
+    text = (DOCS / "guides" / "policies.md").read_text()
+    rows = re.findall(r"^\| `([a-z_]+)` \| `[a-z_]+` \| [^|]*\(`([A-Za-z]+-v\d)`\) \|", text, re.M)
+    shipped = sorted(p.parent.name for p in (ROOT / "results" / "agents").glob("*/config.yaml"))
+    assert sorted(name for name, _ in rows) == shipped
+    for name, env_id in rows:
+        config = yaml.safe_load((ROOT / "results" / "agents" / name / "config.yaml").read_text())
+        assert env_id == config["env_id"], name
+
+
 def test_the_results_pages_show_the_regenerating_commands():
     """Each results page includes its folder's section of results/README.md (its command)."""
     sections = _results_pages_module().readme_sections((ROOT / "results" / "README.md").read_text())

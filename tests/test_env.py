@@ -397,7 +397,7 @@ def test_true_state_is_only_in_info():
 
 
 def test_reward_is_the_weighted_sum_of_documented_terms():
-    weights = {"tracking": 1.0, "stick": 2.0, "oscillation": 0.3, "effort": 0.7, "integral": 0.4}
+    weights = {"tracking": 1.0, "stick": 2.0, "oscillation": 0.3, "effort": 0.7, "integral": 0.4, "overdrive": 0.9}
     env = gym.make("DrillString-v0", reward_weights=weights)
     _, info0 = env.reset(seed=9, options={"regime": "stick_slip"})
     target, unom = info0["target_speed"], info0["nominal_voltage"]
@@ -424,6 +424,8 @@ def test_reward_is_the_weighted_sum_of_documented_terms():
         assert terms["integral"] == pytest.approx(
             min(abs(lost) / (2.0 * math.pi), C.INTEGRAL_TERM_CAP), abs=2.0 * count / (2.0 * math.pi)
         )
+        excess = max(abs(info["voltage_requested"]) - 5.0, 0.0) / 5.0
+        assert terms["overdrive"] == pytest.approx(excess, rel=1e-12, abs=1e-300)
         assert reward == pytest.approx(-sum(weights[k] * terms[k] for k in REWARD_NAMES), rel=1e-12)
         assert all(v >= 0.0 for v in terms.values())
         seen_stick |= terms["stick"] > 0
@@ -449,6 +451,45 @@ def test_the_integral_term_saturates_at_its_cap():
         assert reward == pytest.approx(-info["rewards"]["integral"], rel=1e-12)
         seen.append(lost)
     assert min(seen) < C.INTEGRAL_TERM_CAP < max(seen)  # both sides of the cap were exercised
+
+
+@pytest.mark.parametrize(
+    "env_id, volts_per_action, offset, actions",
+    [
+        # correction mode: u_nom + 2 V a, up to 6.5 V asked at u_nom 4.5 V
+        ("DrillString-v2", 2.0, 4.5, (0.1, 0.25, 0.7, 1.0, 0.6, 0.2)),
+        # normalized mode: 5 V a; an action beyond the box asks for more than the amplifier gives
+        ("DrillString-v0", 5.0, 0.0, (-0.94, -1.0, -1.18, -1.3, -1.14, -0.98)),
+    ],
+)
+def test_the_overdrive_term_is_the_request_beyond_the_amplifier_limit(env_id, volts_per_action, offset, actions):
+    """The amplifier applies +-5 V at most, and the overdrive term is what was asked beyond
+    it, over 5 V. The rig runs as at the limit itself, so the other terms are those of a
+    request of exactly the limit."""
+    only = {"tracking": 0.0, "stick": 0.0, "oscillation": 0.0, "effort": 0.0, "overdrive": 1.0}
+    over = gym.make(env_id, reward_weights=only)
+    at = gym.make(env_id, reward_weights=only)
+    opts = {"nominal_voltage": 4.5}
+    over.reset(seed=4, options=opts)
+    at.reset(seed=4, options=opts)
+    clipped = 0
+    for a in actions:
+        asked = offset + volts_per_action * float(np.float32(a))
+        applied = min(max(asked, -5.0), 5.0)
+        _, r_over, _, _, i_over = over.step(np.array([a], np.float32))
+        _, r_at, _, _, i_at = at.step(np.array([(applied - offset) / volts_per_action], np.float64))
+        assert i_over["voltage_requested"] == pytest.approx(asked, rel=1e-12)
+        assert i_over["voltage"] == pytest.approx(applied, rel=1e-12)
+        assert i_over["voltage_clipped"] == (abs(asked) > 5.0)
+        excess = max(abs(asked) - 5.0, 0.0) / 5.0
+        assert i_over["rewards"]["overdrive"] == pytest.approx(excess, rel=1e-9, abs=1e-12)
+        assert r_over == pytest.approx(-excess, rel=1e-9, abs=1e-12)
+        assert i_at["rewards"]["overdrive"] == pytest.approx(0.0, abs=1e-12)
+        for name in ("tracking", "stick", "oscillation", "effort", "integral"):
+            assert i_over["rewards"][name] == pytest.approx(i_at["rewards"][name], rel=1e-9, abs=1e-12)
+        np.testing.assert_allclose(i_over["true_state"], i_at["true_state"], rtol=1e-9, atol=1e-12)
+        clipped += i_over["voltage_clipped"]
+    assert 0 < clipped < len(actions)  # requests on both sides of the limit
 
 
 def test_holding_the_nominal_voltage_at_a_stable_point_costs_nothing():

@@ -138,6 +138,32 @@ def test_the_integral_term_is_the_observed_integral_and_weighs_in_the_reward():
     assert largest > 0.05  # open-loop stick-slip loses angle against the target
 
 
+def test_the_overdrive_term_and_the_applied_voltage_match_the_single_env():
+    """A request beyond +-5 V is limited by the amplifier in the vector env as in the single
+    env, and both report the same overdrive term and reward."""
+    w = {"tracking": 10.0, "stick": 1.0, "oscillation": 0.5, "effort": 0.1, "overdrive": 1.5}
+    vec = gym.make_vec("DrillString-v2", num_envs=2, reward_weights=w)
+    one = gym.make("DrillString-v2", reward_weights=w)
+    opts = {"nominal_voltage": 4.8}
+    vec.reset(seed=7, options=opts)
+    one.reset(seed=7, options=opts)
+    seen = 0
+    for k in range(30):
+        a = 0.9 * np.sin(k / 3.0)  # 3 to 6.6 V asked
+        _, rew, _, _, info = vec.step(np.array([[a], [a]], np.float32))
+        _, r1, _, _, i1 = one.step(np.array([a], np.float32))
+        asked = 4.8 + 2.0 * float(np.float32(a))
+        np.testing.assert_allclose(info["voltage"], min(asked, 5.0), rtol=1e-6)
+        np.testing.assert_array_equal(info["voltage_clipped"], asked > 5.0)
+        np.testing.assert_allclose(info["rewards"]["overdrive"], max(asked - 5.0, 0.0) / 5.0, rtol=1e-6, atol=1e-9)
+        assert i1["rewards"]["overdrive"] == pytest.approx(info["rewards"]["overdrive"][0], rel=1e-12)
+        assert i1["voltage"] == pytest.approx(info["voltage"][0], rel=1e-12)
+        assert r1 == pytest.approx(rew[0], rel=1e-12)
+        np.testing.assert_allclose(rew, -sum(w[n] * info["rewards"][n] for n in w), rtol=1e-12)
+        seen += asked > 5.0
+    assert 5 < seen < 25  # requests on both sides of the limit
+
+
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
 def test_bad_actions_raise(bad):
     env = gym.make_vec("DrillString-v0", num_envs=2)

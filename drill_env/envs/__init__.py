@@ -12,8 +12,9 @@ Importing this package (``import drill_env`` does) registers them:
   (``action_mode="correction"``);
 * ``DrillString-v3``, ``DrillStringNoBrake-v3``: the v2 rigs whose reward scores speed
   errors in rad/s at every operating point (``tracking_cost="absolute"``): the version to
-  train agents on. The from-scratch policies ``ppo``, ``ppo_no_brake``, ``sac``,
-  ``sac_no_brake`` of ``results/agents/`` are trained on it.
+  train agents on. The from-scratch policies ``ppo`` and ``ppo_no_brake`` of
+  ``results/agents/`` are trained on it, ``sac`` and ``sac_no_brake`` on v2 (see
+  ``configs/agents/sac.yaml`` for why).
 
 Earlier ids stay registered unchanged, so the policies trained on them (``results/agents/``
 and ``results/agents/v0/``) still load and run.

@@ -78,7 +78,8 @@ EC_TRACK_ABS = (
     13  # tracking term: 0 ((x3 - w*) / max(w*, EC_SPEED_REF))^2 (up to v2); 1 |x3 - w*| / EC_SPEED_REF (v3)
 )
 EC_W_INTEGRAL = 14  # weight of the integral term (0 in every registered version)
-EC_SCALE = 15  # NOBS observation divisors (all 1 for physical units; entries beyond the version's unused)
+EC_W_OVERDRIVE = 15  # weight of the overdrive term (0 in every registered version)
+EC_SCALE = 16  # NOBS observation divisors (all 1 for physical units; entries beyond the version's unused)
 NOBS_V0 = 8  # entries of observation version 0
 NOBS = 13  # entries of observation version 1 (the largest): the v0 entries, then the encoder extras
 NEC = EC_SCALE + NOBS
@@ -103,12 +104,13 @@ O_UPPER_STUCK = 11
 O_LOWER_STUCK = 12
 O_INT_CLIPPED = 13  # 1 when the integrated lower speed error was clipped to its bound (version 1)
 O_INTEGRAL = 14  # reward term: |integrated lower speed error| at the step's end [revolutions]
-NOUT = 15
+O_OVERDRIVE = 15  # reward term: voltage requested beyond the amplifier's limit / that limit
+NOUT = 16
 # the integral term saturates at this many revolutions: an angle the bit cannot win back (at the
 # amplifier's limit) then costs the same whatever the voltage asked for
 INTEGRAL_TERM_CAP = 0.5
 # where each reward term (config.REWARD_NAMES, in that order) is in the per-step outputs
-REWARD_SLOTS = (O_TRACK, O_STICK, O_OSC, O_EFFORT, O_INTEGRAL)
+REWARD_SLOTS = (O_TRACK, O_STICK, O_OSC, O_EFFORT, O_INTEGRAL, O_OVERDRIVE)
 N_TRUE = 5
 
 # -- start states --------------------------------------------------------------------------------
@@ -222,20 +224,23 @@ def _write_true(y, modes, out):
 
 
 @nb.njit(**_JIT)
-def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf):
-    """Advance one rig by one control period at the (already limited) voltage ``u`` [V].
+def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u_req, obs, out, ybuf, mbuf, ubuf):
+    """Advance one rig by one control period at the requested voltage ``u_req`` [V].
 
-    Integrates exactly, samples the true state every ``Ts`` into ``ybuf/mbuf/ubuf``,
+    The amplifier limits the request to +-``ecfg[EC_VMAX]``; the voltage applied is left in
+    ``ep[EP_U]``. Integrates exactly, samples the true state every ``Ts`` into ``ybuf/mbuf/ubuf``,
     runs the sensor chain on each sample, and writes the observation into ``obs`` and the
     reward terms, status and true state into ``out``. Returns the kernel status.
     """
     return _rig_step(
-        p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, workspace(int(ecfg[EC_NSUB]))
+        p, y, modes, ep, ecfg, scfg, sst, rng, u_req, obs, out, ybuf, mbuf, ubuf, workspace(int(ecfg[EC_NSUB]))
     )
 
 
 @nb.njit(**_NO_NRT)
-def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ubuf, ws):
+def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u_req, obs, out, ybuf, mbuf, ubuf, ws):
+    vmax = ecfg[EC_VMAX]
+    u = min(max(u_req, -vmax), vmax)  # the amplifier's limit, the one place it is applied
     n = int(ecfg[EC_NSUB])
     ts = scfg[1]  # sensors.C_TS
     tick0 = ep[EP_TICK]
@@ -283,19 +288,23 @@ def _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u, obs, out, ybuf, mbuf, ub
     span = n * ts
     ep[EP_MEAN_U] = (sst[S_QU] - qu0) / span
     ep[EP_MEAN_L] = (sst[S_QL] - ql0) / span
-    de = (u - ep[EP_UNOM]) / ecfg[EC_VMAX]
+    de = (u - ep[EP_UNOM]) / vmax
     out[O_TRACK] = track / n
     out[O_STICK] = stick / n
     out[O_OSC] = osc / n
     out[O_EFFORT] = de * de
     # the integrated speed error the v1 observation shows, unclipped, in revolutions
     out[O_INTEGRAL] = min(abs(_lower_angle_lost(ep, scfg, sst)) / (2.0 * math.pi), INTEGRAL_TERM_CAP)
+    # what was asked of the amplifier beyond its limit: without it a request beyond the limit
+    # costs nothing the other terms see, and a policy can wind up there (open loop at the limit)
+    out[O_OVERDRIVE] = abs(u_req - u) / vmax
     out[O_REWARD] = -(
         ecfg[EC_W_TRACK] * out[O_TRACK]
         + ecfg[EC_W_STICK] * out[O_STICK]
         + ecfg[EC_W_OSC] * out[O_OSC]
         + ecfg[EC_W_EFFORT] * out[O_EFFORT]
         + ecfg[EC_W_INTEGRAL] * out[O_INTEGRAL]
+        + ecfg[EC_W_OVERDRIVE] * out[O_OVERDRIVE]
     )
     out[O_STATUS] = status
     _write_true(y, modes, out)
@@ -388,7 +397,8 @@ def rig_reset(
 
 @nb.njit(**_JIT)
 def batch_step(P, Y, MODES, EP, ecfg, SCFG, SST, RNG, U, active, OBS, OUT, YBUF, MBUF, UBUF):
-    """``rig_step`` for every rig i with ``active[i]``; one compiled call for N rigs."""
+    """``rig_step`` for every rig i with ``active[i]`` at the requested voltage ``U[i]``; one
+    compiled call for N rigs."""
     ws = workspace(int(ecfg[EC_NSUB]))
     for i in range(P.shape[0]):
         if active[i]:

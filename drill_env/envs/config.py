@@ -169,7 +169,7 @@ def observation_layout(version: int) -> dict[str, tuple]:
 
 
 TRUE_STATE_NAMES = ("twist", "upper_speed", "lower_speed", "upper_angle", "lower_angle")
-REWARD_NAMES = ("tracking", "stick", "oscillation", "effort", "integral")
+REWARD_NAMES = ("tracking", "stick", "oscillation", "effort", "integral", "overdrive")
 assert len(REWARD_NAMES) == len(C.REWARD_SLOTS)
 SPEED_REF_FLOOR = 1.0  # [rad/s] reward terms are normalised by max(target speed, this) or by this
 # The tracking term: "relative_squared" ((x3 - w*) / max(w*, 1 rad/s))^2 (up to v2) or
@@ -225,6 +225,7 @@ class RewardWeights:
     oscillation: float = 0.5
     effort: float = 0.1
     integral: float = 0.0
+    overdrive: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -513,6 +514,7 @@ class EnvSettings:
         e[C.EC_W_OSC] = w.oscillation
         e[C.EC_W_EFFORT] = w.effort
         e[C.EC_W_INTEGRAL] = w.integral
+        e[C.EC_W_OVERDRIVE] = w.overdrive
         e[C.EC_SPEED_REF] = SPEED_REF_FLOOR
         e[C.EC_TRACK_ABS] = 1.0 if self.tracking_cost == "absolute" else 0.0
         e[C.EC_VMAX] = VOLTAGE_LIMIT

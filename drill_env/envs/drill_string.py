@@ -134,7 +134,7 @@ class DrillStringEnv(gym.Env):
 
     ## Rewards
 
-    Five non-negative cost terms per step, reported unweighted in ``info["rewards"]``
+    Six non-negative cost terms per step, reported unweighted in ``info["rewards"]``
     (averages over the ``control_dt / Ts`` true samples of the step; ``w*`` is the target
     speed, ``s = max(w*, 1 rad/s)``):
 
@@ -150,11 +150,14 @@ class DrillStringEnv(gym.Env):
       version 1, in revolutions), saturating at 0.5 (``_core.INTEGRAL_TERM_CAP``): the angle
       the bit has lost or gained against its target since the episode began, zero on
       average only when the mean speed is the target. The cap keeps an angle that cannot be
-      won back (a bit held below its target at the 5 V limit) from costing more and more.
+      won back (a bit held below its target at the 5 V limit) from costing more and more;
+    * ``overdrive``: ``(|u_req| - 5 V) / 5 V`` where the voltage requested ``u_req`` is beyond
+      the amplifier's limit, else 0: the other terms see only the voltage applied, so without
+      this one a request beyond the limit costs nothing more than the limit itself.
 
-    ``reward = -(1.0 tracking + 1.0 stick + 0.5 oscillation + 0.1 effort + 0 integral)`` with
-    the default ``reward_weights`` (no registered version weights the integral term; a
-    training config may). The reward uses the true state (the simulator knows it), the
+    ``reward = -(1.0 tracking + 1.0 stick + 0.5 oscillation + 0.1 effort + 0 integral
+    + 0 overdrive)`` with the default ``reward_weights`` (no registered version weights the
+    integral or overdrive terms; a training config may). The reward uses the true state (the simulator knows it), the
     integral term the lower encoder (as the observation does); a perfect controller at a
     stable operating point earns 0.
 
@@ -209,7 +212,7 @@ class DrillStringEnv(gym.Env):
     * ``start``: ``"open_loop"`` (default), ``"rest"`` or ``"equilibrium"``;
       ``warmup_time`` [s] (20), ``warmup_jitter`` [s] (5).
     * ``reward_weights``: dict with ``tracking``, ``stick``, ``oscillation``, ``effort``,
-      ``integral``.
+      ``integral``, ``overdrive``.
     * ``tracking_cost``: ``"relative_squared"`` (default up to v2) or ``"absolute"`` (v3's):
       the form of the tracking term (see Rewards).
     * ``domain_randomization``: None/False (default), True (defaults of
@@ -384,14 +387,6 @@ class DrillStringEnv(gym.Env):
         u_req = a * self._action_to_volts
         if self._action_offset:
             u_req = u_req + float(self._ep[C.EP_UNOM])
-        u = u_req
-        clipped = False
-        if u > VOLTAGE_LIMIT:
-            u = VOLTAGE_LIMIT
-            clipped = True
-        elif u < -VOLTAGE_LIMIT:
-            u = -VOLTAGE_LIMIT
-            clipped = True
         out = self._out
         status = C.rig_step(
             self._p,
@@ -402,13 +397,15 @@ class DrillStringEnv(gym.Env):
             self._scfg,
             self._sst,
             self._rng,
-            u,
+            u_req,
             self._obs,
             out,
             self._ybuf,
             self._mbuf,
             self._ubuf,
         )
+        u = float(self._ep[C.EP_U])  # the request within the amplifier's limit (the core applies it)
+        clipped = u != u_req
         self._samples_valid = True
         info = {
             "true_state": out[C.O_TRUE : C.O_TRUE + C.N_TRUE].copy(),

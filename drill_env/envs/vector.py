@@ -176,8 +176,6 @@ class DrillStringVectorEnv(VectorEnv):
         u_req = a * self._action_to_volts
         if self._action_offset:
             u_req = u_req + self._EP[:, C.EP_UNOM]
-        u = np.clip(u_req, -VOLTAGE_LIMIT, VOLTAGE_LIMIT)
-        clipped = u != u_req
         resetting = self._done.copy() if self.autoreset_mode == AutoresetMode.NEXT_STEP else np.zeros(n, bool)
         if resetting.any():
             self._reset_rigs(resetting, {})
@@ -192,7 +190,7 @@ class DrillStringVectorEnv(VectorEnv):
             self._SCFG,
             self._SST,
             self._RNG,
-            u,
+            u_req,
             active,
             self._OBS,
             self._OUT,
@@ -200,6 +198,8 @@ class DrillStringVectorEnv(VectorEnv):
             self._MBUF,
             self._UBUF,
         )
+        u = self._EP[:, C.EP_U].copy()  # the requests within the amplifier's limit (the core applies it)
+        clipped = u != u_req
         self._elapsed[active] += 1
         status = self._OUT[:, C.O_STATUS].astype(np.int64)
         status[resetting] = 0
