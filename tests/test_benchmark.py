@@ -420,3 +420,25 @@ def test_the_report_names_each_learned_policy_by_its_path_and_how_it_started(
         "Learned policies: ppo_lqi_clone: `a/b/agents/ppo_lqi_clone/policy.zip` on `DrillString-v1` "
         "(clone of lqi).\n" in text
     )
+
+
+@pytest.mark.parametrize("controller", ["ppo", "sac"])
+def test_the_committed_from_scratch_rows_meet_the_targets(controller):
+    """The committed benchmark's from-scratch learned rows, on each rig: suppression >= 0.99 on
+    average where a cycle is predicted and never below the open loop's (0), and an RMS speed
+    error within twice the LQI's plus 0.01 rad/s in every regime."""
+    out = ROOT / "results" / "benchmark"
+    config = json.loads((out / "benchmark_config.json").read_text())
+    df = load_results(out / "benchmark.csv")
+    df = df[df["plant"] == "nominal"]
+    for preset in ("brake", "no_brake"):
+        assert config["policy_starts"][f"{controller}/{preset}"] == "from scratch"
+        rows = df[(df["preset"] == preset) & (df["controller"] == controller)]
+        lqi = df[(df["preset"] == preset) & (df["controller"] == "lqi")]
+        assert len(rows) == len(lqi) > 0 and not rows["stalled"].any()
+        for regime, runs in rows.groupby("regime"):
+            limit = 2.0 * lqi[lqi["regime"] == regime]["rms_error"].mean() + 0.01
+            assert runs["rms_error"].mean() <= limit, (preset, regime)
+            if regime != "equilibrium":
+                assert runs["suppression"].mean() >= 0.99, (preset, regime)
+                assert runs["suppression"].min() >= 0.0, (preset, regime)
