@@ -397,7 +397,14 @@ def test_true_state_is_only_in_info():
 
 
 def test_reward_is_the_weighted_sum_of_documented_terms():
-    weights = {"tracking": 1.0, "stick": 2.0, "oscillation": 0.3, "effort": 0.7, "integral": 0.4, "overdrive": 0.9}
+    weights = {
+        "tracking": 1.0,
+        "stick": 2.0,
+        "oscillation": 0.3,
+        "effort": 0.7,
+        "integral": 0.4,
+        "overdrive": 0.9,
+    }
     env = gym.make("DrillString-v0", reward_weights=weights)
     _, info0 = env.reset(seed=9, options={"regime": "stick_slip"})
     target, unom = info0["target_speed"], info0["nominal_voltage"]
@@ -462,7 +469,9 @@ def test_the_integral_term_saturates_at_its_cap():
         ("DrillString-v0", 5.0, 0.0, (-0.94, -1.0, -1.18, -1.3, -1.14, -0.98)),
     ],
 )
-def test_the_overdrive_term_is_the_request_beyond_the_amplifier_limit(env_id, volts_per_action, offset, actions):
+def test_the_overdrive_term_is_the_request_beyond_the_amplifier_limit(
+    env_id, volts_per_action, offset, actions
+):
     """The amplifier applies +-5 V at most, and the overdrive term is what was asked beyond
     it, over 5 V. The rig runs as at the limit itself, so the other terms are those of a
     request of exactly the limit."""

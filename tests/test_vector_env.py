@@ -155,7 +155,9 @@ def test_the_overdrive_term_and_the_applied_voltage_match_the_single_env():
         asked = 4.8 + 2.0 * float(np.float32(a))
         np.testing.assert_allclose(info["voltage"], min(asked, 5.0), rtol=1e-6)
         np.testing.assert_array_equal(info["voltage_clipped"], asked > 5.0)
-        np.testing.assert_allclose(info["rewards"]["overdrive"], max(asked - 5.0, 0.0) / 5.0, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(
+            info["rewards"]["overdrive"], max(asked - 5.0, 0.0) / 5.0, rtol=1e-6, atol=1e-9
+        )
         assert i1["rewards"]["overdrive"] == pytest.approx(info["rewards"]["overdrive"][0], rel=1e-12)
         assert i1["voltage"] == pytest.approx(info["voltage"][0], rel=1e-12)
         assert r1 == pytest.approx(rew[0], rel=1e-12)

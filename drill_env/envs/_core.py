@@ -232,9 +232,8 @@ def rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u_req, obs, out, ybuf, mbuf,
     runs the sensor chain on each sample, and writes the observation into ``obs`` and the
     reward terms, status and true state into ``out``. Returns the kernel status.
     """
-    return _rig_step(
-        p, y, modes, ep, ecfg, scfg, sst, rng, u_req, obs, out, ybuf, mbuf, ubuf, workspace(int(ecfg[EC_NSUB]))
-    )
+    ws = workspace(int(ecfg[EC_NSUB]))
+    return _rig_step(p, y, modes, ep, ecfg, scfg, sst, rng, u_req, obs, out, ybuf, mbuf, ubuf, ws)
 
 
 @nb.njit(**_NO_NRT)

@@ -157,9 +157,9 @@ class DrillStringEnv(gym.Env):
 
     ``reward = -(1.0 tracking + 1.0 stick + 0.5 oscillation + 0.1 effort + 0 integral
     + 0 overdrive)`` with the default ``reward_weights`` (no registered version weights the
-    integral or overdrive terms; a training config may). The reward uses the true state (the simulator knows it), the
-    integral term the lower encoder (as the observation does); a perfect controller at a
-    stable operating point earns 0.
+    integral or overdrive terms; a training config may). The reward uses the true state (the
+    simulator knows it), the integral term the lower encoder (as the observation does); a
+    perfect controller at a stable operating point earns 0.
 
     ## Starting State
 
