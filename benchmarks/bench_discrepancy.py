@@ -31,8 +31,8 @@ def main() -> None:
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core
     except (AttributeError, OSError):
         pass
-    from drill_env.discrepancy.synth import SynthConfig, make_dataset, write_synthetic
     from drill_env.discrepancy.workflow import run_discrepancy
+    from drill_env.recordings.synth import SynthConfig, make_dataset, write_synthetic
 
     cfg = SynthConfig()
     with tempfile.TemporaryDirectory() as tmp:

@@ -41,12 +41,12 @@ def main() -> int:
     except (AttributeError, OSError):
         pass
     print(f"load average at the start: {os.getloadavg()[0]:.2f}", flush=True)
-    from drill_env.discrepancy.dataset import load_dataset
-    from drill_env.discrepancy.synth import make_dataset, write_synthetic
     from drill_env.discrepancy.workflow import run_discrepancy
     from drill_env.identify import draw_rig, identify, synth_config
     from drill_env.identify.report import write_outputs
     from drill_env.params import IDENTIFIED_PARAMETERS
+    from drill_env.recordings.dataset import load_dataset
+    from drill_env.recordings.synth import make_dataset, write_synthetic
 
     rig = draw_rig(args.structure, args.seed)
     overrides = {"duration_s": 30.0, "pre_roll_s": 30.0} if args.quick else {}

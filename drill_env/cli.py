@@ -32,7 +32,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
 
     found: list[type[BaseException]] = [OSError]
     for module, names in (
-        ("drill_env.discrepancy.dataset", ("DatasetError",)),
+        ("drill_env.recordings.dataset", ("DatasetError",)),
         ("drill_env.outputs", ("OutputFolderError",)),
         ("drill_env.params", ("ParameterError",)),
         ("drill_env.simulator", ("InputFunctionError", "OutputSizeError")),

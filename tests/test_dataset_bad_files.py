@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drill_env.discrepancy.dataset import (
+from drill_env.recordings.dataset import (
     MAX_RUN_BYTES,
     DatasetError,
     MeasuredDataset,

@@ -10,13 +10,14 @@ from typer.testing import CliRunner
 
 import drill_env
 from drill_env.cli import app
-from drill_env.discrepancy.calibrate import CALIBRATED, calibration_columns, calibration_statistics
-from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
+from drill_env.discrepancy.calibrate import calibration_statistics
 from drill_env.discrepancy.scoring import DecisionRule, run_statistics
-from drill_env.discrepancy.synth import IDENTIFIED, SynthConfig, make_dataset
 from drill_env.discrepancy.verdict import sensor_worse
 from drill_env.discrepancy.workflow import analyse
+from drill_env.recordings.dataset import MeasuredDataset
+from drill_env.recordings.equation_error import RunEquations, estimate_angle_noise
+from drill_env.recordings.regression import CALIBRATED, calibration_columns
+from drill_env.recordings.synth import IDENTIFIED, SynthConfig, make_dataset
 
 NOMINAL = drill_env.load_params("brake")
 # four constant voltages and two quasi-random runs of 60 s at 250 Hz, 1 mrad angle noise

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from drill_env.discrepancy.dataset import DatasetError, MeasuredRun, load_dataset, write_dataset
+from drill_env.recordings.dataset import DatasetError, MeasuredRun, load_dataset, write_dataset
 
 STEP = 2 * np.pi / 2000  # [rad] one count of the 2000-count encoder
 

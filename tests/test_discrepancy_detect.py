@@ -10,12 +10,12 @@ from typer.testing import CliRunner
 
 import drill_env
 from drill_env.cli import app
-from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
 from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.study import expected_verdict
-from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse
+from drill_env.recordings.dataset import MeasuredDataset
+from drill_env.recordings.equation_error import RunEquations, estimate_angle_noise
+from drill_env.recordings.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 
 # four constant voltages and two quasi-random runs of 60 s at 250 Hz: small but enough
 SMALL = SynthConfig(
@@ -158,7 +158,7 @@ def test_cli_end_to_end(tmp_path):
 
 
 def test_steady_features_report_no_period_for_a_noisy_equilibrium():
-    from drill_env.discrepancy.compare import _features
+    from drill_env.recordings.compare import _features
 
     # 0.5 V on the braked rig: a stable equilibrium at 0.658 rad/s seen through a 2000-count
     # encoder at 500 Hz; the smooth speed estimate still swings by ~0.13 rad/s of noise
@@ -175,7 +175,7 @@ def test_steady_features_report_no_period_for_a_noisy_equilibrium():
     ("mean", "amp", "period"), [(1.56, 1.4, 4.09), (0.66, 0.3, 9.5), (0.134, 0.03, 46.4)]
 )
 def test_steady_features_find_the_period_of_a_cycle_under_the_same_noise(mean, amp, period):
-    from drill_env.discrepancy.compare import _features
+    from drill_env.recordings.compare import _features
 
     # a Hopf cycle (4.09 s) and once-per-revolution friction lines at 0.5 and 0.2 V
     rng = np.random.default_rng(1)

@@ -14,13 +14,13 @@ import pytest
 import yaml
 
 import drill_env
-from drill_env.discrepancy.dataset import MeasuredDataset
 from drill_env.discrepancy.scoring import DecisionRule
-from drill_env.discrepancy.synth import SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import analyse
 from drill_env.measurement import MeasurementModel, write_model_yaml
 from drill_env.params import ParameterError
 from drill_env.plant_file import read_plant_file
+from drill_env.recordings.dataset import MeasuredDataset
+from drill_env.recordings.synth import SynthConfig, make_dataset
 
 NOMINAL = drill_env.load_params("brake")
 # constant runs through the rotation range of the brake rig, an undithered encoder
@@ -185,8 +185,8 @@ def test_the_corrected_model_reads_its_simulated_angles_through_the_eccentric_en
     """compare_run with the measurement model: the simulated readings are the true angles plus
     a sin(theta + phi), the whole swing over a turn, and the short-horizon angle gap of an
     eccentric encoder's runs (1 V and 3 V) is clearly smaller with them than without."""
-    from drill_env.discrepancy.compare import _simulate, compare_run
-    from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
+    from drill_env.recordings.compare import _simulate, compare_run
+    from drill_env.recordings.equation_error import RunEquations, estimate_angle_noise
 
     cfg = SynthConfig(
         voltages=(1.0, 3.0), random_runs=0, duration_s=20.0, pre_roll_s=20.0, angle_noise_std=0.0

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 import drill_env
-from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
 from drill_env.discrepancy.report import write_report
 from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.spectral_lines import line_scan, line_signature
-from drill_env.discrepancy.synth import SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import analyse
+from drill_env.recordings.dataset import MeasuredDataset
+from drill_env.recordings.equation_error import RunEquations, estimate_angle_noise
+from drill_env.recordings.synth import SynthConfig, make_dataset
 
 NOMINAL = drill_env.load_params("brake")
 # five constant voltages and one quasi-random run of 60 s at 500 Hz, an undithered encoder

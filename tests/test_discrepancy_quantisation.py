@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 
 import drill_env
-from drill_env.discrepancy.dataset import MeasuredDataset, MeasuredRun
-from drill_env.discrepancy.equation_error import (
+from drill_env.discrepancy.scoring import DecisionRule, RunStatistics
+from drill_env.discrepancy.verdict import decide
+from drill_env.discrepancy.workflow import analyse
+from drill_env.recordings.dataset import MeasuredDataset, MeasuredRun
+from drill_env.recordings.equation_error import (
     AngleNoise,
     RunEquations,
     estimate_angle_noise,
     line_variance,
     quantisation_weights,
 )
-from drill_env.discrepancy.scoring import DecisionRule, RunStatistics
-from drill_env.discrepancy.synth import SynthConfig, make_dataset
-from drill_env.discrepancy.verdict import decide
-from drill_env.discrepancy.workflow import analyse
+from drill_env.recordings.synth import SynthConfig, make_dataset
 
 STEP = 1.0  # one count, in the units of the angle
 

@@ -13,7 +13,8 @@ from typer.testing import CliRunner
 
 import drill_env
 from drill_env.cli import app
-from drill_env.discrepancy.calibrate import ALTERNATIVE_EXPLANATIONS, CALIBRATED, ParameterFit
+from drill_env.discrepancy.calibrate import ALTERNATIVE_EXPLANATIONS, ParameterFit
+from drill_env.recordings.regression import CALIBRATED
 
 
 def parameter_rows(report: str) -> dict[str, list[str]]:
@@ -126,10 +127,10 @@ def test_a_model_worse_than_nominal_is_not_written(tmp_path):
     recalibrated model simulates worse than the nominal one on the held-out runs (steady
     minimum speed, short horizons); it is not written as the result but kept as
     model_rejected.yaml, and the verdict says so."""
-    from drill_env.discrepancy.dataset import write_dataset
     from drill_env.discrepancy.scoring import DecisionRule
-    from drill_env.discrepancy.synth import SynthConfig, make_dataset
     from drill_env.discrepancy.workflow import run_discrepancy
+    from drill_env.recordings.dataset import write_dataset
+    from drill_env.recordings.synth import SynthConfig, make_dataset
 
     cfg = SynthConfig(
         voltages=(0.2, 0.7, 2.0, 4.5), random_runs=2, duration_s=60.0, pre_roll_s=40.0, sample_rate_hz=250.0

@@ -12,16 +12,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drill_env.discrepancy.dataset import (
+from drill_env.discrepancy.scoring import DecisionRule
+from drill_env.discrepancy.workflow import analyse
+from drill_env.recordings.dataset import (
     MAX_JITTER,
     DatasetError,
     load_dataset,
     regularise_run,
     write_dataset,
 )
-from drill_env.discrepancy.scoring import DecisionRule
-from drill_env.discrepancy.synth import SynthConfig, make_dataset
-from drill_env.discrepancy.workflow import analyse
+from drill_env.recordings.synth import SynthConfig, make_dataset
 
 COUNTS = 2000
 STEP = 2 * np.pi / COUNTS

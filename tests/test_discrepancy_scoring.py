@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drill_env.discrepancy.effects import CANDIDATES
 from drill_env.discrepancy.scoring import CandidateScore, DecisionRule, _significance, benjamini_hochberg
+from drill_env.recordings.effects import CANDIDATES
 
 
 def _step_up(p: np.ndarray, alpha: float) -> np.ndarray:

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import drill_env
-from drill_env.discrepancy.compare import compare_run
-from drill_env.discrepancy.dataset import CONSTANT_VOLTAGE_TOL
-from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
-from drill_env.discrepancy.synth import SynthConfig, make_dataset
-from drill_env.discrepancy.verdict import split_runs
+from drill_env.recordings.compare import compare_run
+from drill_env.recordings.dataset import CONSTANT_VOLTAGE_TOL
+from drill_env.recordings.equation_error import RunEquations, estimate_angle_noise
+from drill_env.recordings.split import split_runs
+from drill_env.recordings.synth import SynthConfig, make_dataset
 
 NOMINAL = drill_env.load_params("brake")
 STEP = 2 * np.pi / 2000
@@ -101,10 +101,10 @@ def test_an_eccentric_encoder_is_named_and_its_report_lists_position_friction_be
     library now), the verdict calls it a sensor effect, and the report's "Sensor or friction?"
     lists it beside position friction with both held-out scores; nothing says both "locked" and
     "not locked"."""
-    from drill_env.discrepancy.dataset import MeasuredDataset
     from drill_env.discrepancy.report import write_report
     from drill_env.discrepancy.scoring import DecisionRule
     from drill_env.discrepancy.workflow import analyse
+    from drill_env.recordings.dataset import MeasuredDataset
 
     syn = make_dataset("encoder_eccentricity_lower", seed=21, magnitude=0.01, config=ROT)
     ds = MeasuredDataset(preset="brake", encoder_counts_per_rev=2000, runs=tuple(syn.runs))

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from drill_env.discrepancy.dataset import MeasuredDataset
 from drill_env.discrepancy.scoring import DecisionRule
 from drill_env.discrepancy.study import (
     CONDITIONS,
@@ -23,8 +22,9 @@ from drill_env.discrepancy.study import (
     check_workers,
     truths,
 )
-from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import analyse
+from drill_env.recordings.dataset import MeasuredDataset
+from drill_env.recordings.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 
 # undithered encoder, short runs: enough for the decisions, quick to make
 SMALL = SynthConfig(

@@ -9,8 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from drill_env.cli import app
-from drill_env.discrepancy.dataset import load_dataset
-from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
+from drill_env.recordings.dataset import load_dataset
+from drill_env.recordings.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
 
 SMALL = SynthConfig(
     voltages=(0.5, 2.0), random_runs=1, duration_s=20.0, pre_roll_s=20.0, sample_rate_hz=200.0

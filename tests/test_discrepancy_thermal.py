@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 import drill_env
-from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.effects import CANDIDATES, THERMAL_TIMES_S, thermal_state, thermal_trajectory
-from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
 from drill_env.discrepancy.scoring import DecisionRule
-from drill_env.discrepancy.synth import SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import analyse
+from drill_env.recordings.dataset import MeasuredDataset
+from drill_env.recordings.effects import CANDIDATES, THERMAL_TIMES_S, thermal_state, thermal_trajectory
+from drill_env.recordings.equation_error import RunEquations, estimate_angle_noise
+from drill_env.recordings.synth import SynthConfig, make_dataset
 
 NOMINAL = drill_env.load_params("brake")
 # four constant voltages and two quasi-random runs of 60 s at 250 Hz (real encoders: no

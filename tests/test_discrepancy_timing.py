@@ -17,13 +17,13 @@ import pytest
 from typer.testing import CliRunner
 
 from drill_env.cli import app
-from drill_env.discrepancy.dataset import MeasuredDataset, load_dataset, write_dataset
-from drill_env.discrepancy.equation_error import RunEquations, estimate_angle_noise
 from drill_env.discrepancy.spectral_lines import line_signature
-from drill_env.discrepancy.synth import SynthConfig, make_dataset
 from drill_env.discrepancy.timing import MAX_VOLTAGE_LAG, shift_voltage, voltage_lag_scan
-from drill_env.discrepancy.verdict import split_runs
 from drill_env.params import load_params
+from drill_env.recordings.dataset import MeasuredDataset, load_dataset, write_dataset
+from drill_env.recordings.equation_error import RunEquations, estimate_angle_noise
+from drill_env.recordings.split import split_runs
+from drill_env.recordings.synth import SynthConfig, make_dataset
 
 # short runs with voltage steps (quasi-random levels held 0.5-2 s) and one constant run
 SHORT = SynthConfig(voltages=(1.0,), random_runs=3, duration_s=15.0, pre_roll_s=10.0)

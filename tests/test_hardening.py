@@ -82,7 +82,7 @@ def test_synth_refuses_a_folder_holding_a_dataset_and_fresh_replaces_it_whole(tm
     res = runner.invoke(app, [*again, "--fresh"])
     assert res.exit_code == 0, res.output
     assert sorted(_digest(d)) == ["dataset.json", "run01.csv"]
-    from drill_env.discrepancy.dataset import load_dataset
+    from drill_env.recordings.dataset import load_dataset
 
     ds = load_dataset(d)
     assert [r.name for r in ds.runs] == ["run01"] and np.allclose(ds.runs[0].u, 0.5)
@@ -94,7 +94,7 @@ def test_synth_refuses_a_folder_holding_a_dataset_and_fresh_replaces_it_whole(tm
 
 def test_synth_writes_what_the_loader_reads_at_the_shortest_duration(tmp_path):
     # the reproducer: "synth --duration 10" was refused by the loader ("lasts 10 s; at least 10 s")
-    from drill_env.discrepancy.dataset import MIN_DURATION_S, load_dataset
+    from drill_env.recordings.dataset import MIN_DURATION_S, load_dataset
 
     for rate in ("100", "333", "1000"):
         d = tmp_path / f"d{rate}"
@@ -148,8 +148,8 @@ def test_synth_refuses_what_the_loader_would_refuse_before_any_run(tmp_path, arg
 
 
 def test_the_synth_bounds_follow_the_loader():
-    from drill_env.discrepancy import dataset
-    from drill_env.discrepancy.synth import CSV_ROW_BYTES, SynthConfig
+    from drill_env.recordings import dataset
+    from drill_env.recordings.synth import CSV_ROW_BYTES, SynthConfig
 
     SynthConfig(duration_s=dataset.MIN_DURATION_S, sample_rate_hz=dataset.MIN_RATE_HZ)
     SynthConfig(duration_s=60.0, sample_rate_hz=dataset.MAX_RATE_HZ)

@@ -16,10 +16,10 @@ import pytest
 from typer.testing import CliRunner
 
 from drill_env.cli import app
-from drill_env.discrepancy.dataset import MeasuredDataset, load_dataset
-from drill_env.discrepancy.synth import make_dataset, write_synthetic
 from drill_env.identify import ExperimentPlan, draw_rig, identify, synth_config
 from drill_env.params import IDENTIFIED_PARAMETERS, load_params
+from drill_env.recordings.dataset import MeasuredDataset, load_dataset
+from drill_env.recordings.synth import make_dataset, write_synthetic
 
 # a short version of the full plan: the same kinds of run, 40 s each
 SMALL = ExperimentPlan(

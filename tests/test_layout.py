@@ -242,3 +242,31 @@ def test_commands_from_an_entry_point_and_a_missing_package(monkeypatch):
     names = {c.name for c in app.registered_commands}
     assert seen == [cli.ENTRY_POINT_GROUP]
     assert {"bifurcation", "benchmark", "tune", "train", "hello"} <= names
+
+
+def _package_edges(graph: dict[str, set[str]], src: str, dst: str) -> dict[str, list[str]]:
+    """Imports from modules of package ``src`` into modules of package ``dst``."""
+    inside = lambda m, p: m == p or m.startswith(p + ".")  # noqa: E731
+    return {m: sorted(d for d in deps if inside(d, dst)) for m, deps in graph.items() if inside(m, src)}
+
+
+def test_the_package_edge_finder_finds_an_edge():
+    graph = {"p.a": {"q.b", "p.c"}, "p.c": set(), "q.b": set()}
+    assert _package_edges(graph, "p", "q") == {"p.a": ["q.b"], "p.c": []}
+
+
+def test_identification_and_discrepancy_sit_side_by_side_on_the_recordings_layer():
+    graph = _graph()
+    recordings, identify, discrepancy = "drill_env.recordings", "drill_env.identify", "drill_env.discrepancy"
+    # both read recordings through the one layer ...
+    assert recordings + ".dataset" in graph["drill_env.identify.identification"]
+    assert recordings + ".equation_error" in graph["drill_env.discrepancy.workflow"]
+    # ... which knows neither of them, and neither imports the other
+    for src, dst in (
+        (recordings, identify),
+        (recordings, discrepancy),
+        (identify, discrepancy),
+        (discrepancy, identify),
+    ):
+        found = {m: d for m, d in _package_edges(graph, src, dst).items() if d}
+        assert found == {}, f"{src} imports {dst}: {found}"

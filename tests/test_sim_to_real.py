@@ -16,8 +16,8 @@ from typer.testing import CliRunner
 from drill_env.agents.evaluation.episodes import EpisodeSettings
 from drill_env.agents.evaluation.sim_to_real import SimToRealConfig, quick_config, run_sim_to_real
 from drill_env.cli import app
-from drill_env.discrepancy.synth import SynthConfig
 from drill_env.params import load_params
+from drill_env.recordings.synth import SynthConfig
 
 runner = CliRunner()
 

@@ -53,7 +53,9 @@ def resolve_config(config: Path) -> Path:
 def register(app: typer.Typer) -> None:
     @app.command("train")
     def train(
-        algo: str = typer.Option(..., help="Algorithm: ppo or sac (stable-baselines3), tqc or crossq (sb3-contrib)."),
+        algo: str = typer.Option(
+            ..., help="Algorithm: ppo or sac (stable-baselines3), tqc or crossq (sb3-contrib)."
+        ),
         config: Path = typer.Option(
             ...,
             help="Training config: a YAML file, or the name of one shipped with the package "

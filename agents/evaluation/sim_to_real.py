@@ -4,7 +4,7 @@ The worked example closes the loop the discrepancy workflow opens. A *truth* pla
 preset plus a hidden effect and a few percent of parameter error, written as a rig YAML)
 stands for the real rig; every step sees only what a user of the real rig would have:
 
-1. *Measure*: :func:`drill_env.discrepancy.synth.make_dataset` records constant-voltage and
+1. *Measure*: :func:`drill_env.recordings.synth.make_dataset` records constant-voltage and
    quasi-random runs on the truth plant through the rig's encoders (no added angle noise:
    a real encoder's angle is the quantised true angle).
 2. *Explain*: :func:`drill_env.discrepancy.workflow.run_discrepancy` compares the data with
@@ -82,7 +82,7 @@ ANGLE_LOCKED = "position_friction_lower"  # the effect the angle-locked feedforw
 
 
 def _default_synth():
-    from drill_env.discrepancy.synth import SynthConfig
+    from drill_env.recordings.synth import SynthConfig
 
     return SynthConfig(preset="brake", angle_noise_std=0.0)
 
@@ -92,7 +92,7 @@ class SimToRealConfig:
     """The worked example's truth plant, measurements, controllers and grid.
 
     ``parameter_errors`` are relative errors of identified parameters of the truth plant
-    (:data:`drill_env.discrepancy.synth.IDENTIFIED` names); ``magnitude`` is the hidden
+    (:data:`drill_env.recordings.synth.IDENTIFIED` names); ``magnitude`` is the hidden
     effect's (for ``position_friction_lower``: a1, a2 = a1 U(0, 0.5), random phases).
     """
 
@@ -111,9 +111,9 @@ class SimToRealConfig:
     truth_file: str | None = None  # a plant file to take as the truth (effect, magnitude, errors unused)
 
     def __post_init__(self) -> None:
-        from drill_env.discrepancy.synth import HIDDEN_EFFECTS, IDENTIFIED, SynthConfig
         from drill_env.envs.task import VOLTAGE_LIMIT
         from drill_env.params import load_params
+        from drill_env.recordings.synth import HIDDEN_EFFECTS, IDENTIFIED, SynthConfig
 
         if not isinstance(self.synth, SynthConfig):
             raise ValueError(f"synth: expected a SynthConfig, got {type(self.synth).__name__}")
@@ -303,10 +303,10 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     from drill_env.agents.controllers.gains import gains_path, load_gains
     from drill_env.agents.evaluation.episodes import evaluate, make_env, run_episode
     from drill_env.agents.registry import build_controller, observation_version
-    from drill_env.discrepancy.synth import make_dataset, make_plant_dataset, write_synthetic
     from drill_env.discrepancy.workflow import run_discrepancy
     from drill_env.outputs import atomic_write_text
     from drill_env.params import load_params
+    from drill_env.recordings.synth import make_dataset, make_plant_dataset, write_synthetic
 
     preset = cfg.preset
     timings: dict[str, float] = {}
@@ -974,7 +974,7 @@ def quick_config(
     controllers: Sequence[str] = CONTROLLERS, voltages: Sequence[float] = (1.0,)
 ) -> SimToRealConfig:
     """A reduced example for a smoke run: short recordings, short episodes, one seed."""
-    from drill_env.discrepancy.synth import SynthConfig
+    from drill_env.recordings.synth import SynthConfig
 
     return SimToRealConfig(
         synth=SynthConfig(

@@ -119,13 +119,6 @@ def synth(
 ) -> None:
     """Make measured-like data from a truth model with one hidden effect (and, with --param-error,
     parameters off by a few percent), or from a truth plant file (--plant)."""
-    from drill_env.discrepancy.synth import (
-        HIDDEN_EFFECTS,
-        SynthConfig,
-        make_dataset,
-        make_plant_dataset,
-        write_synthetic,
-    )
     from drill_env.outputs import (
         check_new_folder,
         check_output_file,
@@ -134,6 +127,13 @@ def synth(
         output_lock,
     )
     from drill_env.params import ParameterError
+    from drill_env.recordings.synth import (
+        HIDDEN_EFFECTS,
+        SynthConfig,
+        make_dataset,
+        make_plant_dataset,
+        write_synthetic,
+    )
 
     # the arguments first, then both outputs, all before the runs are simulated
     if (effect is None) == (plant is None):
@@ -258,9 +258,9 @@ def discrepancy(
             f"from -{MAX_VOLTAGE_LAG} to {MAX_VOLTAGE_LAG} (a larger offset is not one clock's sampling: "
             "align the files by their time stamps)"
         )
-    from drill_env.discrepancy.dataset import DatasetError
     from drill_env.discrepancy.workflow import run_discrepancy
     from drill_env.outputs import check_output_folder
+    from drill_env.recordings.dataset import DatasetError
 
     nominal = None
     if params is not None:

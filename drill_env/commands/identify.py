@@ -49,12 +49,12 @@ def identify(
         _fail("DATA_DIR: missing; give a dataset folder (or --plan for the experiments to record)")
     if out is None:
         _fail("--out: missing; give the output folder")
-    from drill_env.discrepancy.dataset import load_dataset
     from drill_env.identify.identification import identify as run_identify
     from drill_env.identify.identification import parse_known
     from drill_env.identify.report import write_outputs
     from drill_env.outputs import check_output_folder, output_lock
     from drill_env.params import available_presets
+    from drill_env.recordings.dataset import load_dataset
 
     if structure is not None and structure not in available_presets():
         _fail(f"--structure: {structure!r}; allowed: {', '.join(available_presets())}")

@@ -1,12 +1,9 @@
 """Model-discrepancy workflow: where, and by which missing effect, measured data leave the model.
 
-* :mod:`~drill_env.discrepancy.dataset` -- the measured-data format, loader and writer;
-* :mod:`~drill_env.discrepancy.synth` -- measured-like data from a truth model with one
-  hidden effect;
-* :mod:`~drill_env.discrepancy.equation_error` -- the filtered equation error and its
-  noise floor;
-* :mod:`~drill_env.discrepancy.effects` -- the candidate library: physical effects and the
-  encoders' eccentricity (a measurement effect, :mod:`drill_env.measurement`);
+It reads recordings through :mod:`drill_env.recordings` (the dataset format, the equation
+error, the effect library, the sensor-space comparison, synthetic recordings); its own parts:
+
+* :mod:`~drill_env.discrepancy.calibrate` -- the recalibration of the identified parameters;
 * :mod:`~drill_env.discrepancy.scoring` -- per-run statistics, joint fits, held-out scores
   and the false-discovery step;
 * :mod:`~drill_env.discrepancy.spectral_lines` -- lines common to the runs and what they
@@ -17,22 +14,25 @@
   (:mod:`~drill_env.discrepancy.decide` re-exports the public names);
 * :mod:`~drill_env.discrepancy.sensor_effects` -- an unexplained rotation-locked line as an
   encoder's reading error (eccentricity) beside position friction;
-* :mod:`~drill_env.discrepancy.compare` -- sensor-space comparison by simulation;
+* :mod:`~drill_env.discrepancy.timing` -- a voltage column recorded on another clock;
 * :mod:`~drill_env.discrepancy.workflow`, :mod:`~drill_env.discrepancy.report` -- the
   command's whole run and its report;
 * :mod:`~drill_env.discrepancy.study` -- the hidden-effect study.
+
+The dataset functions (:func:`load_dataset`, :func:`write_dataset`, :func:`make_dataset`, ...)
+are :mod:`drill_env.recordings`' own, importable from here as well.
 """
 
-from drill_env.discrepancy.dataset import (
+from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse, run_discrepancy
+from drill_env.recordings.dataset import (
     DatasetError,
     MeasuredDataset,
     MeasuredRun,
     load_dataset,
     write_dataset,
 )
-from drill_env.discrepancy.effects import CANDIDATES, candidate_names
-from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
-from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse, run_discrepancy
+from drill_env.recordings.effects import CANDIDATES, candidate_names
+from drill_env.recordings.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset, write_synthetic
 
 __all__ = [
     "CANDIDATES",

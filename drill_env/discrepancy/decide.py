@@ -34,8 +34,8 @@ from drill_env.discrepancy.verdict import (
     demote,
     second_effect,
     sensor_worse,
-    split_runs,
 )
+from drill_env.recordings.split import split_runs
 
 __all__ = [
     "DecisionRule",

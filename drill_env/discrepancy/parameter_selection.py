@@ -13,15 +13,11 @@ import numpy as np
 from scipy import stats
 
 from drill_env.discrepancy.calibrate import (
-    CALIBRATED,
     ParameterFit,
     calibrated_params,
-    calibration_columns,
     parameter_fits,
     solve_joint,
 )
-from drill_env.discrepancy.effects import CANDIDATES, Candidate
-from drill_env.discrepancy.equation_error import RunEquations
 from drill_env.discrepancy.scoring import (
     CalibrationSetup,
     CandidateScore,
@@ -35,6 +31,9 @@ from drill_env.discrepancy.scoring import (
     _significance,
 )
 from drill_env.params import IDENTIFIED_PARAMETERS, ParameterError, RigParams
+from drill_env.recordings.effects import CANDIDATES, Candidate
+from drill_env.recordings.equation_error import RunEquations
+from drill_env.recordings.regression import CALIBRATED, calibration_columns
 
 __all__ = [
     "recalibrated_equations",

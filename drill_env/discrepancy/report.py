@@ -354,7 +354,7 @@ def _sensor_lines(res) -> list[str]:
 def _rotation_section(res) -> list[str]:
     """A named effect locked to a disk's rotation: the physical and the sensor explanation side
     by side, with their held-out scores, and what each means on the rig."""
-    from drill_env.discrepancy.effects import CANDIDATES
+    from drill_env.recordings.effects import CANDIDATES
 
     kinds = {c.name: c.kind for c in CANDIDATES}
     d = res.decision

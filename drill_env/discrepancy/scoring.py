@@ -23,9 +23,9 @@ from drill_env.discrepancy.calibrate import (
     CalibrationStatistics,
     solve_joint,
 )
-from drill_env.discrepancy.effects import CANDIDATES, Candidate
-from drill_env.discrepancy.equation_error import RunEquations
 from drill_env.params import RigParams
+from drill_env.recordings.effects import CANDIDATES, Candidate
+from drill_env.recordings.equation_error import RunEquations
 
 __all__ = [
     "DecisionRule",

@@ -1,7 +1,7 @@
 """Sensor explanations of a residual line locked to a disk's rotation.
 
 A line that keeps a disk's angle can be physical (a friction that changes with the
-position, :mod:`~drill_env.discrepancy.effects`) or an error of the measurement: an
+position, :mod:`~drill_env.recordings.effects`) or an error of the measurement: an
 eccentric encoder disk reads ``theta + a sin(theta + phi)``, once per revolution. The
 second is no torque at all, but the equation error computed from the readings holds the
 model's response to the reading error,
@@ -12,7 +12,7 @@ on the disk whose encoder errs (inertia, string, viscous and Stribeck terms of i
 equation) and ``-k_theta K[e] / h^2`` on the other disk (the twist). With ``e = c cos
 theta + s sin theta`` that is two columns, linear in ``(c, s)``, fitted like a candidate's
 (coefficients common to the runs: the encoder is the same in every run). The columns
-(:func:`~drill_env.discrepancy.effects.eccentricity_columns`) make the library's measurement
+(:func:`~drill_env.recordings.effects.eccentricity_columns`) make the library's measurement
 candidates ``encoder_eccentricity_<disk>``, judged by the held-out rules like every other;
 here, for a line that stays ``unexplained``, both explanations are scored on the same
 residual and listed side by side in the report, so that a lab user looks at the encoder as
@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.discrepancy.effects import CANDIDATES, eccentricity_columns
-from drill_env.discrepancy.equation_error import RunEquations
+from drill_env.recordings.effects import CANDIDATES, eccentricity_columns
+from drill_env.recordings.equation_error import RunEquations
 
 __all__ = ["eccentricity_columns", "rotation_explanations"]
 

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from drill_env.discrepancy.equation_error import RunEquations
 from drill_env.discrepancy.scoring import DecisionRule
+from drill_env.recordings.equation_error import RunEquations
 
 __all__ = [
     "LineScan",

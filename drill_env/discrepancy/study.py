@@ -43,10 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse
 from drill_env.outputs import atomic_file, atomic_write_text, output_lock
+from drill_env.recordings.dataset import MeasuredDataset
+from drill_env.recordings.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 
 __all__ = [
     "run_study",
@@ -848,8 +848,8 @@ def paper_case(
 
 def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
     from drill_env.discrepancy.report import plot_spectra
-    from drill_env.discrepancy.synth import write_synthetic
     from drill_env.discrepancy.workflow import run_discrepancy
+    from drill_env.recordings.synth import write_synthetic
 
     syn = make_dataset("position_friction_lower", seed=seed, magnitude=magnitude, config=PAPER_CASE)
     write_synthetic(syn, data_dir, out / "answer.json", preset=PAPER_CASE.preset)

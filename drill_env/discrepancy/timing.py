@@ -17,7 +17,7 @@ at the same windows. Parameters a few percent off (the motor constant, the inert
 leave a response at every step, and re-timing alone would trade one for the other (with 5 %
 parameter errors and no lag, three datasets of four claimed lags of 2-3 samples). So each
 residual is first refitted on the parameters' own columns (those of the recalibration,
-:func:`~drill_env.discrepancy.calibrate.calibration_columns`, coefficients free per run), at
+:func:`~drill_env.recordings.regression.calibration_columns`, coefficients free per run), at
 every shift alike: :func:`voltage_lag_scan` computes the drop of what is left of the sum of
 squares (noise units) ``D_k = min |z - A d|^2 - min |z_k - A d|^2`` for ``k`` in ``-3..3``
 over every run, on the training and the held-out runs separately. A lag is claimed only when the best nonzero ``k`` drops the
@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from drill_env.discrepancy.calibrate import calibration_columns
+from drill_env.recordings.regression import calibration_columns
 
 __all__ = ["MAX_VOLTAGE_LAG", "VoltageLag", "shift_voltage", "voltage_lag_scan"]
 

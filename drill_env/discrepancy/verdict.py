@@ -4,7 +4,7 @@ All statistics are in noise units: every window's residual and candidate columns
 divided by that window's noise standard deviation, so that the nominal model with
 the right noise floor gives a sum of squares ~ chi^2 with one degree of freedom per
 window. The floor is the encoder's, spectral lines of the quantisation error included
-(:mod:`drill_env.discrepancy.equation_error`): a window where a line of an undithered
+(:mod:`drill_env.recordings.equation_error`): a window where a line of an undithered
 encoder aliases into its pass band weighs little, one where none does weighs much. The
 per-run statistics and the candidates' held-out scores are in
 :mod:`~drill_env.discrepancy.scoring`, the spectral lines in
@@ -61,11 +61,9 @@ import numpy as np
 from scipy import stats
 
 from drill_env.discrepancy.calibrate import (
-    CALIBRATED,
     ParameterFit,
     parameter_fits,
 )
-from drill_env.discrepancy.effects import CANDIDATES, Candidate
 from drill_env.discrepancy.parameter_selection import (
     _gram_fit,
     _is_lag,
@@ -90,6 +88,8 @@ from drill_env.discrepancy.scoring import (
     _significance,
 )
 from drill_env.discrepancy.spectral_lines import LineScan
+from drill_env.recordings.effects import CANDIDATES, Candidate
+from drill_env.recordings.regression import CALIBRATED
 
 __all__ = [
     "NOT_AN_EFFECT",
@@ -99,7 +99,6 @@ __all__ = [
     "second_effect",
     "sensor_worse",
     "readings_gain",
-    "split_runs",
     "SENSOR_CHECKS",
     "SENSOR_RELATIVE_TOLERANCE",
 ]
@@ -265,21 +264,6 @@ def _verdict(train, held, rule: DecisionRule, line: LineScan | None, candidates,
         0.0,
         ref,
     )
-
-
-def split_runs(runs) -> tuple[list[str], list[str]]:
-    """Held-out runs: every third run, in order of voltage, separately for constant-voltage
-    and varying-voltage runs (at least one of each kind held out when it has two or more)."""
-    const = sorted([r for r in runs if r.is_constant_voltage], key=lambda r: (r.voltage, r.name))
-    vary = sorted([r for r in runs if not r.is_constant_voltage], key=lambda r: r.name)
-    held: list[str] = []
-    for group in (const, vary):
-        if len(group) >= 2:
-            held += [r.name for i, r in enumerate(group) if i % 3 == 1]
-    if not held:
-        raise ValueError("the dataset needs at least two runs of one kind to hold one out")
-    train = [r.name for r in runs if r.name not in held]
-    return train, held
 
 
 def _fallback(structure) -> str:

@@ -33,15 +33,6 @@ from drill_env.discrepancy.calibrate import (
     identify,
     prior_precision,
 )
-from drill_env.discrepancy.compare import CompareConfig, RunComparison, aggregate, compare_run
-from drill_env.discrepancy.dataset import MeasuredDataset, load_dataset
-from drill_env.discrepancy.effects import CANDIDATES
-from drill_env.discrepancy.equation_error import (
-    AngleNoise,
-    EquationErrorConfig,
-    RunEquations,
-    estimate_angle_noise,
-)
 from drill_env.discrepancy.parameter_selection import (
     final_parameters,
     first_calibration,
@@ -60,11 +51,20 @@ from drill_env.discrepancy.verdict import (
     readings_gain,
     second_effect,
     sensor_worse,
-    split_runs,
 )
 from drill_env.measurement import MeasurementModel, write_model_yaml
 from drill_env.outputs import atomic_write_text, output_lock
 from drill_env.params import ParameterError, RigParams, load_params, validity_warnings
+from drill_env.recordings.compare import CompareConfig, RunComparison, aggregate, compare_run
+from drill_env.recordings.dataset import MeasuredDataset, load_dataset
+from drill_env.recordings.effects import CANDIDATES
+from drill_env.recordings.equation_error import (
+    AngleNoise,
+    EquationErrorConfig,
+    RunEquations,
+    estimate_angle_noise,
+)
+from drill_env.recordings.split import split_runs
 
 __all__ = ["DiscrepancyResult", "analyse", "run_discrepancy", "RESULT_EFFECTS"]
 

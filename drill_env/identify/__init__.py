@@ -1,10 +1,11 @@
 """Identify every parameter of the rig model from a lab's recordings ("bring your own rig").
 
-* :mod:`~drill_env.identify.steady_state` -- stuck / equilibrium / cycle per constant-voltage
-  run, the upper disk's mean balance and the lower friction curve's points;
+It reads recordings through :mod:`drill_env.recordings` (the dataset, the equation error and
+its regression columns, the steady states, the sensor-space comparison); its own parts:
+
 * :mod:`~drill_env.identify.dynamics` -- the period of the torsional cycles;
 * :mod:`~drill_env.identify.joint` -- the joint fit of every parameter on the filtered
-  equation error (:mod:`drill_env.discrepancy.equation_error`) with its intervals;
+  equation error (:mod:`drill_env.recordings.equation_error`) with its intervals;
 * :mod:`~drill_env.identify.identification` -- the whole identification (:func:`identify`);
 * :mod:`~drill_env.identify.plan` -- the experiments that identify a rig;
 * :mod:`~drill_env.identify.report` -- rig.yaml, identification.json, report.md, figures;
@@ -12,7 +13,7 @@
 
 Example::
 
-    from drill_env.discrepancy import load_dataset
+    from drill_env.recordings import load_dataset
     from drill_env.identify import identify
     res = identify(load_dataset("my_rig/"), known={"string_stiffness": 0.081})
     res.params.to_yaml("rig.yaml"); res.parameters["lower_inertia"].ci95

@@ -2,7 +2,7 @@
 
 The steps, in the rig's order (Sec. 2.3 of the paper did them by hand on its rig):
 
-1. **Steady states** of the constant-voltage runs (:mod:`.steady_state`): stuck, slip
+1. **Steady states** of the constant-voltage runs (:mod:`drill_env.recordings.steady_state`): stuck, slip
    equilibrium or cycle; the upper disk's mean balance and the lower friction curve's
    points at the equilibria, relative to the one known value (the *scale*).
 2. **Dynamics** (:mod:`.dynamics`): the period of the cycles gives the string's resonance,
@@ -34,12 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.discrepancy.dataset import MeasuredDataset
-from drill_env.discrepancy.equation_error import EquationErrorConfig, RunEquations, estimate_angle_noise
 from drill_env.identify.dynamics import oscillation_frequency
 from drill_env.identify.joint import HUMP_AMPLITUDES, HUMP_RATES, JointFit, fitted_params, joint_fit, run_rows
 from drill_env.identify.plan import RUN_THAT_IDENTIFIES
-from drill_env.identify.steady_state import SteadyState, UpperBalance, steady_states, upper_balance
 from drill_env.params import (
     IDENTIFIED_PARAMETERS,
     ModelEffects,
@@ -48,6 +45,9 @@ from drill_env.params import (
     available_presets,
     load_params,
 )
+from drill_env.recordings.dataset import MeasuredDataset
+from drill_env.recordings.equation_error import EquationErrorConfig, RunEquations, estimate_angle_noise
+from drill_env.recordings.steady_state import SteadyState, UpperBalance, steady_states, upper_balance
 
 __all__ = ["Identification", "ParameterResult", "identify", "parse_known", "SCALE_PARAMETERS"]
 
@@ -203,7 +203,7 @@ def _split(runs, heldout: list[str] | None) -> tuple[list[str], list[str]]:
         if heldout and len(train) < 2:
             raise ValueError("heldout: leaves fewer than two runs to identify on")
         return train, list(heldout)
-    from drill_env.discrepancy.decide import split_runs
+    from drill_env.recordings.split import split_runs
 
     if len(runs) < 4:
         return names, []  # too few runs to spare one
@@ -341,7 +341,7 @@ def identify(
     """Identify every parameter of the rig model from ``dataset`` (see the module docstring).
 
     Args:
-        dataset: a loaded dataset (:func:`drill_env.discrepancy.dataset.load_dataset`).
+        dataset: a loaded dataset (:func:`drill_env.recordings.dataset.load_dataset`).
         structure: ``brake`` or ``no_brake`` (default: the dataset's ``preset``); names the
             identified rig and, without ``known``, which preset's string stiffness is assumed.
         known: at most one of ``{"string_stiffness": k}`` [N m/rad] or ``{"motor_constant": k_m}``
@@ -445,7 +445,7 @@ def identify(
         timings=timings,
     )
     if simulate_heldout and held and train_params is not None:
-        from drill_env.discrepancy.compare import compare_run
+        from drill_env.recordings.compare import compare_run
 
         t1 = time.perf_counter()
         cache: dict = {}

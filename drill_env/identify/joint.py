@@ -1,8 +1,8 @@
 """The joint fit: every parameter of the rig model from the filtered equation error of all runs.
 
-The equation error of :mod:`drill_env.discrepancy.equation_error` is, per window and disk,
+The equation error of :mod:`drill_env.recordings.equation_error` is, per window and disk,
 the mean unexplained torque. It is *linear* in every parameter of the model but the two
-Stribeck rates (:func:`drill_env.discrepancy.calibrate.calibration_columns` gives the
+Stribeck rates (:func:`drill_env.recordings.regression.calibration_columns` gives the
 columns; the string stiffness adds ``+K[x1]`` to the upper and ``-K[x1]`` to the lower
 disk's rows):
 
@@ -33,9 +33,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 
-from drill_env.discrepancy.calibrate import CALIBRATED, calibration_columns
-from drill_env.discrepancy.equation_error import RunEquations
 from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams
+from drill_env.recordings.equation_error import RunEquations
+from drill_env.recordings.regression import CALIBRATED, calibration_columns
 
 __all__ = ["RunRows", "JointFit", "run_rows", "joint_fit", "HUMP_AMPLITUDES", "HUMP_RATES", "LINEAR"]
 

@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from drill_env.discrepancy.synth import SynthConfig
+    from drill_env.recordings.synth import SynthConfig
 
 __all__ = ["ExperimentPlan", "PLANS", "plan_text", "RUN_THAT_IDENTIFIES"]
 
@@ -137,9 +137,9 @@ def plan_text() -> str:
 
 
 def synth_config(plan: ExperimentPlan | str, rig: str, **overrides: Any) -> SynthConfig:
-    """The :class:`~drill_env.discrepancy.synth.SynthConfig` that records ``rig`` (a preset or a
+    """The :class:`~drill_env.recordings.synth.SynthConfig` that records ``rig`` (a preset or a
     rig YAML) on ``plan``; ``overrides`` set other fields (sample rate, encoder, ...)."""
-    from drill_env.discrepancy.synth import SynthConfig
+    from drill_env.recordings.synth import SynthConfig
 
     p = PLANS[plan] if isinstance(plan, str) else plan
     fields: dict[str, Any] = {  # SynthConfig's fields by name

@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 from scipy.signal import welch
 
-from drill_env.discrepancy.equation_error import RunEquations, _adaptive_speed
 from drill_env.metrics import dominant_period
 from drill_env.params import RigParams
+from drill_env.recordings.equation_error import RunEquations, _adaptive_speed
 
 __all__ = ["CompareConfig", "RunComparison", "compare_run", "sensor_speed", "SteadyFeatures"]
 
@@ -153,7 +153,7 @@ def _state(eq: RunEquations, k: int, measurement=None) -> dict[str, float]:
 
 def _thermal(params: RigParams, eq: RunEquations) -> np.ndarray:
     """The thermal state of a heated rig along the run, estimated from the data once per run."""
-    from drill_env.discrepancy.effects import thermal_trajectory
+    from drill_env.recordings.effects import thermal_trajectory
 
     cache = eq.__dict__.setdefault("_thermal_cache", {})
     if params not in cache:

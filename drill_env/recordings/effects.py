@@ -7,7 +7,7 @@ error's response to the reading error and whose parameters go to the measurement
 :class:`drill_env.params.ModelEffects`), a signature in the equation error (which disk,
 which measured signal it follows) and a map from its fitted parameters to the
 ``effects:`` entries of a rig YAML. In the equation error every candidate is a set of
-columns ``K[basis]/h^2`` at the windows of :class:`~drill_env.discrepancy.equation_error.RunEquations`,
+columns ``K[basis]/h^2`` at the windows of :class:`~drill_env.recordings.equation_error.RunEquations`,
 added to the nominal torques with coefficients to fit; the two lag effects are
 nonlinear in one time constant, which is found on a grid with the coefficient fixed
 by physics (1). Friction heating has a free coefficient (kappa) as well as a time
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drill_env.discrepancy.equation_error import RunEquations, stribeck, stribeck_slope
 from drill_env.measurement import MAX_ENCODER_ECCENTRICITY
+from drill_env.recordings.equation_error import RunEquations, stribeck, stribeck_slope
 
 __all__ = [
     "Candidate",

@@ -33,7 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.discrepancy.dataset import (
+from drill_env.measurement import MAX_ENCODER_ECCENTRICITY, MeasurementModel
+from drill_env.outputs import atomic_write_text
+from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams, load_params
+from drill_env.recordings.dataset import (
     MAX_RATE_HZ,
     MAX_RUN_BYTES,
     MIN_DURATION_S,
@@ -41,9 +44,6 @@ from drill_env.discrepancy.dataset import (
     MeasuredRun,
     write_dataset,
 )
-from drill_env.measurement import MAX_ENCODER_ECCENTRICITY, MeasurementModel
-from drill_env.outputs import atomic_write_text
-from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams, load_params
 from drill_env.sensors import MAX_ANGLE_NOISE_RAD
 
 __all__ = [
@@ -257,7 +257,7 @@ class SynthConfig:
             )
         if not self.voltages and self.random_runs == 0:
             raise ValueError("voltages/random_runs: the dataset would hold no run")
-        # the ranges of the loader (drill_env.discrepancy.dataset): a dataset synth writes is one
+        # the ranges of the loader (drill_env.recordings.dataset): a dataset synth writes is one
         # the workflow reads
         if not (math.isfinite(self.sample_rate_hz) and MIN_RATE_HZ <= self.sample_rate_hz <= MAX_RATE_HZ):
             raise ValueError(

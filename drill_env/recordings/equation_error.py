@@ -66,7 +66,7 @@ allow for.
 
 Every extra effect of the candidate library enters linearly (or, for the two lag
 effects, through a first-order filter of a measured signal) as a column of the same
-kernel sums; see :mod:`drill_env.discrepancy.effects`.
+kernel sums; see :mod:`drill_env.recordings.effects`.
 """
 
 from __future__ import annotations
