@@ -35,12 +35,12 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
-from drill_env.agents.controllers.base import ControllerSpec
-from drill_env.agents.controllers.gains import classical_controller, gains_path, load_gains
-from drill_env.envs import make_version
+
+if TYPE_CHECKING:  # re-exported on first use (__getattr__ below)
+    from drill_env.agents.controllers.gains import classical_controller, gains_path, load_gains
 
 __all__ = [
     "CLASSICAL",
@@ -62,6 +62,17 @@ __all__ = [
     "teacher_policy",
     "training_config",
 ]
+
+
+def __getattr__(name: str):
+    # the gains' readers, re-exported here, import the controllers' design (SciPy): only on use,
+    # so that the lists below (the command line's help) cost nothing
+    if name in ("classical_controller", "gains_path", "load_gains"):
+        from drill_env.agents.controllers import gains
+
+        return getattr(gains, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 # The one list of the benchmark's controllers, in the order of its tables and legends: the
 # figures, the command-line help and the checks of a controller name all derive from these.
@@ -195,6 +206,9 @@ def build_controller(
 ):
     """Any benchmark controller by name for environment ``env`` of ``preset``."""
     if name in CLASSICAL:
+        from drill_env.agents.controllers.base import ControllerSpec
+        from drill_env.agents.controllers.gains import classical_controller
+
         return classical_controller(name, ControllerSpec.from_env(env), preset, gains_file)
     if name in LEARNED:
         from drill_env.agents.learning.rl import load_policy
@@ -219,6 +233,8 @@ def _rebase(policy: Any, env: Any, preset: str) -> None:
     base = getattr(policy, "base", None)
     if base is None or not hasattr(base, "redesigned"):
         return
+    from drill_env.agents.controllers.base import ControllerSpec
+
     design = ControllerSpec.from_env(env)
     own = load_params(preset)
     if not design.effects.active and np.array_equal(design.params.as_array(), own.as_array()):
@@ -255,6 +271,8 @@ def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any
 
     if name not in WARM_START_POLICIES:
         raise ValueError(f"warm_start.policy: {name!r} is not one of {list(WARM_START_POLICIES)}")
+    from drill_env.envs import make_version
+
     env = make_version(env_id, **env_kwargs)
     try:
         return build_controller(name, env, ENV_IDS[env_id])

@@ -7,37 +7,57 @@ Quick start::
     res.to_pandas()
 """
 
-from drill_env import _cache
+from typing import TYPE_CHECKING
 
-_cache.configure()  # before any compiled function is defined
+import drill_env.envs  # noqa: F401  (registers the environments when Gymnasium is imported)
 
-import drill_env.envs  # noqa: E402, F401  (registers DrillString-v0 and DrillStringNoBrake-v0)
-from drill_env.params import (  # noqa: E402
-    ModelEffects,
-    ParameterError,
-    RigParams,
-    available_presets,
-    load_params,
-    resolve_params,
-)
-from drill_env.result import EventLog, SimulationResult  # noqa: E402
-from drill_env.simulator import simulate, simulate_batch  # noqa: E402
+if TYPE_CHECKING:  # the lazy names below, for type checkers and editors
+    from drill_env.envs.sb3 import sb3_vec_env
+    from drill_env.params import (
+        ModelEffects,
+        ParameterError,
+        RigParams,
+        available_presets,
+        load_params,
+        resolve_params,
+    )
+    from drill_env.precompile import precompile
+    from drill_env.result import EventLog, SimulationResult
+    from drill_env.simulator import simulate, simulate_batch
 
 __version__ = "0.1.0"
 
+# The public names, imported on first use (PEP 562): ``import drill_env`` and the command line's
+# ``--help`` load neither numba nor SciPy nor torch until a name that needs them is used.
+_LAZY = {
+    "ModelEffects": "drill_env.params",
+    "ParameterError": "drill_env.params",
+    "RigParams": "drill_env.params",
+    "available_presets": "drill_env.params",
+    "load_params": "drill_env.params",
+    "resolve_params": "drill_env.params",
+    "EventLog": "drill_env.result",
+    "SimulationResult": "drill_env.result",
+    "simulate": "drill_env.simulator",
+    "simulate_batch": "drill_env.simulator",
+    "sb3_vec_env": "drill_env.envs.sb3",
+    "precompile": "drill_env.precompile",
+}
+
 
 def __getattr__(name: str):
-    # Lazy: drill_env.envs.sb3 imports Stable-Baselines3 and torch (about 1 s), not needed
-    # by `import drill_env`.
-    if name == "sb3_vec_env":
-        from drill_env.envs.sb3 import sb3_vec_env
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
 
-        return sb3_vec_env
-    if name == "precompile":
-        from drill_env.precompile import precompile
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later lookups skip this function
+    return value
 
-        return precompile
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
 
 
 __all__ = [

@@ -18,6 +18,12 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
+from drill_env import _cache
+
+# every compiled module imports this one before defining a function: the cache directory is
+# set here, once, and ``import drill_env`` alone (or ``drill-env --help``) loads no numba
+_cache.configure()
+
 __all__ = ["JIT_ALLOC", "JIT", "INLINE"]
 
 # keyword arguments of numba.njit, of several types each (``_nrt`` is one numba's own

@@ -19,8 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.friction import lower_friction_curve
-
 __all__ = [
     "ModelEffects",
     "RigParams",
@@ -215,6 +213,8 @@ class RigParams:
             raise ParameterError(f"effects: expected ModelEffects, got {type(self.effects).__name__}")
         # Eq. (4): friction is dissipative, T_lp(w) > 0 for all w >= 0.
         w = np.linspace(0.0, 50.0, 2001)
+        from drill_env.friction import lower_friction_curve  # compiled: imported when used
+
         slip = lower_friction_curve(self, w)
         if np.any(slip[1:] <= 0.0):
             raise ParameterError(

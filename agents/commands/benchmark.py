@@ -9,11 +9,6 @@ from pathlib import Path
 
 import typer
 
-from drill_env.params import PRESETS as RIG_PRESETS
-
-PRESETS = ("all", *RIG_PRESETS)
-
-
 MAX_SEEDS = 1000  # seeds per operating point
 MAX_RUNS = 1_000_000  # runs of one benchmark (controllers x voltages x plants x seeds)
 MAX_WORKERS = 256
@@ -141,6 +136,9 @@ def register(app: typer.Typer) -> None:
         OUT/summary.md (a table per regime), OUT/bifurcation_<preset>.png and
         OUT/suppression_<preset>.png.
         """
+        from drill_env.params import PRESETS as RIG_PRESETS
+
+        PRESETS = ("all", *RIG_PRESETS)
         names = [x.strip() for x in preset.split(",") if x.strip()]
         for name in names:
             if name not in PRESETS:

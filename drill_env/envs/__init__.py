@@ -1,6 +1,7 @@
 """Gymnasium environments of the drill-string rig.
 
-Importing this package (``import drill_env`` does) registers them:
+Importing this package (``import drill_env`` does) registers them with Gymnasium (as soon as
+Gymnasium is imported, before or after):
 
 * ``DrillString-v0``: the rig with the brake on the lower disk (the paper's experiments);
 * ``DrillStringNoBrake-v0``: the rig without the brake;
@@ -26,6 +27,8 @@ call.
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from typing import Any
 
 __all__ = ["register_envs", "make_version", "ENV_IDS", "ENV_VERSIONS", "MAX_EPISODE_STEPS"]
@@ -98,4 +101,38 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-register_envs()
+class _AfterGymnasiumImport:
+    """A one-shot import hook (a :data:`sys.meta_path` finder): the first import of Gymnasium
+    is done by the other finders as usual, and :func:`register_envs` runs right after
+    Gymnasium's own ``__init__`` has finished."""
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        if fullname != "gymnasium":
+            return None
+        sys.meta_path.remove(self)  # once: the real spec comes from the finders after this one
+        spec = importlib.util.find_spec(fullname)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        loader = spec.loader
+        run = loader.exec_module
+
+        def exec_module(module: Any) -> None:
+            run(module)
+            register_envs()
+
+        loader.exec_module = exec_module  # type: ignore[method-assign]  # this module object only
+        return spec
+
+
+def _register_on_import() -> None:
+    """Register the environments with Gymnasium now if it is imported, else right after its
+    import: ``import drill_env`` and the command line's ``--help`` then load neither Gymnasium
+    nor NumPy, and ``gymnasium.make("DrillString-v3")`` works after ``import drill_env`` in
+    either order."""
+    if "gymnasium" in sys.modules:
+        register_envs()
+    elif not any(isinstance(f, _AfterGymnasiumImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _AfterGymnasiumImport())
+
+
+_register_on_import()
