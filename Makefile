@@ -40,6 +40,8 @@ results-quick:
 
 # The documentation site: every warning is an error; the tutorials run while it builds.
 docs:
+	@.venv/bin/python -c "import sphinx, furo, myst_parser, sphinx_gallery" 2>/dev/null || { \
+	  echo "error: the documentation needs the docs extra: .venv/bin/python -m pip install -c constraints.txt -e '.[docs]' (or make setup)" >&2; exit 2; }
 	.venv/bin/python -m sphinx -W --keep-going -b html docs docs/_build/html
 
 docs-clean:

@@ -352,6 +352,7 @@ def write_rig(path: Path, **changes) -> Path:
     return path
 
 
+@pytest.mark.slow  # two LQI tunings: a minute and a half of CPU
 def test_tune_on_model_changes_the_gains_with_the_model(tmp_path):
     committed = load_gains()["presets"]["brake"]["lqi"]["gains"]
     same = write_rig(tmp_path / "same.yaml")

@@ -12,7 +12,14 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.mark.parametrize(
-    "script", ["bench_training.py", "bench_vec_env.py", "bench_env.py", "bench_family.py"]
+    "script",
+    [
+        # the training and family smoke tests train and run a benchmark grid: minutes of CPU
+        pytest.param("bench_training.py", marks=pytest.mark.slow),
+        "bench_vec_env.py",
+        "bench_env.py",
+        pytest.param("bench_family.py", marks=pytest.mark.slow),
+    ],
 )
 def test_bench_script_runs_quick(script):
     res = subprocess.run(
