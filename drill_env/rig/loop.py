@@ -37,7 +37,7 @@ import numpy as np
 from drill_env.rig.protocol import RigInfo, RigIO
 from drill_env.rig.supervisor import Supervisor, SupervisorLimits, Trip
 
-__all__ = ["LoopResult", "RunSettings", "requested_voltage", "run_loop", "write_outputs"]
+__all__ = ["LoopResult", "RunSettings", "call_time", "requested_voltage", "run_loop", "write_outputs"]
 
 # a controller whose call takes more than this share of the period cannot hold the rate
 MAX_CALL_SHARE = 0.5
@@ -105,6 +105,18 @@ def requested_voltage(action: Any, settings: Any, nominal_voltage: float) -> flo
     return u
 
 
+def call_time(controller: Any, observation: np.ndarray, calls: int = 6) -> float:
+    """The controller's time per call [s]: the median of ``calls - 1`` calls on ``observation``
+    after a first one (which may load or compile what the controller needs), each from a fresh
+    start (``state=None``). What it raises is passed on."""
+    times = []
+    for _ in range(calls):
+        c0 = time.perf_counter()
+        controller.predict(observation, state=None, episode_start=np.ones((1,), dtype=bool), deterministic=True)
+        times.append(time.perf_counter() - c0)
+    return float(np.median(times[1:]))
+
+
 def run_loop(
     rig: RigIO,
     info: RigInfo,
@@ -163,6 +175,18 @@ def run_loop(
                 reading.first_tick, reading.counts_upper, reading.counts_lower, float(reading.voltage[-1])
             )
             control = k >= n_warm
+            if k == 0:  # can the controller hold the rate? (timed on the first observation)
+                try:
+                    took = call_time(controller, obs)
+                except Exception as exc:
+                    raise Trip("controller", f"controller: {name} raised {type(exc).__name__}: {exc}") from exc
+                if took > MAX_CALL_SHARE * period:
+                    raise Trip(
+                        "rate",
+                        f"CONTROLLER: {name} takes {took * 1e3:.2f} ms per call, more than "
+                        f"{MAX_CALL_SHARE:.0%} of its {period * 1e3:g} ms period (control_dt {dt:g} s at the "
+                        f"rig's clock x{info.time_scale:g}): it cannot hold the rate; 0 V written",
+                    )
             if k == n_warm:
                 obs_chain.start_episode()
                 obs = _with_episode_start(obs_chain)
