@@ -154,6 +154,22 @@ def run_loop(
         res.events.append((t, kind, text))
 
     try:
+        # can the controller hold the rate? Timed before the rig streams, on the observation of
+        # the rig at rest at this set point (a chain of its own: the loop's starts afresh)
+        probe = Observer(settings, info.counts_per_rev, info.sample_rate_hz)
+        probe.set_point(point.target_speed, point.nominal_voltage)
+        zeros = np.zeros(n_sub, dtype=np.int64)
+        try:
+            took = call_time(controller, probe.update(1, zeros, zeros, point.nominal_voltage))
+        except Exception as exc:
+            raise Trip("controller", f"controller: {name} raised {type(exc).__name__}: {exc}") from exc
+        if took > MAX_CALL_SHARE * period:
+            raise Trip(
+                "rate",
+                f"CONTROLLER: {name} takes {took * 1e3:.2f} ms per call, more than "
+                f"{MAX_CALL_SHARE:.0%} of its {period * 1e3:g} ms period (control_dt {dt:g} s at the "
+                f"rig's clock x{info.time_scale:g}): it cannot hold the rate; 0 V written",
+            )
         rig.start(n_sub, run.limits.watchdog_periods * dt)
         for k in range(n_warm + n_ctrl):
             reading = rig.read(wait)
@@ -175,23 +191,6 @@ def run_loop(
                 reading.first_tick, reading.counts_upper, reading.counts_lower, float(reading.voltage[-1])
             )
             control = k >= n_warm
-            if k == 0:  # can the controller hold the rate? (timed on the first observation)
-                try:
-                    took = call_time(controller, obs)
-                except Exception as exc:
-                    raise Trip("controller", f"controller: {name} raised {type(exc).__name__}: {exc}") from exc
-                if took > MAX_CALL_SHARE * period:
-                    raise Trip(
-                        "rate",
-                        f"CONTROLLER: {name} takes {took * 1e3:.2f} ms per call, more than "
-                        f"{MAX_CALL_SHARE:.0%} of its {period * 1e3:g} ms period (control_dt {dt:g} s at the "
-                        f"rig's clock x{info.time_scale:g}): it cannot hold the rate; 0 V written",
-                    )
-            if k == n_warm:
-                obs_chain.start_episode()
-                obs = _with_episode_start(obs_chain)
-                res.control_start_tick = reading.first_tick + reading.n - 1
-                event(t, "controller_on", f"{name} switched on")
             sup.check_speed(obs_chain.lower_speed, t)
             call = 0.0
             if control:
@@ -257,15 +256,6 @@ def run_loop(
         res.events.extend(sup.events)
         res.events.sort(key=lambda e: e[0])
     return res
-
-
-def _with_episode_start(chain: Any) -> np.ndarray:
-    """The observation as the environment shows it at the switch-on (the integrated speed
-    error restarted there)."""
-    from drill_env.envs._core import _write_obs
-
-    _write_obs(chain._y, chain.ep, chain.ecfg, chain.scfg, chain.sst, chain.obs, chain.out)
-    return chain.obs.copy()
 
 
 # -- outputs ---------------------------------------------------------------------------------------

@@ -37,6 +37,8 @@ from drill_env.envs._core import (
     EP_UNOM,
     NEP,
     NOUT,
+    O_INT_CLIPPED,
+    OB_LOWER_ERR_INT,
     _write_obs,
 )
 from drill_env.sensors import C_TS, S_QL, S_QU, SensorConfig, sensor_reset, sensor_sample, state_size
@@ -90,7 +92,7 @@ class Observer:
         self.next_tick: int | None = None
         self.gaps = 0  # readings lost (the chain restarted across them)
 
-    def _angles(self, counts: np.ndarray) -> np.ndarray:
+    def _angles(self, counts: Any) -> np.ndarray:
         return (np.asarray(counts, dtype=np.float64) + 0.5) * self.res
 
     def set_point(self, target_speed: float, nominal_voltage: float) -> None:
@@ -98,12 +100,18 @@ class Observer:
         self.ep[EP_TARGET] = target_speed
         self.ep[EP_UNOM] = nominal_voltage
 
-    def start_episode(self) -> None:
-        """The controller is switched on now: time and the integrated speed error start here."""
+    def start_episode(self) -> np.ndarray:
+        """The controller is switched on now: time and the integrated speed error start here.
+        Returns the observation as the environment shows it at that instant (its integrated
+        speed error, entry 12 of version 1, is 0 there: ``_write_obs`` gives 0 / scale)."""
         self.ep[EP_TICK0] = self.ep[EP_TICK]
         self.ep[EP_INT_TICK0] = self.ep[EP_TICK]
         self.ep[EP_INT_QL0] = self.sst[S_QL]
         self.ep[EP_INT_TARGET] = self.ep[EP_TARGET]
+        if self.obs.size > OB_LOWER_ERR_INT:
+            self.obs[OB_LOWER_ERR_INT] = 0.0
+            self.out[O_INT_CLIPPED] = 0.0
+        return self.obs.copy()
 
     def update(
         self, first_tick: int, counts_upper: np.ndarray, counts_lower: np.ndarray, voltage: float

@@ -284,8 +284,8 @@ class RigIO(Protocol):
         """Apply ``voltage`` [V] from the next sensor sample on."""
         ...
 
-    def stop(self) -> None:
-        """0 V and stop streaming (waits briefly for the rig's answer)."""
+    def stop(self) -> bool:
+        """0 V and stop streaming; True when the rig confirmed it (waits briefly for its answer)."""
         ...
 
     def close(self) -> None: ...

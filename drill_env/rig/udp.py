@@ -64,7 +64,7 @@ class UdpRig:
         return seq
 
     def _where(self) -> str:
-        return f"{self.address[0]}:{self.address[1]}"
+        return f"{self.address[0]!s}:{self.address[1]!s}"
 
     def _recv(self, timeout: float):
         self._sock.settimeout(max(timeout, 1e-6))
