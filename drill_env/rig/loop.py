@@ -170,7 +170,9 @@ def run_loop(
                 f"{MAX_CALL_SHARE:.0%} of its {period * 1e3:g} ms period (control_dt {dt:g} s at the "
                 f"rig's clock x{info.time_scale:g}): it cannot hold the rate; 0 V written",
             )
-        rig.start(n_sub, run.limits.watchdog_periods * dt)
+        # the rig's own timeout is the loop's watchdog twice over: a backstop for a controller's
+        # computer that died, never the first to act on a late reading
+        rig.start(n_sub, 2 * run.limits.watchdog_periods * dt)
         for k in range(n_warm + n_ctrl):
             reading = rig.read(wait)
             arrival = time.perf_counter()
