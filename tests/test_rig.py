@@ -134,8 +134,6 @@ def _lockstep(controller: str, voltage: float, warmup: float, duration: float, w
     rig = LockstepRig(EmulatedRig(*emulated_plant("brake", None)), **kw)
     info = rig.hello()
     env, ctrl, name = resolve_controller(controller, "brake", info.counts_per_rev, info.sample_rate_hz)
-    if isinstance(controller, str) and ":" in controller:
-        pass
     res = run_loop(rig, info, env, ctrl, name, RunSettings("brake", voltage, duration, warmup, window))
     return rig, res
 
@@ -407,3 +405,36 @@ def test_on_the_wire_lqi_reaches_the_benchmarks_suppression(tmp_path):
     bench = evaluate(ctrl, "brake", 2.0, 0, EpisodeSettings(), name=name, env=env)
     assert abs(truth["suppression"] - bench.suppression) <= 0.02
     assert abs(result["measured"]["suppression"] - bench.suppression) <= 0.03
+
+
+@pytest.mark.slow
+def test_recordings_of_the_loop_go_through_identify_and_discrepancy(tmp_path):
+    """The round trip: runs recorded by the loop (open loop at three set points and the LQI at
+    one, each written by run-controller's own writer into one dataset folder) are identified,
+    and the discrepancy workflow reads the same folder against the identified rig."""
+    from drill_env.agents.evaluation.rig_runs import measured_metrics
+    from drill_env.params import load_params
+
+    data = tmp_path / "data"
+    for controller, voltage in (("open_loop", 0.8), ("open_loop", 1.5), ("open_loop", 2.5), ("lqi", 2.0)):
+        _, res = _lockstep(controller, voltage, warmup=25.0, duration=5.0)
+        assert res.trip is None
+        name = f"{controller}_{voltage:g}V"
+        write_outputs(
+            res, tmp_path / name, record=data, run_name=name, measured=measured_metrics(res), figures=False
+        )
+    assert len(load_dataset(data).runs) == 4
+    p = run_cli(
+        "identify", str(data), "--out", str(tmp_path / "id"), "--no-figures", "--no-bifurcation", timeout=1800
+    )
+    assert p.returncode == 0, p.stderr
+    rig = load_params(tmp_path / "id" / "rig.yaml")
+    truth = load_params("brake")
+    assert rig.upper_inertia == pytest.approx(truth.upper_inertia, rel=0.1)
+    assert rig.lower_inertia == pytest.approx(truth.lower_inertia, rel=0.1)
+    p = run_cli(
+        "discrepancy", str(data), "--out", str(tmp_path / "disc"), "--no-figures",
+        "--params", str(tmp_path / "id" / "rig.yaml"), timeout=1800,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert json.loads((tmp_path / "disc" / "result.json").read_text())
