@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.agents.evaluation.episodes import METRIC_COLUMNS, EpisodeSettings
+from drill_env.outputs import save_figure
 
 __all__ = [
     "CONTROLLERS",
@@ -579,7 +580,7 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
     fig.suptitle(f"Truth plant ({what}) at {cfg.timeseries_voltage:g} V, seed {cfg.seeds[0]}", fontsize=10)
     fig.tight_layout(rect=(0, 0.7 / fig.get_figheight(), 1, 1))
     path = out / f"timeseries_{cfg.timeseries_voltage:g}V.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -640,7 +641,7 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
     )
     fig.tight_layout(rect=(0, 0.45 / fig.get_figheight(), 1, 1))
     path = out / "suppression.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
