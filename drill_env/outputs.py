@@ -55,12 +55,14 @@ __all__ = [
     "check_new_folder",
     "MARKER_NAME",
     "OutputWriteError",
+    "ResumeError",
     "check_command_folder",
     "command_folder",
     "refuse_link",
     "save_figure",
     "atomic_write_json",
     "track_created",
+    "keep_on_error",
     "atomic_path",
     "clear_folder",
     "refuse_links",
@@ -77,6 +79,11 @@ class OutputFolderError(ValueError):
 
 class OutputFolderBusy(OutputFolderError):
     """Another run is writing into the output folder."""
+
+
+class ResumeError(OutputFolderError):
+    """A partial file left by an interrupted run cannot be resumed from (empty, truncated,
+    foreign, another version's): the message names it and the choice (``--fresh``)."""
 
 
 class OutputWriteError(OutputFolderError):
@@ -125,6 +132,11 @@ def check_output_file(path: str | os.PathLike[str], option: str = "--out") -> Pa
     Raises :class:`OutputFolderError` naming ``option`` and the path.
     """
     path = Path(path)
+    if path.is_symlink():
+        raise OutputFolderError(
+            f"{option} {path}: is a symbolic link (to {os.readlink(path)}); output files are never written "
+            "through links: remove the link or choose another path"
+        )
     if path.is_dir():
         raise OutputFolderError(f"{option} {path}: is a folder; expected a file path")
     if path.exists() and not path.is_file():
@@ -692,6 +704,12 @@ def check_command_folder(
             "folder: choose another folder"
         )
     entries = sorted(p for p in path.iterdir() if p.name != LOCK_NAME)
+    for p in entries:
+        if p.is_symlink():
+            raise OutputFolderError(
+                f"{option} {path}: {p.name} is a symbolic link (to {os.readlink(p)}); output files are never "
+                "written through links: remove the link or choose another folder"
+            )
     foreign = [
         p
         for p in entries
@@ -733,6 +751,15 @@ def track_created(path: str | os.PathLike[str]) -> None:
     """Record a file a writer outside this module created (an append file), so that a write
     error in the enclosing :func:`command_folder` removes it."""
     _created(Path(path))
+
+
+def keep_on_error(path: str | os.PathLike[str]) -> None:
+    """Keep ``path`` (a resume file: the rows finished so far) when a write error ends the
+    enclosing :func:`command_folder`; every other file the run created is removed then."""
+    path = Path(path)
+    with _HELD_GUARD:
+        for session in _SESSIONS:
+            session.created = [p for p in session.created if p != path]
 
 
 def _is_write_error(exc: BaseException) -> bool:
