@@ -9,7 +9,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-
 # how long a Ray address may take to accept a connection before it is called unreachable [s]
 CONNECT_TIMEOUT_S = 10.0
 
