@@ -30,6 +30,10 @@ def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
         _fail(f"{name} must be a comma-separated list of numbers, got {text!r}")
 
 
+# what `drill-env benchmark` writes (a folder of these from before folders had markers is its own)
+BENCHMARK_FILES = ("benchmark.csv", "benchmark_config.json", "summary.md", "*.png")
+
+
 def resumed_count(out: Path) -> int:
     """Complete rows of the benchmark CSV in ``out`` (what an interrupted run keeps)."""
     try:
@@ -167,6 +171,13 @@ def register(app: typer.Typer) -> None:
 
         if backend not in BACKENDS:
             _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
+        if ray_address and backend == "ray":  # an address nothing answers at: said within seconds
+            from drill_env.ray_cluster import check_ray_address
+
+            try:
+                check_ray_address(ray_address)
+            except ValueError as exc:
+                _fail(f"--{str(exc).replace('_', '-', 1)}")
         presets = RIG_PRESETS if "all" in names else tuple(dict.fromkeys(names))
         ctrls = CONTROLLERS
         if controllers is not None:
@@ -319,9 +330,9 @@ def register(app: typer.Typer) -> None:
                 "Python objects, which can run arbitrary code, and this run has no terminal to warn on: "
                 f"pass --trust-policies (or set {TRUST_ENV_VAR}=1) to load files you made or trust"
             )
-        from drill_env.outputs import OutputFolderError, check_output_folder, output_lock
+        from drill_env.outputs import OutputFolderError, check_command_folder, command_folder
 
-        check_output_folder(out, "--out")
+        check_command_folder(out, "benchmark", "--out", own=BENCHMARK_FILES)
         if not fresh:
             from drill_env.agents.evaluation.benchmark import check_resumable
 
@@ -332,7 +343,8 @@ def register(app: typer.Typer) -> None:
 
         held = ExitStack()
         try:
-            held.enter_context(output_lock(out, "benchmark"))  # OUT is this run's alone, resume included
+            # OUT is this run's alone, resume included
+            held.enter_context(command_folder(out, "benchmark", "--out", own=BENCHMARK_FILES))
         except OutputFolderError as exc:
             _fail(str(exc))
         with held:

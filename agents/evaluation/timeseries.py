@@ -23,6 +23,7 @@ import numpy as np
 from drill_env.agents.evaluation.episodes import EpisodeSettings, make_env, run_episode
 from drill_env.agents.evaluation.plants import Plant
 from drill_env.agents.registry import CLASSICAL, LEARNED, controller_style
+from drill_env.outputs import save_figure
 
 __all__ = ["GROUPS", "run_trace", "timeseries_figures"]
 
@@ -190,5 +191,5 @@ def _figure(Patch, u_limit, traces, open_loop, q: Plant, group, preset, voltage,
     )
     fig.tight_layout(rect=(0, 0.75 / fig.get_figheight(), 1, 1))
     p = out / f"timeseries_{preset}_{q.name}_{group}.png"
-    fig.savefig(p, dpi=100)
+    save_figure(fig, p, dpi=100)
     return p

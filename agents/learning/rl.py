@@ -82,6 +82,7 @@ from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.agents.learning._config import config_section
 from drill_env.envs import ENV_IDS, make_version
 from drill_env.envs.task import REGIMES
+from drill_env.outputs import atomic_file, atomic_path, atomic_write_json, atomic_write_text, save_figure
 from drill_env.params import load_yaml
 
 __all__ = [
@@ -646,13 +647,11 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     new = {key: rewritten.get(key, value) for key, value in data.items()}
     with zipfile.ZipFile(path) as zf:
         items = [(info, zf.read(info.filename)) for info in zf.infolist()]
-    tmp = path.with_suffix(".zip.tmp")
-    with zipfile.ZipFile(tmp, "w") as zf:
+    with atomic_file(path, "wb") as f, zipfile.ZipFile(f, "w") as zf:
         for info, content in items:
             if info.filename == "data":
                 content = json.dumps(new, indent=4).encode()  # as stable-baselines3 writes it
             zf.writestr(info, content)
-    tmp.replace(path)
     return sorted(present)
 
 
@@ -767,14 +766,12 @@ def strip_machine_info(path: str | Path) -> None:
     path = Path(path)
     with zipfile.ZipFile(path) as zf:
         items = [(info, zf.read(info.filename)) for info in zf.infolist()]
-    tmp = path.with_suffix(".zip.tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+    with atomic_file(path, "wb") as f, zipfile.ZipFile(f, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for info, data in items:
             if info.filename == "system_info.txt":
                 lines = data.decode().splitlines()
                 data = ("\n".join(ln for ln in lines if not ln.startswith("- OS:")) + "\n").encode()
             zf.writestr(info, data)
-    tmp.replace(path)
 
 
 def evaluation_episodes(cfg: EvalConfig) -> list[tuple[int, dict[str, Any]]]:
@@ -837,7 +834,7 @@ def update_convergence(out_dir: str | Path) -> dict[str, Any]:
     curve = pd.read_csv(out_dir / "eval.csv")
     conv = plateau(curve["mean_return"].to_numpy(), **summary["config"]["convergence"])
     summary.update(converged=conv["converged"], convergence=conv)
-    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    atomic_write_json(out_dir / "training_summary.json", summary)
     plot_learning_curve(out_dir, summary)
     return summary
 
@@ -1027,13 +1024,14 @@ def train(
             callbacks.append(burn_in)
 
     def save(path: Path) -> None:
-        if cfg.residual is None:
-            model.save(str(path))
-            return
-        from drill_env.agents.learning.residual import saved_as_correction
+        with atomic_path(path, suffix=".zip") as tmp:  # never a half-written policy, never via a link
+            if cfg.residual is None:
+                model.save(str(tmp))
+                return
+            from drill_env.agents.learning.residual import saved_as_correction
 
-        with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
-            model.save(str(path))
+            with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
+                model.save(str(tmp))
 
     def current_policy() -> Any:
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
@@ -1110,12 +1108,12 @@ def train(
     import pandas as pd
 
     curve = pd.DataFrame(rows)
-    curve.to_csv(out_dir / "eval.csv", index=False, float_format="%.6g")
+    atomic_write_text(out_dir / "eval.csv", curve.to_csv(index=False, float_format="%.6g"))
     progress_csv = run_dir / "progress.csv"
     if progress_csv.is_file() and progress_csv.stat().st_size > 0:
         prog = pd.read_csv(progress_csv)
         keep = [c for c in prog.columns if c.startswith(("time/", "rollout/", "train/"))]
-        prog[keep].to_csv(out_dir / "progress.csv", index=False, float_format="%.6g")
+        atomic_write_text(out_dir / "progress.csv", prog[keep].to_csv(index=False, float_format="%.6g"))
     refs = _reference_returns(cfg, episodes)
     conv = plateau(curve["mean_return"].to_numpy(), **vars(cfg.convergence))
     summary = {
@@ -1146,9 +1144,8 @@ def train(
             "gymnasium": gym.__version__,
         },
     }
-    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    with open(out_dir / "config.yaml", "w") as f:
-        yaml.safe_dump(cfg.to_dict(), f, sort_keys=False)
+    atomic_write_json(out_dir / "training_summary.json", summary)
+    atomic_write_text(out_dir / "config.yaml", yaml.safe_dump(cfg.to_dict(), sort_keys=False))
     plot_learning_curve(out_dir, summary)
     eval_env.close()
     return summary
@@ -1202,5 +1199,5 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     ax.set_title("training episodes")
     fig.tight_layout()
     path = out_dir / "learning_curve.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path

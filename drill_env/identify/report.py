@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.identify.identification import Identification
-from drill_env.outputs import atomic_write_text
+from drill_env.outputs import atomic_write_text, save_figure
 from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
 
 __all__ = ["identification_json", "write_outputs", "UNITS"]
@@ -218,7 +218,7 @@ def _friction_figure(res: Identification, p: RigParams, path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> bool:
@@ -244,7 +244,7 @@ def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> 
     axes[-1, 0].set_xlabel("time since the start of the recording [s]")
     axes[0, 0].legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return True
 
 
@@ -283,7 +283,7 @@ def _bifurcation_figure(
         ]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return {
         "u_max": u_max,
         "points": {k: v.u for k, v in diagram.points.items()},

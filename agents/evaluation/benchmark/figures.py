@@ -14,6 +14,7 @@ from drill_env.agents.evaluation.episodes import EpisodeSettings
 from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.evaluation.robustness import REGIMES, ordered_controllers
 from drill_env.agents.registry import CONTROLLERS, controller_style
+from drill_env.outputs import save_figure
 
 Y_FLOOR = -2.0  # suppression below this is drawn at the floor with its value written
 # Each controller's marker in every figure, from the registry (drill_env.agents.registry.STYLES).
@@ -40,7 +41,7 @@ def bifurcation_figure(df, preset: str, out: Path) -> Path:
 
     fig = draw_bifurcation_figure(df, preset)
     p = out / f"bifurcation_{preset}.png"
-    fig.savefig(p, dpi=100)
+    save_figure(fig, p, dpi=100)
     return p
 
 
@@ -247,7 +248,7 @@ def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls) -> list[P
     ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     p = out / (f"suppression_{preset}.png" if plant == NOMINAL else f"suppression_{preset}_{plant}.png")
-    fig.savefig(p, dpi=110)
+    save_figure(fig, p, dpi=110)
     return [p]
 
 
@@ -295,7 +296,7 @@ def _plants_figure(df, preset: str, out: Path, plants: Sequence[str]) -> Path:
         handles=handles, loc="upper left", bbox_to_anchor=(0.05, 0.95), fontsize=8, frameon=False, ncol=3
     )
     p = out / f"suppression_{preset}_plants.png"
-    fig.savefig(p, dpi=100)
+    save_figure(fig, p, dpi=100)
     return p
 
 
@@ -405,5 +406,5 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     legend_rows = -(-(len(worst) + 2) // 6) if pairs else -(-n_legend // ncol)
     fig.tight_layout(rect=(0, (0.15 + 0.22 * legend_rows) / fig.get_figheight(), 1, 1))
     p = out / f"worst_case_{preset}.png"
-    fig.savefig(p, dpi=110)
+    save_figure(fig, p, dpi=110)
     return p
