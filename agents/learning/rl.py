@@ -630,7 +630,8 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     if algo not in ALGOS:
         raise ValueError(f"algo: unknown for {path}; pass one of {list(ALGOS)}")
     config = path.parent / "config.yaml"
-    residual = (yaml.safe_load(config.read_text()) or {}).get("residual") if config.is_file() else None
+    settings = (load_yaml(config, what="policy config", error=ValueError) or {}) if config.is_file() else {}
+    residual = settings.get("residual") if isinstance(settings, dict) else None
     present: dict[str, Any] = dict(renamed_objects(path))
     if residual is not None and not is_correction_file(path):
         sb3_class = correction_policy_class(algo, stable_baselines3=True)
