@@ -245,7 +245,9 @@ BAD_FILES = {
     "python-tag": ("name: !!python/object/apply:os.system ['true']\n", ["not valid YAML", "line 1"]),
     "laughs": (
         "a: &a [x, x, x, x, x, x, x, x, x, x]\n"
-        + "".join(f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n" for p, c in zip("abcdefgh", "bcdefghi"))
+        + "".join(
+            f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n" for p, c in zip("abcdefgh", "bcdefghi", strict=True)
+        )
         + "name: *i\n",
         ["more than", "expanded size"],
     ),
