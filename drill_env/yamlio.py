@@ -59,7 +59,14 @@ _NULL = re.compile(r"^(?:~|null|Null|NULL|)$")
 # controls but NEL; surrogates; U+FFFE/U+FFFF), and a CR that does not end a CR LF pair: a
 # file of CR-only line endings reads as one line in some readers and many in others.
 _CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x84\x86-\x9f\ud800-\udfff\ufffe\uffff]|\r(?!\n)")
-_CONTROL_NAMES = {"\x00": "NUL", "\x07": "BEL", "\x08": "BS", "\x1b": "ESC", "\x7f": "DEL", "\r": "a CR not followed by LF"}
+_CONTROL_NAMES = {
+    "\x00": "NUL",
+    "\x07": "BEL",
+    "\x08": "BS",
+    "\x1b": "ESC",
+    "\x7f": "DEL",
+    "\r": "a CR not followed by LF",
+}
 
 
 class _Bounded(ValueError):
