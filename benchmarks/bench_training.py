@@ -130,21 +130,15 @@ def quick_suppression(model, cfg, preset: str, folder: Path) -> tuple[dict, dict
     # v2 observe the same; v2's action is a correction) is read from it
     (policy.parent / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
     bench = BenchmarkConfig.preset_grid(
-        (preset,), quick=True, controllers=(cfg.algo,), agents_dir=str(agents)
+        (preset,), quick=True, controllers=(cfg.algo,), agents_dir=str(agents), trust_policies=True
+    )  # the policy this process just trained
+    csv = run_benchmark(
+        bench,
+        folder / f"bench_{preset}_{model.num_timesteps}",
+        backend="sequential",
+        fresh=True,
+        report=False,
     )
-    import warnings
-
-    from drill_env.agents.learning.rl import UntrustedPolicyWarning
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UntrustedPolicyWarning)  # the policy this process just trained
-        csv = run_benchmark(
-            bench,
-            folder / f"bench_{preset}_{model.num_timesteps}",
-            backend="sequential",
-            fresh=True,
-            report=False,
-        )
     rows = pd.read_csv(csv)
     failed = rows["error"].dropna() if "error" in rows else []
     if len(failed):

@@ -297,39 +297,26 @@ def register(app: typer.Typer) -> None:
                 f"the grid has {n_runs:,} runs; allowed: at most {MAX_RUNS:,} (fewer seeds, voltages or controllers)"
             )
         # every file the runs will need, before the first run
-        from drill_env.agents.learning.rl import (
-            TRUST_ENV_VAR,
-            check_policy_zip,
-            trust_from_environment,
-            untrusted_policy_note,
-        )
+        from drill_env.agents.commands._trust import vouch_for_policies
         from drill_env.agents.registry import LEARNED, load_gains, policy_path
 
-        untrusted: list[str] = []
+        policies: list[Path] = []
         try:
             if any(c not in LEARNED for c in cfg.controllers):
                 load_gains(cfg.gains_file)
             for c in cfg.controllers:
                 if c in LEARNED:
                     for p in cfg.presets:
-                        path = policy_path(c, p, cfg.agents_dir)
-                        check_policy_zip(path)
-                        if untrusted_policy_note(path) is not None:
-                            untrusted.append(str(path))
+                        policies.append(policy_path(c, p, cfg.agents_dir))
         except ValueError as exc:
             if "policy" not in str(exc):
                 _fail(f"--gains: {exc}")
             _fail(f"--agents-dir: {exc}" if agents_dir is not None else str(exc))
-        import sys
+        option = "--agents-dir" if agents_dir is not None else "agents folder"
+        if vouch_for_policies(policies, flag=trust_policies, option=option):
+            import dataclasses
 
-        if untrusted and not (trust_policies or trust_from_environment()) and not sys.stdin.isatty():
-            _fail(
-                f"--agents-dir: {untrusted[0]}"
-                + (f" (and {len(untrusted) - 1} more)" if len(untrusted) > 1 else "")
-                + " is not one of the committed policies in results/agents/; loading a policy unpickles "
-                "Python objects, which can run arbitrary code, and this run has no terminal to warn on: "
-                f"pass --trust-policies (or set {TRUST_ENV_VAR}=1) to load files you made or trust"
-            )
+            cfg = dataclasses.replace(cfg, trust_policies=True)
         from drill_env.outputs import OutputFolderError, check_command_folder, command_folder
 
         check_command_folder(out, "benchmark", "--out", own=BENCHMARK_FILES)
@@ -432,6 +419,7 @@ def register(app: typer.Typer) -> None:
                         agents_dir=cfg.agents_dir,
                         gains_file=cfg.gains_file,
                         design_params=cfg.design_model(),
+                        trusted=cfg.trust_policies,
                         progress=lambda path: typer.echo(f"wrote {path}", err=True),
                     )
                 except ValueError as exc:

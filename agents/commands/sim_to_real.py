@@ -40,6 +40,14 @@ def sim_to_real(
     quick: bool = typer.Option(
         False, "--quick", help="A smoke run: short recordings and episodes, one seed, a coarse tuning."
     ),
+    trust_policies: bool = typer.Option(
+        False,
+        "--trust-policies",
+        help="Load the learned controllers' policy files from outside results/agents/ (a "
+        "$DRILL_ENV_AGENTS_DIR folder; loading one can run code it holds) in a run without a "
+        "terminal, which otherwise refuses them; also DRILL_ENV_TRUST_POLICIES=1. On a terminal "
+        "you are asked.",
+    ),
 ) -> None:
     """Truth plant with a hidden effect -> synth data -> discrepancy -> model.yaml -> retune on it ->
     benchmark on the truth plant, before (nominal design) and after (design on the corrected model).
@@ -96,6 +104,15 @@ def sim_to_real(
     except ValueError as exc:
         msg = str(exc)  # the config's field names are the options' names
         _fail(f"--{msg}" if msg.startswith(("voltages:", "seeds:", "controllers:")) else msg)
+    from drill_env.agents.commands._trust import vouch_for_policies
+    from drill_env.agents.registry import LEARNED, policy_path
+
+    try:
+        policies = [policy_path(c, cfg.preset) for c in cfg.controllers if c in LEARNED]
+    except ValueError as exc:
+        _fail(str(exc))
+    if vouch_for_policies(policies, flag=trust_policies, option="agents folder"):
+        cfg = dataclasses.replace(cfg, trust_policies=True)
     res = run_sim_to_real(out, cfg, data_dir=data, progress=lambda line: typer.echo(line, err=True))
     typer.echo(f"wrote {len(res.files)} files to {out}; see {out / 'summary.md'}")
 

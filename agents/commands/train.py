@@ -108,6 +108,14 @@ def register(app: typer.Typer) -> None:
             "(effects included), e.g. a discrepancy result's model.yaml; sets env_kwargs.params.",
         ),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+        trust_policies: bool = typer.Option(
+            False,
+            "--trust-policies",
+            help="Load the warm start's teacher policy from outside results/agents/ (a "
+            "$DRILL_ENV_AGENTS_DIR folder; loading one can run code it holds) in a run without a "
+            "terminal, which otherwise refuses it; also DRILL_ENV_TRUST_POLICIES=1. On a "
+            "terminal you are asked.",
+        ),
     ) -> None:
         """Train ALGO on the config's environment; learning curve every evaluation.
 
@@ -157,10 +165,17 @@ def register(app: typer.Typer) -> None:
             cfg = dataclasses.replace(cfg, env_kwargs={**cfg.env_kwargs, "params": str(params.resolve())})
         teacher = None
         if cfg.warm_start is not None and cfg.warm_start.policy is not None:
-            from drill_env.agents.registry import teacher_policy
+            from drill_env.agents.commands._trust import vouch_for_policies
+            from drill_env.agents.registry import policy_path, teacher_policy
+            from drill_env.envs import ENV_IDS
 
+            try:
+                path = policy_path(cfg.warm_start.policy, ENV_IDS[cfg.env_id])
+            except ValueError as exc:
+                _fail(str(exc))
+            trusted = vouch_for_policies([path], flag=trust_policies, option="warm_start.policy")
             try:  # a missing or mismatched teacher is bad input, found before any training
-                teacher = teacher_policy(cfg.warm_start.policy, cfg.env_id, cfg.env_kwargs)
+                teacher = teacher_policy(cfg.warm_start.policy, cfg.env_id, cfg.env_kwargs, trusted=trusted)
             except ValueError as exc:
                 _fail(str(exc))
         from drill_env.envs import ENV_IDS, ENV_VERSIONS

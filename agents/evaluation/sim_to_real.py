@@ -110,6 +110,9 @@ class SimToRealConfig:
     design_points: int = 12  # of drill_env.agents.controllers.tuning's design set (its default)
     tuning_grid: int = 7  # values per gain in drill_env.agents.controllers.tuning's grid search (its default)
     truth_file: str | None = None  # a plant file to take as the truth (effect, magnitude, errors unused)
+    # the user vouched for learned controllers' policies from outside results/agents/ (from
+    # $DRILL_ENV_AGENTS_DIR): they load (their files are code); not part of the result
+    trust_policies: bool = False
 
     def __post_init__(self) -> None:
         from drill_env.envs.task import VOLTAGE_LIMIT
@@ -445,7 +448,9 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
             design_env = make_env(preset, cfg.episode, version, design_params=design_model[d])
             try:
                 for c in cfg.controllers:
-                    ctrls[(d, c)] = build_controller(c, design_env, preset, gains_file=g)
+                    ctrls[(d, c)] = build_controller(
+                        c, design_env, preset, gains_file=g, trusted=cfg.trust_policies
+                    )
             finally:
                 design_env.close()
         n_total = len(cfg.voltages) * len(cfg.seeds)

@@ -51,8 +51,9 @@ improved the return by less than ``tolerance`` (5 %) of the level it reached (an
 Policy files are code: a stable-baselines3 ``.zip`` stores some of its objects (the spaces,
 the policy class and its arguments, the schedules) as pickles, and unpickling can run
 arbitrary code. :func:`load_policy` loads the policies committed under ``results/agents/``
-(and their copy installed with the package) silently and warns (:class:`UntrustedPolicyWarning`) for any other file unless told
-``trusted=True``. :func:`policy_observation_version` reads only the zip's JSON and unpickles
+(and their copy installed with the package) and refuses any other file
+(:class:`UntrustedPolicyError`) unless told ``trusted=True`` (or the environment sets
+:data:`TRUST_ENV_VAR`, as a command does once its user has vouched for the files). :func:`policy_observation_version` reads only the zip's JSON and unpickles
 nothing.
 """
 
@@ -68,7 +69,6 @@ import pickle
 import pickletools
 import platform
 import time
-import warnings
 import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -98,10 +98,12 @@ __all__ = [
     "COMMITTED_POLICY_DIR",
     "PACKAGED_POLICY_DIR",
     "UntrustedPolicyWarning",
+    "UntrustedPolicyError",
     "MAX_POLICY_INFLATED_BYTES",
     "TRUST_ENV_VAR",
     "check_policy_zip",
     "trust_from_environment",
+    "refuse_untrusted",
     "untrusted_policy_note",
     "policy_observation_version",
     "plateau",
@@ -461,6 +463,22 @@ class UntrustedPolicyWarning(UserWarning):
     """A policy file from outside ``results/agents/`` is loaded: loading it may run code."""
 
 
+class UntrustedPolicyError(ValueError):
+    """A policy file from outside ``results/agents/`` was to be loaded without being trusted
+    (nothing in it was unpickled)."""
+
+
+def refuse_untrusted(path: str | Path, trusted: bool = False) -> None:
+    """Raise :class:`UntrustedPolicyError` for a policy file from outside ``results/agents/``
+    unless ``trusted`` or :data:`TRUST_ENV_VAR` is set (nothing is read from the file)."""
+    note = untrusted_policy_note(path)
+    if note is not None and not (trusted or trust_from_environment()):
+        raise UntrustedPolicyError(
+            f"{note}; pass trusted=True for a file you made or trust (on the command line: "
+            f"--trust-policies, or set {TRUST_ENV_VAR}=1)"
+        )
+
+
 def untrusted_policy_note(path: str | Path) -> str | None:
     """Why loading ``path`` needs trust, or None for a policy committed under
     ``results/agents/`` (symbolic links resolved: a link out of it is not committed)."""
@@ -608,7 +626,7 @@ def is_correction_file(path: str | Path) -> bool:
     return stored_policy_class(path) in names
 
 
-def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
+def upgrade_policy_file(path: str | Path, algo: str | None = None, *, trusted: bool = False) -> list[str]:
     """Rewrite the stored objects of a policy saved by :func:`train` in their present form,
     the weights and every other entry of the zip byte for byte as they were: the objects
     pickled under a former module path (:func:`renamed_objects`) as their present selves, and
@@ -616,12 +634,16 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     one that refuses to load without its base
     (:func:`drill_env.agents.learning.residual.correction_policy_class`). Returns the entries
     rewritten (empty: the file was up to date and is untouched). Unpickles the file's former
-    objects: for trusted files only, as :func:`load_policy`."""
+    objects: a file from outside ``results/agents/`` needs ``trusted=True``, as in
+    :func:`load_policy`; a zip that inflates beyond :data:`MAX_POLICY_INFLATED_BYTES` is
+    refused even then."""
     from stable_baselines3.common.save_util import data_to_json
 
     from drill_env.agents.learning.residual import correction_policy_class
 
     path = Path(path)
+    check_policy_zip(path)
+    refuse_untrusted(path, trusted)
     data = _read_data(path)
     if data is None:
         raise ValueError(f"policy: {path} is not a stable-baselines3 model")
@@ -631,7 +653,8 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     if algo not in ALGOS:
         raise ValueError(f"algo: unknown for {path}; pass one of {list(ALGOS)}")
     config = path.parent / "config.yaml"
-    residual = (yaml.safe_load(config.read_text()) or {}).get("residual") if config.is_file() else None
+    settings = (load_yaml(config, what="policy config", error=ValueError) or {}) if config.is_file() else {}
+    residual = settings.get("residual") if isinstance(settings, dict) else None
     present: dict[str, Any] = dict(renamed_objects(path))
     if residual is not None and not is_correction_file(path):
         sb3_class = correction_policy_class(algo, stable_baselines3=True)
@@ -661,15 +684,15 @@ def load_policy(
     """Load a policy saved by :func:`train` (``policy.zip``); the algorithm is read from the
     ``training_summary.json`` beside it unless given.
 
-    A file outside ``results/agents/`` is loaded with an :class:`UntrustedPolicyWarning`
-    (loading unpickles objects stored in it) unless ``trusted=True`` (a file you made)."""
+    A file outside ``results/agents/`` is refused (:class:`UntrustedPolicyError`, before
+    anything in it is read: loading unpickles objects stored in it, which can run code) unless
+    ``trusted=True`` (a file you made or trust) or :data:`TRUST_ENV_VAR` is set; a zip that
+    inflates beyond :data:`MAX_POLICY_INFLATED_BYTES` is refused even when trusted."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy: no such file {str(path)!r}")
     check_policy_zip(path)
-    note = None if trusted else untrusted_policy_note(path)
-    if note is not None:
-        warnings.warn(note, UntrustedPolicyWarning, stacklevel=2)
+    refuse_untrusted(path, trusted)
     if algo is None:
         summary = path.parent / "training_summary.json"
         if summary.is_file():
