@@ -107,7 +107,16 @@ def test_own_controllers_are_scored_beside_the_shipped_rows(tmp_path):
     assert "| p_lower |" in summary and "| HoldNominal |" in summary
     import json
 
+    ranking = json.loads((tmp_path / "ranking.json").read_text())["rankings"][0]
+    (same,) = [q for q in ranking["pairs"] if {q["a"], q["b"]} == {"HoldNominal", "open_loop"}]
+    assert same["difference"] == 0 and same["low"] == same["high"] == 0 and not same["resolved"]
     prov = json.loads((tmp_path / "provenance.json").read_text())
+    from drill_env.agents.evaluation.benchmark.provenance import source_digest
+    from drill_env.simulator import DEFAULT_ATOL, DEFAULT_RTOL
+
+    session = prov["sessions"][-1]
+    assert session["source_sha256"] == source_digest() and session["seeds"] == [0, 1]
+    assert (session["solver"]["rtol"], session["solver"]["atol"]) == (DEFAULT_RTOL, DEFAULT_ATOL)
     assert prov["sessions"][-1]["custom_controllers"]["p_lower"] == f"p_lower={HERE}:LowerSpeedP"
     assert prov["sessions"][-1]["rows_run"] == 8
     # resumed with the same label for another controller: refused, nothing run

@@ -21,7 +21,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-__all__ = ["code_version", "session_record", "source_digest", "write_provenance"]
+__all__ = ["code_identity", "code_version", "session_record", "source_digest", "write_provenance"]
 
 PROVENANCE_FILE = "provenance.json"
 # the libraries a run's numbers depend on (simulation, policies, statistics)
@@ -85,16 +85,23 @@ def _library_versions() -> dict[str, str]:
     return out
 
 
-def session_record(cfg: Any, *, rows_run: int, rows_before: int, backend: str) -> dict[str, Any]:
-    """One session's record (see the module docstring)."""
+def code_identity() -> dict[str, str]:
+    """The code version and the source digest of the package as it is now."""
+    return {"code_version": code_version(), "source_sha256": source_digest()}
+
+
+def session_record(
+    cfg: Any, *, rows_run: int, rows_before: int, backend: str, code: dict[str, str] | None = None
+) -> dict[str, Any]:
+    """One session's record (see the module docstring); ``code``: :func:`code_identity` taken
+    when the session started (default: now)."""
     from drill_env.envs.config import EnvSettings
 
     env_kwargs = dict(cfg.episode.env_kwargs)
     defaults = EnvSettings()
     return {
         "finished": datetime.now(UTC).isoformat(timespec="seconds"),
-        "code_version": code_version(),
-        "source_sha256": source_digest(),
+        **(code or code_identity()),
         "rows_run": int(rows_run),
         "rows_found_done": int(rows_before),
         "backend": backend,

@@ -25,6 +25,8 @@ from drill_env.outputs import atomic_write_text
 
 __all__ = [
     "N_RESAMPLES",
+    "RANKING_FILE",
+    "RANKING_REPORT",
     "SCORE",
     "benchmark_rankings",
     "ranking_figure",
@@ -34,6 +36,8 @@ __all__ = [
 ]
 
 SCORE = "suppression"
+RANKING_FILE = "ranking.json"  # the paired statistics of every ranking (read by the docs' leaderboard)
+RANKING_REPORT = "ranking.md"
 N_RESAMPLES = 10_000
 CONFIDENCE = 0.95
 METHOD = "BCa"
@@ -111,8 +115,6 @@ def ranking_summary_lines(rankings: Sequence[tuple[str, str, PairedStatistics]])
 
 def write_rankings(rankings: Sequence[tuple[str, str, PairedStatistics]], out: Path) -> list[Path]:
     """``ranking.json``, ``ranking.md`` and a figure per ranking in ``out``; the paths."""
-    from drill_env.agents.evaluation.benchmark.report import RANKING_FILE, RANKING_REPORT
-
     for stale in (out / RANKING_FILE, out / RANKING_REPORT, *out.glob("ranking_*.png")):
         if stale.is_file():
             stale.unlink()

@@ -10,6 +10,9 @@ from typing import Any
 
 from drill_env.agents.evaluation.benchmark.figures import _figures, _plants_figure, worst_case_figure
 from drill_env.agents.evaluation.benchmark.ranking import (
+    RANKING_FILE as RANKING_FILE,
+)
+from drill_env.agents.evaluation.benchmark.ranking import (
     benchmark_rankings,
     ranking_summary_lines,
     write_rankings,
@@ -31,9 +34,6 @@ REGIME_TITLES = REGIMES  # regime -> the title of its table
 # up to this many plants besides the nominal one get a suppression figure each; more are
 # drawn as small multiples in one figure
 SEPARATE_PLANT_FIGURES = 3
-# the paired statistics of every ranking of the report (read by the docs' leaderboard)
-RANKING_FILE = "ranking.json"
-RANKING_REPORT = "ranking.md"
 # the figures write_report makes (removed with the results by ``fresh``)
 REPORT_FIGURES = (
     "ranking.md",
