@@ -1156,17 +1156,15 @@ def train(
 
 def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None = None) -> Path:
     """``learning_curve.png`` from ``eval.csv`` (and ``progress.csv``) in ``out_dir``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import pandas as pd
+
+    from drill_env._figures import subplots
 
     out_dir = Path(out_dir)
     if summary is None:
         summary = json.loads((out_dir / "training_summary.json").read_text())
     curve = pd.read_csv(out_dir / "eval.csv")
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = subplots(1, 2, figsize=(11, 4))
     ax = axes[0]
     ax.plot(curve["timesteps"], curve["mean_return"], "k.-", label="all regimes")
     for regime in REGIMES:
@@ -1205,5 +1203,4 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     fig.tight_layout()
     path = out_dir / "learning_curve.png"
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

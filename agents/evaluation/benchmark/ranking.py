@@ -146,18 +146,16 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
     difference to the best controller with its interval (symmetric log scale, linear within
     +-:data:`LINEAR_BELOW`); resolved differences filled, unresolved ones open. The
     controllers left out are named with their score under the panels."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
+
+    from drill_env._figures import subplots
 
     rows = st.scores.to_dict("records")
     shown = [r for r in rows if r["score"] > SHOWN_ABOVE] or rows[:1]
     left_out = [r for r in rows if r not in shown]
     k = len(shown)
     best = rows[0]["controller"]
-    fig = Figure(figsize=(11.0, 0.42 * k + 2.3))
-    FigureCanvasAgg(fig)
-    ax1, ax2 = fig.subplots(1, 2, sharey=True)
+    fig, (ax1, ax2) = subplots(1, 2, figsize=(11.0, 0.42 * k + 2.3), sharey=True)
     y = np.arange(k)[::-1]
     pairs = {(r["a"], r["b"]): r for r in st.pairs.to_dict("records")}
     widest = LINEAR_BELOW
