@@ -71,6 +71,10 @@ def generated_files() -> set[str]:
     for ranking in results.rglob("ranking.json"):
         names.add("results/leaderboard_" + "_".join(ranking.parent.relative_to(results).parts) + ".md")
     names.add("results/leaderboard_ranks.md")
+    spec = importlib.util.spec_from_file_location("headlines", DOCS / "_ext" / "headlines.py")
+    headlines = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(headlines)
+    names |= {f"results/headline_{page}.md" for page in headlines.HEADLINES}
     return names
 
 
