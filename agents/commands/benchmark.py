@@ -55,6 +55,15 @@ def register(app: typer.Typer) -> None:
             None,
             help=f"Comma-separated subset of: {', '.join(KNOWN_CONTROLLERS)} (default: all).",
         ),
+        controller: list[str] | None = typer.Option(
+            None,
+            "--controller",
+            help="A controller of your own, scored beside the shipped ones (--controllers): "
+            "package.module:Name, path/to/file.py:Name or path/to/policy.zip, optionally LABEL=SPEC "
+            "(the name of its rows); repeatable. Name is a class or factory whose result has "
+            "predict(obs, state, episode_start, deterministic), see docs/howto/own_controller.md; a "
+            "policy zip from outside results/agents/ needs --trust-policies.",
+        ),
         voltages: str | None = typer.Option(
             None,
             help="Comma-separated nominal voltages [V] (replace the grid; default: the full or quick grid).",
@@ -202,6 +211,14 @@ def register(app: typer.Typer) -> None:
             ):
                 allowed = f"[0, {MAX_EPISODE_S:g}]" if low is None else f"(0, {MAX_EPISODE_S:g}]"
                 _fail(f"--{name.lstrip('-')}: {value!r} s; allowed: {allowed} s")
+        from drill_env.agents.evaluation.controller_spec import controller_label
+
+        custom: list[tuple[str, str]] = []
+        for item in controller or []:
+            try:
+                custom.append((controller_label(item), item))
+            except ValueError as exc:
+                _fail(str(exc))
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
         from drill_env.agents.evaluation.plants import FAMILY, NOMINAL, Plant, plants_in, standard_family
@@ -271,6 +288,8 @@ def register(app: typer.Typer) -> None:
                     gains_file=None if gains is None else str(gains),
                     plants=tuple(plant_list),
                     design_params=None if design_params is None else str(design_params),
+                    custom=tuple(custom),
+                    trust_policies=trust_policies,
                 )
             else:
                 cfg = BenchmarkConfig.preset_grid(
@@ -283,6 +302,8 @@ def register(app: typer.Typer) -> None:
                     gains_file=None if gains is None else str(gains),
                     plants=tuple(plant_list),
                     design_params=None if design_params is None else str(design_params),
+                    custom=tuple(custom),
+                    trust_policies=trust_policies,
                 )
         except ValueError as exc:
             _fail(str(exc))
