@@ -286,6 +286,7 @@ def register(app: typer.Typer) -> None:
                 f"the grid has {n_runs:,} runs; allowed: at most {MAX_RUNS:,} (fewer seeds, voltages or controllers)"
             )
         # every file the runs will need, before the first run
+        from drill_env.agents.learning.policy_info import policy_training_record
         from drill_env.agents.learning.rl import (
             TRUST_ENV_VAR,
             check_policy_zip,
@@ -303,6 +304,7 @@ def register(app: typer.Typer) -> None:
                     for p in cfg.presets:
                         path = policy_path(c, p, cfg.agents_dir)
                         check_policy_zip(path)
+                        policy_training_record(path)  # what it was trained on, or refused
                         if untrusted_policy_note(path) is not None:
                             untrusted.append(str(path))
         except ValueError as exc:
