@@ -1103,8 +1103,11 @@ def train(
         from drill_env.agents.evaluation.target_check import TargetCheck
 
         check = TargetCheck(ENV_IDS[cfg.env_id], ENV_VERSIONS[cfg.env_id])
-    # the references first: inside the wall-time budget, nothing but the last evaluation after it
+    # the references first, and the modules of the results imported: inside the wall-time
+    # budget, nothing but the last evaluation and writing the files after it
     refs = _reference_returns(cfg, episodes)
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import pandas  # noqa: F401
 
     def run_eval(step: int) -> None:
         t0 = time.perf_counter()
@@ -1112,7 +1115,6 @@ def train(
         rets = evaluate_on_episodes(eval_env, policy, episodes)
         target = check(policy) if check is not None else None
         eval_time[0] += time.perf_counter() - t0
-        budget["eval_s"] = time.perf_counter() - t0
         k = cfg.evaluation.episodes_per_regime
         row = {
             "timesteps": step,
@@ -1141,10 +1143,13 @@ def train(
                 best.update({"margin": target.margin, "target": target.to_dict()})
             save(out_dir / "policy.zip")
             finish_policy_file(out_dir / "policy.zip", cfg)
+        # what the last evaluation cost, saving included: the reserve of the wall-time budget
+        budget["eval_s"] = max(budget["eval_s"], time.perf_counter() - t0)
         if on_eval is not None:
             on_eval(step, row["mean_return"])
         if target is not None and target.met and cfg.evaluation.stop_at_target:
-            stopped_by[0] = "target"
+            if stopped_by[0] == "total_timesteps":  # not the last evaluation after another limit
+                stopped_by[0] = "target"
 
     # wall-time budget: stop while the last evaluation and the longest update seen still fit
     budget = {"eval_s": 0.0, "update_s": 0.0, "rollout_end": None}
@@ -1254,17 +1259,17 @@ def train(
 
 def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None = None) -> Path:
     """``learning_curve.png`` from ``eval.csv`` (and ``progress.csv``) in ``out_dir``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import pandas as pd
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     out_dir = Path(out_dir)
     if summary is None:
         summary = json.loads((out_dir / "training_summary.json").read_text())
     curve = pd.read_csv(out_dir / "eval.csv")
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig = Figure(figsize=(11, 4))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2)
     ax = axes[0]
     ax.plot(curve["timesteps"], curve["mean_return"], "k.-", label="all regimes")
     for regime in REGIMES:
@@ -1303,5 +1308,4 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     fig.tight_layout()
     path = out_dir / "learning_curve.png"
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
