@@ -293,10 +293,7 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     """``robustness_<preset>.png``: per regime (rows) and metric (columns), each controller's
     per-plant means (dots), their mean (bar), the nominal plant (diamond) and the worst run
     (cross, labelled with its plant)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from drill_env._figures import subplots
 
     rows = robustness_rows(df, preset)
     regimes = [g for g in REGIMES if any(r["regime"] == g for r in rows)]
@@ -305,7 +302,7 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     from drill_env.analysis.plots import Label, place_labels
 
     pending: dict[int, tuple[Any, list]] = {}
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         len(regimes),
         len(METRICS),
         figsize=(15, 1.2 + 0.42 * len(ctrls) * len(regimes) + 0.6 * len(regimes)),
@@ -411,5 +408,4 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
         place_labels(ax, labels)
     path = Path(out) / f"robustness_{preset}.png"
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

@@ -523,15 +523,13 @@ COINCIDE = 0.02  # [rad/s] before and after closer than this everywhere are said
 
 
 def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConfig, out: Path) -> Path:
-    import matplotlib
+    from matplotlib.lines import Line2D
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from drill_env._figures import subplots
     from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         len(ctrls), 1, figsize=(9, 2.3 * len(ctrls) + 1.4), sharex=True, sharey=True, squeeze=False
     )
     ol = traces[("-", "open_loop")]
@@ -564,11 +562,11 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time since the controller was switched on [s]")
     handles = [
-        plt.Line2D([], [], color="0.7", lw=0.8, label="open loop"),
-        plt.Line2D([], [], ls="--", color="k", lw=2.0, alpha=0.55, label=LABEL["nominal"]),
-        plt.Line2D([], [], color="C0", lw=1.0, label=LABEL["corrected"] + " (controller's colour)"),
-        plt.Line2D([], [], color="0.3", ls=(0, (4, 2)), lw=0.6, label="target speed, nominal model"),
-        plt.Line2D([], [], color="0.3", ls="-", lw=0.6, label="target speed, corrected model"),
+        Line2D([], [], color="0.7", lw=0.8, label="open loop"),
+        Line2D([], [], ls="--", color="k", lw=2.0, alpha=0.55, label=LABEL["nominal"]),
+        Line2D([], [], color="C0", lw=1.0, label=LABEL["corrected"] + " (controller's colour)"),
+        Line2D([], [], color="0.3", ls=(0, (4, 2)), lw=0.6, label="target speed, nominal model"),
+        Line2D([], [], color="0.3", ls="-", lw=0.6, label="target speed, corrected model"),
     ]
     fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
     what = (
@@ -580,20 +578,17 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
     fig.tight_layout(rect=(0, 0.7 / fig.get_figheight(), 1, 1))
     path = out / f"timeseries_{cfg.timeseries_voltage:g}V.png"
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
 def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
-    import matplotlib
+    from matplotlib.lines import Line2D
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from drill_env._figures import subplots
     from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         2, len(ctrls), figsize=(3.3 * len(ctrls), 6.4), sharex=True, sharey="row", squeeze=False
     )
     for j, c in enumerate(ctrls):
@@ -626,10 +621,8 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
                 ax.set_ylabel(label)
             ax.grid(alpha=0.3)
     handles = [
-        plt.Line2D([], [], ls="--", marker="o", mfc="none", color="k", label=LABEL["nominal"]),
-        plt.Line2D(
-            [], [], ls="-", marker="s", color="C0", label=LABEL["corrected"] + " (controller's colour)"
-        ),
+        Line2D([], [], ls="--", marker="o", mfc="none", color="k", label=LABEL["nominal"]),
+        Line2D([], [], ls="-", marker="s", color="C0", label=LABEL["corrected"] + " (controller's colour)"),
     ]
     fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
     n = len(cfg.seeds)
@@ -641,7 +634,6 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
     fig.tight_layout(rect=(0, 0.45 / fig.get_figheight(), 1, 1))
     path = out / "suppression.png"
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 

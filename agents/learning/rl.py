@@ -1260,16 +1260,14 @@ def train(
 def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None = None) -> Path:
     """``learning_curve.png`` from ``eval.csv`` (and ``progress.csv``) in ``out_dir``."""
     import pandas as pd
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+
+    from drill_env._figures import subplots
 
     out_dir = Path(out_dir)
     if summary is None:
         summary = json.loads((out_dir / "training_summary.json").read_text())
     curve = pd.read_csv(out_dir / "eval.csv")
-    fig = Figure(figsize=(11, 4))
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(1, 2)
+    fig, axes = subplots(1, 2, figsize=(11, 4))
     ax = axes[0]
     ax.plot(curve["timesteps"], curve["mean_return"], "k.-", label="all regimes")
     for regime in REGIMES:

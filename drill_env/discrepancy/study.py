@@ -728,16 +728,13 @@ def _write_markdown(
 
 
 def _plot(out: Path, rows, summary) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from drill_env._figures import subplots
 
     # accuracy per truth (rows) and condition (columns)
     labels = [t.label for t in truths()]
     conds = list(summary["per_condition"])
     acc = np.array([[summary["per_condition"][c]["by_truth"][lab] for c in conds] for lab in labels])
-    fig, ax = plt.subplots(figsize=(8.5, 0.42 * len(labels) + 1.8))
+    fig, ax = subplots(figsize=(8.5, 0.42 * len(labels) + 1.8))
     im = ax.imshow(acc, vmin=0.0, vmax=1.0, cmap="RdYlGn", aspect="auto")
     for i in range(acc.shape[0]):
         for j in range(acc.shape[1]):
@@ -756,9 +753,8 @@ def _plot(out: Path, rows, summary) -> None:
     fig.tight_layout()
     with atomic_file(out / "confusion.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
-    plt.close(fig)
 
-    fig, axes = plt.subplots(1, 2, figsize=(11.5, 4.3))
+    fig, axes = subplots(1, 2, figsize=(11.5, 4.3))
     markers = ("o", "s", "^", "v", "D", "P")
     dashes = ("-", "--", "-.", ":")
     ax = axes[0]
@@ -811,7 +807,6 @@ def _plot(out: Path, rows, summary) -> None:
     fig.tight_layout()
     with atomic_file(out / "detection.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
-    plt.close(fig)
 
 
 PAPER_CASE = SynthConfig(
@@ -855,12 +850,9 @@ def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
     write_synthetic(syn, data_dir, out / "answer.json", preset=PAPER_CASE.preset)
     held = [r.name for r in syn.runs if r.is_constant_voltage and r.voltage in (0.2, 0.5)]
     res = run_discrepancy(data_dir, out / "analysis", heldout=held)
-    import matplotlib
+    from drill_env._figures import subplots
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, axes = subplots(1, 2, figsize=(10, 3.8))
     for ax, name in zip(axes, held, strict=False):
         run = next(r for r in syn.runs if r.name == name)
         plot_spectra(ax, res.nominal[name], res.after.get(name), f"{run.voltage:g} V (held out)")
@@ -873,7 +865,6 @@ def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
     fig.tight_layout()
     with atomic_file(out / "spectra_0.2_0.5V.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
-    plt.close(fig)
     truth = syn.answer["model_effects"]
     found = res.decision.winner.parameters if res.decision.winner else {}
     at_truth = syn.answer["parameters_at_nominal_string_stiffness"]
