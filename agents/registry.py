@@ -214,11 +214,18 @@ def build_controller(
 
         return classical_controller(name, ControllerSpec.from_env(env), preset, gains_file)
     if name in LEARNED:
+        from drill_env.agents.learning.policy_info import policy_training_record
         from drill_env.agents.learning.rl import load_policy
+        from drill_env.envs import ENV_IDS
 
-        policy = load_policy(
-            policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name, trusted=trusted
-        )
+        path = policy_path(name, preset, agents_dir)
+        trained_on = policy_training_record(path)[0]["env_id"]
+        if ENV_IDS.get(trained_on) != preset:
+            raise ValueError(
+                f"policy: {path} was trained on {trained_on} (preset {ENV_IDS.get(trained_on)!r}), "
+                f"not on preset {preset!r}"
+            )
+        policy = load_policy(path, algo=_ALGO[name], name=name, trusted=trusted)
         policy.check_env(env)
         _rebase(policy, env, preset)
         return policy

@@ -319,6 +319,8 @@ def register(app: typer.Typer) -> None:
             )
         # every file the runs will need, before the first run
         from drill_env.agents.commands._trust import vouch_for_policies
+        from drill_env.agents.learning.policy_info import policy_training_record
+        from drill_env.agents.learning.rl import check_policy_zip
         from drill_env.agents.registry import LEARNED, load_gains, policy_path
 
         policies: list[Path] = []
@@ -328,7 +330,10 @@ def register(app: typer.Typer) -> None:
             for c in cfg.controllers:
                 if c in LEARNED:
                     for p in cfg.presets:
-                        policies.append(policy_path(c, p, cfg.agents_dir))
+                        path = policy_path(c, p, cfg.agents_dir)
+                        check_policy_zip(path)
+                        policy_training_record(path)  # what it was trained on, or refused
+                        policies.append(path)
         except ValueError as exc:
             if "policy" not in str(exc):
                 _fail(f"--gains: {exc}")
