@@ -41,6 +41,7 @@ extensions = [
     "cli_reference",
     "env_page",
     "results_pages",
+    "headlines",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}

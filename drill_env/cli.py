@@ -254,6 +254,8 @@ def _register_commands() -> None:
                 continue  # that package is not installed: its commands are not offered
             raise
         for mod in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+            if mod.name.startswith("_"):
+                continue  # a helper of the commands (e.g. _trust), not a command
             importlib.import_module(f"{package_name}.{mod.name}").register(app)
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         ep.load()(app)

@@ -30,6 +30,10 @@ def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
         _fail(f"{name} must be a comma-separated list of numbers, got {text!r}")
 
 
+# what `drill-env benchmark` writes (a folder of these from before folders had markers is its own)
+BENCHMARK_FILES = ("benchmark.csv", "benchmark_config.json", "summary.md", "*.png")
+
+
 def resumed_count(out: Path) -> int:
     """Complete rows of the benchmark CSV in ``out`` (what an interrupted run keeps)."""
     try:
@@ -167,6 +171,13 @@ def register(app: typer.Typer) -> None:
 
         if backend not in BACKENDS:
             _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
+        if ray_address and backend == "ray":  # an address nothing answers at: said within seconds
+            from drill_env.ray_cluster import check_ray_address
+
+            try:
+                check_ray_address(ray_address)
+            except ValueError as exc:
+                _fail(f"--{str(exc).replace('_', '-', 1)}")
         presets = RIG_PRESETS if "all" in names else tuple(dict.fromkeys(names))
         ctrls = CONTROLLERS
         if controllers is not None:
@@ -286,42 +297,29 @@ def register(app: typer.Typer) -> None:
                 f"the grid has {n_runs:,} runs; allowed: at most {MAX_RUNS:,} (fewer seeds, voltages or controllers)"
             )
         # every file the runs will need, before the first run
-        from drill_env.agents.learning.rl import (
-            TRUST_ENV_VAR,
-            check_policy_zip,
-            trust_from_environment,
-            untrusted_policy_note,
-        )
+        from drill_env.agents.commands._trust import vouch_for_policies
         from drill_env.agents.registry import LEARNED, load_gains, policy_path
 
-        untrusted: list[str] = []
+        policies: list[Path] = []
         try:
             if any(c not in LEARNED for c in cfg.controllers):
                 load_gains(cfg.gains_file)
             for c in cfg.controllers:
                 if c in LEARNED:
                     for p in cfg.presets:
-                        path = policy_path(c, p, cfg.agents_dir)
-                        check_policy_zip(path)
-                        if untrusted_policy_note(path) is not None:
-                            untrusted.append(str(path))
+                        policies.append(policy_path(c, p, cfg.agents_dir))
         except ValueError as exc:
             if "policy" not in str(exc):
                 _fail(f"--gains: {exc}")
             _fail(f"--agents-dir: {exc}" if agents_dir is not None else str(exc))
-        import sys
+        option = "--agents-dir" if agents_dir is not None else "agents folder"
+        if vouch_for_policies(policies, flag=trust_policies, option=option):
+            import dataclasses
 
-        if untrusted and not (trust_policies or trust_from_environment()) and not sys.stdin.isatty():
-            _fail(
-                f"--agents-dir: {untrusted[0]}"
-                + (f" (and {len(untrusted) - 1} more)" if len(untrusted) > 1 else "")
-                + " is not one of the committed policies in results/agents/; loading a policy unpickles "
-                "Python objects, which can run arbitrary code, and this run has no terminal to warn on: "
-                f"pass --trust-policies (or set {TRUST_ENV_VAR}=1) to load files you made or trust"
-            )
-        from drill_env.outputs import OutputFolderError, check_output_folder, output_lock
+            cfg = dataclasses.replace(cfg, trust_policies=True)
+        from drill_env.outputs import OutputFolderError, check_command_folder, command_folder
 
-        check_output_folder(out, "--out")
+        check_command_folder(out, "benchmark", "--out", own=BENCHMARK_FILES)
         if not fresh:
             from drill_env.agents.evaluation.benchmark import check_resumable
 
@@ -332,7 +330,8 @@ def register(app: typer.Typer) -> None:
 
         held = ExitStack()
         try:
-            held.enter_context(output_lock(out, "benchmark"))  # OUT is this run's alone, resume included
+            # OUT is this run's alone, resume included
+            held.enter_context(command_folder(out, "benchmark", "--out", own=BENCHMARK_FILES))
         except OutputFolderError as exc:
             _fail(str(exc))
         with held:
@@ -434,6 +433,7 @@ def register(app: typer.Typer) -> None:
                         agents_dir=cfg.agents_dir,
                         gains_file=cfg.gains_file,
                         design_params=cfg.design_model(),
+                        trusted=cfg.trust_policies,
                         progress=lambda path: typer.echo(f"wrote {path}", err=True),
                     )
                 except ValueError as exc:

@@ -51,8 +51,9 @@ improved the return by less than ``tolerance`` (5 %) of the level it reached (an
 Policy files are code: a stable-baselines3 ``.zip`` stores some of its objects (the spaces,
 the policy class and its arguments, the schedules) as pickles, and unpickling can run
 arbitrary code. :func:`load_policy` loads the policies committed under ``results/agents/``
-(and their copy installed with the package) silently and warns (:class:`UntrustedPolicyWarning`) for any other file unless told
-``trusted=True``. :func:`policy_observation_version` reads only the zip's JSON and unpickles
+(and their copy installed with the package) and refuses any other file
+(:class:`UntrustedPolicyError`) unless told ``trusted=True`` (or the environment sets
+:data:`TRUST_ENV_VAR`, as a command does once its user has vouched for the files). :func:`policy_observation_version` reads only the zip's JSON and unpickles
 nothing.
 """
 
@@ -68,7 +69,6 @@ import pickle
 import pickletools
 import platform
 import time
-import warnings
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -82,6 +82,7 @@ from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.agents.learning._config import config_section
 from drill_env.envs import ENV_IDS, make_version
 from drill_env.envs.task import REGIMES
+from drill_env.outputs import atomic_file, atomic_path, atomic_write_json, atomic_write_text, save_figure
 from drill_env.params import load_yaml
 
 __all__ = [
@@ -97,10 +98,12 @@ __all__ = [
     "COMMITTED_POLICY_DIR",
     "PACKAGED_POLICY_DIR",
     "UntrustedPolicyWarning",
+    "UntrustedPolicyError",
     "MAX_POLICY_INFLATED_BYTES",
     "TRUST_ENV_VAR",
     "check_policy_zip",
     "trust_from_environment",
+    "refuse_untrusted",
     "untrusted_policy_note",
     "policy_observation_version",
     "plateau",
@@ -460,6 +463,22 @@ class UntrustedPolicyWarning(UserWarning):
     """A policy file from outside ``results/agents/`` is loaded: loading it may run code."""
 
 
+class UntrustedPolicyError(ValueError):
+    """A policy file from outside ``results/agents/`` was to be loaded without being trusted
+    (nothing in it was unpickled)."""
+
+
+def refuse_untrusted(path: str | Path, trusted: bool = False) -> None:
+    """Raise :class:`UntrustedPolicyError` for a policy file from outside ``results/agents/``
+    unless ``trusted`` or :data:`TRUST_ENV_VAR` is set (nothing is read from the file)."""
+    note = untrusted_policy_note(path)
+    if note is not None and not (trusted or trust_from_environment()):
+        raise UntrustedPolicyError(
+            f"{note}; pass trusted=True for a file you made or trust (on the command line: "
+            f"--trust-policies, or set {TRUST_ENV_VAR}=1)"
+        )
+
+
 def untrusted_policy_note(path: str | Path) -> str | None:
     """Why loading ``path`` needs trust, or None for a policy committed under
     ``results/agents/`` (symbolic links resolved: a link out of it is not committed)."""
@@ -607,7 +626,7 @@ def is_correction_file(path: str | Path) -> bool:
     return stored_policy_class(path) in names
 
 
-def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
+def upgrade_policy_file(path: str | Path, algo: str | None = None, *, trusted: bool = False) -> list[str]:
     """Rewrite the stored objects of a policy saved by :func:`train` in their present form,
     the weights and every other entry of the zip byte for byte as they were: the objects
     pickled under a former module path (:func:`renamed_objects`) as their present selves, and
@@ -615,12 +634,16 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     one that refuses to load without its base
     (:func:`drill_env.agents.learning.residual.correction_policy_class`). Returns the entries
     rewritten (empty: the file was up to date and is untouched). Unpickles the file's former
-    objects: for trusted files only, as :func:`load_policy`."""
+    objects: a file from outside ``results/agents/`` needs ``trusted=True``, as in
+    :func:`load_policy`; a zip that inflates beyond :data:`MAX_POLICY_INFLATED_BYTES` is
+    refused even then."""
     from stable_baselines3.common.save_util import data_to_json
 
     from drill_env.agents.learning.residual import correction_policy_class
 
     path = Path(path)
+    check_policy_zip(path)
+    refuse_untrusted(path, trusted)
     data = _read_data(path)
     if data is None:
         raise ValueError(f"policy: {path} is not a stable-baselines3 model")
@@ -630,7 +653,8 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     if algo not in ALGOS:
         raise ValueError(f"algo: unknown for {path}; pass one of {list(ALGOS)}")
     config = path.parent / "config.yaml"
-    residual = (yaml.safe_load(config.read_text()) or {}).get("residual") if config.is_file() else None
+    settings = (load_yaml(config, what="policy config", error=ValueError) or {}) if config.is_file() else {}
+    residual = settings.get("residual") if isinstance(settings, dict) else None
     present: dict[str, Any] = dict(renamed_objects(path))
     if residual is not None and not is_correction_file(path):
         sb3_class = correction_policy_class(algo, stable_baselines3=True)
@@ -646,13 +670,11 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     new = {key: rewritten.get(key, value) for key, value in data.items()}
     with zipfile.ZipFile(path) as zf:
         items = [(info, zf.read(info.filename)) for info in zf.infolist()]
-    tmp = path.with_suffix(".zip.tmp")
-    with zipfile.ZipFile(tmp, "w") as zf:
+    with atomic_file(path, "wb") as f, zipfile.ZipFile(f, "w") as zf:
         for info, content in items:
             if info.filename == "data":
                 content = json.dumps(new, indent=4).encode()  # as stable-baselines3 writes it
             zf.writestr(info, content)
-    tmp.replace(path)
     return sorted(present)
 
 
@@ -662,15 +684,15 @@ def load_policy(
     """Load a policy saved by :func:`train` (``policy.zip``); the algorithm is read from the
     ``training_summary.json`` beside it unless given.
 
-    A file outside ``results/agents/`` is loaded with an :class:`UntrustedPolicyWarning`
-    (loading unpickles objects stored in it) unless ``trusted=True`` (a file you made)."""
+    A file outside ``results/agents/`` is refused (:class:`UntrustedPolicyError`, before
+    anything in it is read: loading unpickles objects stored in it, which can run code) unless
+    ``trusted=True`` (a file you made or trust) or :data:`TRUST_ENV_VAR` is set; a zip that
+    inflates beyond :data:`MAX_POLICY_INFLATED_BYTES` is refused even when trusted."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy: no such file {str(path)!r}")
     check_policy_zip(path)
-    note = None if trusted else untrusted_policy_note(path)
-    if note is not None:
-        warnings.warn(note, UntrustedPolicyWarning, stacklevel=2)
+    refuse_untrusted(path, trusted)
     if algo is None:
         summary = path.parent / "training_summary.json"
         if summary.is_file():
@@ -767,14 +789,12 @@ def strip_machine_info(path: str | Path) -> None:
     path = Path(path)
     with zipfile.ZipFile(path) as zf:
         items = [(info, zf.read(info.filename)) for info in zf.infolist()]
-    tmp = path.with_suffix(".zip.tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+    with atomic_file(path, "wb") as f, zipfile.ZipFile(f, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for info, data in items:
             if info.filename == "system_info.txt":
                 lines = data.decode().splitlines()
                 data = ("\n".join(ln for ln in lines if not ln.startswith("- OS:")) + "\n").encode()
             zf.writestr(info, data)
-    tmp.replace(path)
 
 
 def evaluation_episodes(
@@ -842,7 +862,7 @@ def update_convergence(out_dir: str | Path) -> dict[str, Any]:
     curve = pd.read_csv(out_dir / "eval.csv")
     conv = plateau(curve["mean_return"].to_numpy(), **summary["config"]["convergence"])
     summary.update(converged=conv["converged"], convergence=conv)
-    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    atomic_write_json(out_dir / "training_summary.json", summary)
     plot_learning_curve(out_dir, summary)
     return summary
 
@@ -1034,13 +1054,14 @@ def train(
             callbacks.append(burn_in)
 
     def save(path: Path) -> None:
-        if cfg.residual is None:
-            model.save(str(path))
-            return
-        from drill_env.agents.learning.residual import saved_as_correction
+        with atomic_path(path, suffix=".zip") as tmp:  # never a half-written policy, never via a link
+            if cfg.residual is None:
+                model.save(str(tmp))
+                return
+            from drill_env.agents.learning.residual import saved_as_correction
 
-        with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
-            model.save(str(path))
+            with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
+                model.save(str(tmp))
 
     def current_policy() -> Any:
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
@@ -1118,12 +1139,12 @@ def train(
     import pandas as pd
 
     curve = pd.DataFrame(rows)
-    curve.to_csv(out_dir / "eval.csv", index=False, float_format="%.6g")
+    atomic_write_text(out_dir / "eval.csv", curve.to_csv(index=False, float_format="%.6g"))
     progress_csv = run_dir / "progress.csv"
     if progress_csv.is_file() and progress_csv.stat().st_size > 0:
         prog = pd.read_csv(progress_csv)
         keep = [c for c in prog.columns if c.startswith(("time/", "rollout/", "train/"))]
-        prog[keep].to_csv(out_dir / "progress.csv", index=False, float_format="%.6g")
+        atomic_write_text(out_dir / "progress.csv", prog[keep].to_csv(index=False, float_format="%.6g"))
     refs = _reference_returns(cfg, episodes)
     conv = plateau(curve["mean_return"].to_numpy(), **vars(cfg.convergence))
     summary = {
@@ -1154,9 +1175,8 @@ def train(
             "gymnasium": gym.__version__,
         },
     }
-    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    with open(out_dir / "config.yaml", "w") as f:
-        yaml.safe_dump(cfg.to_dict(), f, sort_keys=False)
+    atomic_write_json(out_dir / "training_summary.json", summary)
+    atomic_write_text(out_dir / "config.yaml", yaml.safe_dump(cfg.to_dict(), sort_keys=False))
     plot_learning_curve(out_dir, summary)
     eval_env.close()
     return summary
@@ -1164,17 +1184,15 @@ def train(
 
 def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None = None) -> Path:
     """``learning_curve.png`` from ``eval.csv`` (and ``progress.csv``) in ``out_dir``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import pandas as pd
+
+    from drill_env._figures import subplots
 
     out_dir = Path(out_dir)
     if summary is None:
         summary = json.loads((out_dir / "training_summary.json").read_text())
     curve = pd.read_csv(out_dir / "eval.csv")
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = subplots(1, 2, figsize=(11, 4))
     ax = axes[0]
     ax.plot(curve["timesteps"], curve["mean_return"], "k.-", label="all regimes")
     for regime in REGIMES:
@@ -1212,6 +1230,5 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     ax.set_title("training episodes")
     fig.tight_layout()
     path = out_dir / "learning_curve.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path

@@ -193,10 +193,9 @@ def _policy_starts(cfg: BenchmarkConfig) -> dict[str, str]:
     """How each learned controller's policy per preset started (from scratch, clone of X,
     residual on X, ...; :func:`drill_env.agents.learning.cards.policy_start`), read from the
     ``config.yaml`` beside it; a policy without one is left out."""
-    import yaml
-
     from drill_env.agents.learning.cards import policy_start
     from drill_env.agents.registry import LEARNED, policy_path
+    from drill_env.yamlio import load_yaml
 
     out = {}
     for c in cfg.controllers:
@@ -208,7 +207,7 @@ def _policy_starts(cfg: BenchmarkConfig) -> dict[str, str]:
             except ValueError:
                 continue
             if config.is_file():
-                out[f"{c}/{p}"] = policy_start(yaml.safe_load(config.read_text()) or {})
+                out[f"{c}/{p}"] = policy_start(load_yaml(config, what="policy config") or {})
     return out
 
 

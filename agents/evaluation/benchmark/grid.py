@@ -59,6 +59,9 @@ class BenchmarkConfig:
     # the design model (a rig YAML): what every controller is built on and what the task knows
     # (target speed, regime); None: the preset's own model
     design_params: str | None = None
+    # the user vouched for the policies of ``agents_dir`` from outside results/agents/
+    # (``benchmark --trust-policies`` or a yes on a terminal): they load (their files are code)
+    trust_policies: bool = False
 
     def __post_init__(self) -> None:
         from drill_env.envs.task import VOLTAGE_LIMIT

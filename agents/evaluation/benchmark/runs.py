@@ -103,7 +103,12 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
         ctrl = _CONTROLLERS.get(ctrl_key)
         if ctrl is None:
             ctrl = _CONTROLLERS[ctrl_key] = build_controller(
-                job.controller, design_env, job.preset, agents_dir=cfg.agents_dir, gains_file=cfg.gains_file
+                job.controller,
+                design_env,
+                job.preset,
+                agents_dir=cfg.agents_dir,
+                gains_file=cfg.gains_file,
+                trusted=cfg.trust_policies,
             )
         plant = cfg.plant(job.plant)
         reference, regime = (
