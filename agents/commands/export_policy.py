@@ -54,11 +54,15 @@ def register(app: typer.Typer) -> None:
             _fail(
                 f"POLICY: {policy!r} is neither a learned controller ({', '.join(LEARNED)}) nor a .zip file"
             )
+        trusted = False
+        if policy.endswith(".zip"):
+            from drill_env.agents.commands._trust import vouch_for_policies
+
+            trusted = vouch_for_policies([policy], flag=trust_policies, option="POLICY")
         try:
             env, pol, _ = resolve_controller(
-                policy, preset, 2000, 1000.0, agents_dir=agents_dir, trusted=trust_policies
+                policy, preset, 2000, 1000.0, agents_dir=agents_dir, trusted=trusted
             )
-            env = env  # the environment of the policy's version (its scales and action mapping)
             paths = run_export(pol, env, out)
         except ValueError as exc:
             _fail(str(exc))

@@ -133,10 +133,15 @@ def register(app: typer.Typer) -> None:
         from drill_env.agents.evaluation.rig_runs import measured_metrics, resolve_controller
         from drill_env.rig.loop import RunSettings, run_loop, write_outputs
 
+        trusted = False
+        if controller.endswith(".zip"):
+            from drill_env.agents.commands._trust import vouch_for_policies
+
+            trusted = vouch_for_policies([controller], flag=trust_policies, option="CONTROLLER")
         try:
             env, ctrl, label = resolve_controller(
                 controller, preset, info.counts_per_rev, info.sample_rate_hz, agents_dir=agents_dir,
-                trusted=trust_policies,
+                trusted=trusted,
             )  # fmt: skip
         except ValueError as exc:
             _fail(str(exc), io)
