@@ -234,3 +234,20 @@ def test_sim_to_real_quick_on_a_rig_that_sticks_above_its_default_voltages(tmp_p
         got = result["recalibrated"][name]["value"] / getattr(identified_rig("brake_sticky"), name) - 1.0
         assert abs(got - rel) < 0.01, (name, got)
     assert (out / "gains_nominal.yaml").is_file()
+
+
+@pytest.mark.slow  # half a minute: the continuation to 1.5 V
+def test_bifurcation_of_a_rig_file_with_an_effect_section_analyses_its_base_model(tmp_path):
+    rig = identified_rig("brake_sticky").replace(lower_position_amp_1=0.1)
+    path = tmp_path / "rig.yaml"
+    path.write_text("# written by `drill-env identify`\n" + yaml.safe_dump(rig.to_dict(), sort_keys=False))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        app, ["bifurcation", "--preset", str(path), "--out", str(out), "--umax", "1.5", "--no-check"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "the effects ['lower_position_amp_1'] of rig.yaml are left out" in res.output
+    record = yaml.safe_load((out / "bifurcation.json").read_text())
+    assert any("left out" in w for w in record["validity_warnings"])
+    a = record["points"]["A"]["u"] if isinstance(record["points"]["A"], dict) else record["points"]["A"]
+    assert math.isclose(float(a), rig.uc1, rel_tol=1e-6)
