@@ -133,8 +133,9 @@ def check_output_file(path: str | os.PathLike[str], option: str = "--out") -> Pa
     """
     path = Path(path)
     if path.is_symlink():
+        dangling = "a dangling link" if not path.exists() else "a symbolic link"
         raise OutputFolderError(
-            f"{option} {path}: is a symbolic link (to {os.readlink(path)}); output files are never written "
+            f"{option} {path}: is {dangling} (to {os.readlink(path)}); output files are never written "
             "through links: remove the link or choose another path"
         )
     if path.is_dir():

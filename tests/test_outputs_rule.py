@@ -485,3 +485,23 @@ def test_a_ray_address_that_does_not_answer_is_named_with_the_wait(monkeypatch):
     ):
         rc.check_ray_address("ray://10.0.0.9:6379")
     assert waited == [rc.CONNECT_TIMEOUT_S] and rc.CONNECT_TIMEOUT_S <= 30
+
+
+# -- a duplicate key ----------------------------------------------------------------------------------
+
+
+def test_a_duplicate_key_in_dataset_json_is_refused_with_the_key(tmp_path, runner, dataset):
+    data = tmp_path / "dup"
+    data.mkdir()
+    for p in dataset.iterdir():
+        (data / p.name).write_bytes(p.read_bytes())
+    meta = (data / "dataset.json").read_text()
+    # a braked recording that would be read as no_brake: json keeps the last value silently
+    assert '"preset": "brake"' in meta
+    (data / "dataset.json").write_text(
+        meta.replace('"preset": "brake"', '"preset": "brake",\n  "preset": "no_brake"')
+    )
+    out = tmp_path / "id"
+    line = _one_error_line(runner.invoke(app, ["identify", str(data), "--out", str(out)]))
+    assert "'preset' appears twice (line" in line and "dataset.json" in line
+    assert not out.exists()

@@ -55,6 +55,15 @@ def register(app: typer.Typer) -> None:
             None,
             help=f"Comma-separated subset of: {', '.join(KNOWN_CONTROLLERS)} (default: all).",
         ),
+        controller: list[str] | None = typer.Option(
+            None,
+            "--controller",
+            help="A controller of your own, scored beside the shipped ones (--controllers): "
+            "package.module:Name, path/to/file.py:Name or path/to/policy.zip, optionally LABEL=SPEC "
+            "(the name of its rows); repeatable. Name is a class or factory whose result has "
+            "predict(obs, state, episode_start, deterministic), see docs/howto/own_controller.md; a "
+            "policy zip from outside results/agents/ needs --trust-policies.",
+        ),
         voltages: str | None = typer.Option(
             None,
             help="Comma-separated nominal voltages [V] (replace the grid; default: the full or quick grid).",
@@ -203,6 +212,14 @@ def register(app: typer.Typer) -> None:
             ):
                 allowed = f"[0, {MAX_EPISODE_S:g}]" if low is None else f"(0, {MAX_EPISODE_S:g}]"
                 _fail(f"--{name.lstrip('-')}: {value!r} s; allowed: {allowed} s")
+        from drill_env.agents.evaluation.controller_spec import controller_label
+
+        custom: list[tuple[str, str]] = []
+        for item in controller or []:
+            try:
+                custom.append((controller_label(item), item))
+            except ValueError as exc:
+                _fail(str(exc))
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
         from drill_env.agents.evaluation.plants import FAMILY, NOMINAL, Plant, plants_in, standard_family
@@ -272,6 +289,8 @@ def register(app: typer.Typer) -> None:
                     gains_file=None if gains is None else str(gains),
                     plants=tuple(plant_list),
                     design_params=None if design_params is None else str(design_params),
+                    custom=tuple(custom),
+                    trust_policies=trust_policies,
                 )
             else:
                 cfg = BenchmarkConfig.preset_grid(
@@ -284,6 +303,8 @@ def register(app: typer.Typer) -> None:
                     gains_file=None if gains is None else str(gains),
                     plants=tuple(plant_list),
                     design_params=None if design_params is None else str(design_params),
+                    custom=tuple(custom),
+                    trust_policies=trust_policies,
                 )
         except ValueError as exc:
             _fail(str(exc))
@@ -299,6 +320,8 @@ def register(app: typer.Typer) -> None:
             )
         # every file the runs will need, before the first run
         from drill_env.agents.commands._trust import vouch_for_policies
+        from drill_env.agents.learning.policy_info import policy_training_record
+        from drill_env.agents.learning.rl import check_policy_zip
         from drill_env.agents.registry import LEARNED, load_gains, policy_path
 
         policies: list[Path] = []
@@ -308,7 +331,10 @@ def register(app: typer.Typer) -> None:
             for c in cfg.controllers:
                 if c in LEARNED:
                     for p in cfg.presets:
-                        policies.append(policy_path(c, p, cfg.agents_dir))
+                        path = policy_path(c, p, cfg.agents_dir)
+                        check_policy_zip(path)
+                        policy_training_record(path)  # what it was trained on, or refused
+                        policies.append(path)
         except ValueError as exc:
             if "policy" not in str(exc):
                 _fail(f"--gains: {exc}")

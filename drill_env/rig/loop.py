@@ -112,7 +112,9 @@ def call_time(controller: Any, observation: np.ndarray, calls: int = 6) -> float
     times = []
     for _ in range(calls):
         c0 = time.perf_counter()
-        controller.predict(observation, state=None, episode_start=np.ones((1,), dtype=bool), deterministic=True)
+        controller.predict(
+            observation, state=None, episode_start=np.ones((1,), dtype=bool), deterministic=True
+        )
         times.append(time.perf_counter() - c0)
     return float(np.median(times[1:]))
 

@@ -59,8 +59,12 @@ class BenchmarkConfig:
     # the design model (a rig YAML): what every controller is built on and what the task knows
     # (target speed, regime); None: the preset's own model
     design_params: str | None = None
-    # the user vouched for the policies of ``agents_dir`` from outside results/agents/
-    # (``benchmark --trust-policies`` or a yes on a terminal): they load (their files are code)
+    # controllers of the user's own (label, spec): ``drill-env benchmark --controller``
+    # (:mod:`drill_env.agents.evaluation.controller_spec`); their labels are in ``controllers``
+    custom: tuple[tuple[str, str], ...] = ()
+    # the user vouched for the policies from outside results/agents/ (those of ``agents_dir``
+    # and of ``custom``; ``benchmark --trust-policies`` or a yes on a terminal): they load
+    # (their files are code)
     trust_policies: bool = False
 
     def __post_init__(self) -> None:
@@ -74,8 +78,25 @@ class BenchmarkConfig:
                 raise ValueError(f"presets: {p!r} is not one of {list(PRESETS)}")
         if not self.controllers:
             raise ValueError(f"controllers: expected at least one of {list(CONTROLLERS)}")
+        custom = tuple((str(label), str(spec)) for label, spec in self.custom)
+        labels = [label for label, _ in custom]
+        for label, spec in custom:
+            from drill_env.agents.evaluation.controller_spec import check_spec
+
+            if label in CONTROLLERS:
+                raise ValueError(
+                    f"--controller {spec!r}: the label {label!r} is a shipped controller's; give another as LABEL=SPEC"
+                )
+            if labels.count(label) > 1:
+                raise ValueError(
+                    f"--controller {spec!r}: the label {label!r} is given twice; give each its own as LABEL=SPEC"
+                )
+            check_spec(spec, trust_policies=self.trust_policies)
+        object.__setattr__(self, "custom", custom)
+        controllers = tuple(self.controllers) + tuple(lb for lb in labels if lb not in self.controllers)
+        object.__setattr__(self, "controllers", controllers)
         for c in self.controllers:
-            if c not in CONTROLLERS:
+            if c not in CONTROLLERS and c not in labels:
                 raise ValueError(f"controllers: {c!r} is not one of {list(CONTROLLERS)}")
         if not self.seeds:
             raise ValueError("seeds: expected at least one seed")
@@ -112,7 +133,6 @@ class BenchmarkConfig:
         object.__setattr__(self, "plants", tuple(self.plants))
         object.__setattr__(self, "voltages", volts)
         object.__setattr__(self, "presets", tuple(self.presets))
-        object.__setattr__(self, "controllers", tuple(self.controllers))
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
 
     @classmethod
@@ -129,6 +149,10 @@ class BenchmarkConfig:
             p = tuple(presets)[0]
             voltages = {p: design_grid(_load_design(str(design)), len(grid[p]))}
         return cls(presets=tuple(presets), voltages=voltages, **kwargs)
+
+    def spec_of(self, controller: str) -> str | None:
+        """The spec of a controller of the user's own (None for a shipped one)."""
+        return dict(self.custom).get(controller)
 
     def design_model(self):
         """The design model's ``RigParams`` (effects included), or None for the preset's own."""
@@ -159,6 +183,8 @@ class BenchmarkConfig:
     def settings_record(self) -> dict[str, Any]:
         """What must match for a resumed benchmark (the grid may grow)."""
         rec: dict[str, Any] = {"episode": self.episode.to_dict()}
+        if self.custom:
+            rec["custom_controllers"] = dict(self.custom)
         if any(not p.is_nominal for p in self.plants):
             rec["plants"] = [p.record() for p in self.plants if not p.is_nominal]
         if self.design_params is not None:

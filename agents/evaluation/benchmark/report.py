@@ -9,6 +9,14 @@ from pathlib import Path
 from typing import Any
 
 from drill_env.agents.evaluation.benchmark.figures import _figures, _plants_figure, worst_case_figure
+from drill_env.agents.evaluation.benchmark.ranking import (
+    RANKING_FILE as RANKING_FILE,
+)
+from drill_env.agents.evaluation.benchmark.ranking import (
+    benchmark_rankings,
+    ranking_summary_lines,
+    write_rankings,
+)
 from drill_env.agents.evaluation.benchmark.runs import NOT_MADE, OPEN_LOOP_FLOOR
 from drill_env.agents.evaluation.benchmark.store import load_results
 from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED, STALL_SPEED_ERROR, STALL_STUCK_FRACTION
@@ -28,6 +36,8 @@ REGIME_TITLES = REGIMES  # regime -> the title of its table
 SEPARATE_PLANT_FIGURES = 3
 # the figures write_report makes (removed with the results by ``fresh``)
 REPORT_FIGURES = (
+    "ranking.md",
+    "ranking_*.png",
     "bifurcation_*.png",
     "suppression_*.png",
     "robustness_*.png",
@@ -247,7 +257,11 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
         design = (rec.get("design_model") or {}).get("source")
         regimes = rec.get("design_regimes")
     paths = [out / "summary.md"]
-    atomic_write_text(paths[0], summary_tables(df, notes, plants, starts, design, regimes) + "\n")
+    rankings = benchmark_rankings(df)
+    summary = summary_tables(df, notes, plants, starts, design, regimes)
+    summary += "\n" + "\n".join(ranking_summary_lines(rankings))
+    atomic_write_text(paths[0], summary + "\n")
+    paths += write_rankings(rankings, out)
     for preset in [p for p in PRESETS if p in set(df["preset"])]:
         names = _plants_in(df[df["preset"] == preset])
         others = [q for q in names if q != NOMINAL]

@@ -69,7 +69,13 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
     try:
         check_operating_point(job, cfg)
         # cached per process, keyed by everything they are built from
-        version = observation_version(job.controller, job.preset, cfg.agents_dir)
+        spec = cfg.spec_of(job.controller)
+        if spec is None:
+            version = observation_version(job.controller, job.preset, cfg.agents_dir)
+        else:
+            from drill_env.agents.evaluation.controller_spec import spec_observation_version
+
+            version = spec_observation_version(spec, job.preset, cfg.agents_dir)
         episode_key = json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str)
         design = cfg.design_model()
 
@@ -99,9 +105,16 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
             cfg.agents_dir,
             cfg.gains_file,
             cfg.design_params,
+            spec,
         )
         ctrl = _CONTROLLERS.get(ctrl_key)
-        if ctrl is None:
+        if ctrl is None and spec is not None:
+            from drill_env.agents.evaluation.controller_spec import resolve_controller
+
+            ctrl = _CONTROLLERS[ctrl_key] = resolve_controller(
+                spec, design_env, job.preset, agents_dir=cfg.agents_dir, trust_policies=cfg.trust_policies
+            )
+        elif ctrl is None:
             ctrl = _CONTROLLERS[ctrl_key] = build_controller(
                 job.controller,
                 design_env,

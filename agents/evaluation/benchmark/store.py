@@ -99,6 +99,13 @@ def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any]
             f"out: {out} holds a benchmark designed on another model; use another directory or "
             "--fresh to start over"
         )
+    own = old.get("custom_controllers") or {}
+    for label, spec in (record.get("custom_controllers") or {}).items():
+        if label in own and own[label] != spec:
+            raise ValueError(
+                f"--controller {spec!r}: {out} holds rows of {label!r} made by {own[label]!r}; give this one "
+                "another label (LABEL=SPEC), use another directory or --fresh to start over"
+            )
     before = {q["name"]: q for q in old.get("plants", [])}
     for q in json.loads(json.dumps(record.get("plants", []))):
         if q["name"] in before and before[q["name"]] != q:
