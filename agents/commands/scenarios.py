@@ -103,7 +103,7 @@ def register(app: typer.Typer) -> None:
         n_workers = workers or os.cpu_count() or 1
         total = len(cfg.jobs())
         typer.echo(
-            f"{total} runs: {len(ctrls)} controllers (and the open-loop reference) x {len(names)} "
+            f"{total} runs: {len(cfg.jobs()) // max(1, len(names) * len(presets) * seeds)} controllers (the open-loop reference among them) x {len(names)} "
             f"scenarios x {len(presets)} presets x {seeds} seeds on {n_workers} worker(s)"
         )
         t0 = time.perf_counter()
