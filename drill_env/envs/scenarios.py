@@ -21,7 +21,7 @@ sensing_delay      40 ms delay on both encoders (the top end of 10-40 ms of a fi
                    a stick-slip set point
 sensing_noise      encoder angle noise (2 mrad) and speed noise (0.2 rad/s) at 1 kHz, in the
                    Hopf band
-effort             a constant stick-slip set point; scored on suppression per energy used
+effort             a constant stick-slip set point; scored on tracking per energy used
 =================  ===========================================================================
 
 The voltages are the preset's (:data:`VOLTAGES`): the design model's regimes place them, so
