@@ -217,17 +217,29 @@ def build_controller(
     *,
     agents_dir: str | Path | None = None,
     gains_file: str | Path | None = None,
+    trusted: bool = False,
 ):
-    """Any benchmark controller by name for environment ``env`` of ``preset``."""
+    """Any benchmark controller by name for environment ``env`` of ``preset``. A learned
+    controller's policy from outside ``results/agents/`` needs ``trusted`` (see
+    :func:`drill_env.agents.learning.rl.load_policy`)."""
     if name in CLASSICAL:
         from drill_env.agents.controllers.base import ControllerSpec
         from drill_env.agents.controllers.gains import classical_controller
 
         return classical_controller(name, ControllerSpec.from_env(env), preset, gains_file)
     if name in LEARNED:
+        from drill_env.agents.learning.policy_info import policy_training_record
         from drill_env.agents.learning.rl import load_policy
+        from drill_env.envs import ENV_IDS
 
-        policy = load_policy(policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name)
+        path = policy_path(name, preset, agents_dir)
+        trained_on = policy_training_record(path)[0]["env_id"]
+        if ENV_IDS.get(trained_on) != preset:
+            raise ValueError(
+                f"policy: {path} was trained on {trained_on} (preset {ENV_IDS.get(trained_on)!r}), "
+                f"not on preset {preset!r}"
+            )
+        policy = load_policy(path, algo=_ALGO[name], name=name, trusted=trusted)
         policy.check_env(env)
         _rebase(policy, env, preset)
         return policy
@@ -274,7 +286,7 @@ def observation_version(name: str, preset: str, agents_dir: str | Path | None = 
     return policy_observation_version(policy_path(name, preset, agents_dir))
 
 
-def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any:
+def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any], *, trusted: bool = False) -> Any:
     """The trained policy ``name`` of a distillation (``warm_start.policy``, one of
     :data:`drill_env.agents.learning.warm_start.WARM_START_POLICIES`) as the benchmark loads it for the
     preset of ``env_id`` from the default agents folder (:func:`build_controller`: a missing
@@ -289,6 +301,6 @@ def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any
 
     env = make_version(env_id, **env_kwargs)
     try:
-        return build_controller(name, env, ENV_IDS[env_id])
+        return build_controller(name, env, ENV_IDS[env_id], trusted=trusted)
     finally:
         env.close()

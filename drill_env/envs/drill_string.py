@@ -41,7 +41,7 @@ class DrillStringEnv(gym.Env):
 
     The torsional drill-string rig of Mihajlovic et al. (2004): a DC motor drives an
     upper disk, a soft steel string carries the torque down to a lower disk (the bit),
-    whose friction (a brake in ``DrillString-v0``) has a Stribeck "hump" that makes the
+    whose friction (a brake in ``DrillString-v3``) has a Stribeck "hump" that makes the
     slip equilibrium lose stability: torsional limit cycles and stick-slip. The task is
     to keep the lower disk turning at a target speed without stick-slip or torsional
     oscillation, using only the motor voltage and what the rig measures.
@@ -85,8 +85,8 @@ class DrillStringEnv(gym.Env):
 
     ## Observation Space
 
-    ``Box(low, high, (8,), float32)`` in v0, ``(13,)`` in v1 (``DrillString-v1``, or
-    ``observation_version=1``): only what a controller on the rig has. Each entry
+    ``Box(low, high, (13,), float32)`` (``observation_version=1``; 8 entries in v0, see the
+    Version History): only what a controller on the rig has. Each entry
     is divided by its scale (``normalize_observation=True``, the default) so that typical
     values are of order one; with ``normalize_observation=False`` the entries are in the
     units given. The bounds (before scaling) are the amplifier's +-5 V for the voltages
@@ -191,7 +191,7 @@ class DrillStringEnv(gym.Env):
     ## Arguments
 
     ```python
-    env = gymnasium.make("DrillString-v1", control_dt=0.05, sensors={"counts_per_rev": 4096})
+    env = gymnasium.make("DrillString-v3", control_dt=0.05, sensors={"counts_per_rev": 4096})
     ```
 
     * ``params``: preset name (``"brake"``, ``"no_brake"``), YAML path or ``RigParams``.
