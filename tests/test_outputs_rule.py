@@ -505,3 +505,35 @@ def test_a_duplicate_key_in_dataset_json_is_refused_with_the_key(tmp_path, runne
     line = _one_error_line(runner.invoke(app, ["identify", str(data), "--out", str(out)]))
     assert "'preset' appears twice (line" in line and "dataset.json" in line
     assert not out.exists()
+
+
+# -- Ctrl-C at any moment ---------------------------------------------------------------------------
+
+
+def test_a_ctrl_c_that_python_swallows_still_exits_130():
+    """A Ctrl-C that lands in a finaliser is printed as "Exception ignored" and the run goes on:
+    the command still ends with exit code 130, never 0."""
+    script = textwrap.dedent(
+        """
+        import signal, sys
+        import drill_env.cli as cli
+
+        class Finaliser:
+            def __del__(self):
+                signal.raise_signal(signal.SIGINT)  # Ctrl-C while an object is cleaned up
+                sum(range(1000))
+
+        def command():
+            Finaliser()
+            print("finished", flush=True)
+            sys.exit(0)
+
+        cli.app = command
+        cli.main()
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.stdout.strip() == "finished"
+    assert "Exception ignored" in proc.stderr  # Python swallowed it ...
+    assert proc.returncode == 130, proc.stderr  # ... the command did not
+    assert "interrupted (Ctrl-C)" in proc.stderr
