@@ -363,6 +363,20 @@ def register(app: typer.Typer) -> None:
         with held:
             n = len(cfg.jobs())
             console = Console(stderr=True)
+            if cfg.design_params is not None:
+                from drill_env.agents.evaluation.benchmark.grid import describe_regimes, design_regimes
+
+                try:
+                    console.print(
+                        f"design model {cfg.design_params}: {describe_regimes(design_regimes(cfg.design_model()))}"
+                        + ("" if vs is not None else "; the grid's voltages are chosen in them"),
+                        highlight=False,
+                        soft_wrap=True,
+                    )
+                except (ValueError, RuntimeError) as exc:
+                    console.print(
+                        f"design model {cfg.design_params}: regimes not found: {exc}", highlight=False
+                    )
             console.print(
                 f"benchmark: {len(cfg.controllers)} controllers x "
                 + " + ".join(f"{len(cfg.voltages[p])} voltages ({p})" for p in cfg.presets)
@@ -453,8 +467,19 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"wrote {len(made)} time-series figures of {p} in {out}")
         import pandas as pd
 
+        from drill_env.agents.evaluation.benchmark.runs import NOT_MADE
+
         rows = pd.read_csv(csv_path, keep_default_na=False)
-        failed = rows[rows["error"].astype(str) != ""]
+        errors = rows["error"].astype(str)
+        not_made = rows[errors.str.startswith(NOT_MADE)]
+        for (p, v), group in not_made.groupby(["preset", "voltage"], sort=True):
+            typer.secho(
+                f"not made: {len(group)} run(s) at {float(v):g} V ({p}): "
+                f"{group.iloc[0]['error'][len(NOT_MADE) :]}",
+                fg=typer.colors.YELLOW,
+                err=True,
+            )
+        failed = rows[(errors != "") & ~errors.str.startswith(NOT_MADE)]
         if len(failed):
             first = failed.iloc[0]
             typer.secho(

@@ -88,6 +88,19 @@ def _module(modules, squash, scales, low, high, a2v, offset, unom_index, n_extra
     return Exported()
 
 
+def _onnx_export(torch, module, dummy, buf, inputs, outputs) -> None:  # noqa: ANN001
+    torch.onnx.export(
+        module,
+        dummy,
+        buf,
+        input_names=inputs,
+        output_names=outputs,
+        dynamic_axes={name: {0: "batch"} for name in inputs + outputs},
+        opset_version=ONNX_OPSET,
+        dynamo=False,
+    )
+
+
 def export_policy(policy: Any, env: Any, out: str | Path) -> dict[str, Path]:
     """Write ``policy`` (an ``SB3Policy`` or ``ResidualPolicy``) for environment ``env`` (the
     one it runs on: its observation scales and action mapping) into folder ``out``; returns
@@ -122,18 +135,14 @@ def export_policy(policy: Any, env: Any, out: str | Path) -> dict[str, Path]:
     inputs = ["observation"] + (["base"] if n_extra else [])
     outputs = ["correction"] if residual else ["action", "voltage"]
     import io
+    import warnings
 
     buf = io.BytesIO()
-    torch.onnx.export(
-        module,
-        dummy,
-        buf,
-        input_names=inputs,
-        output_names=outputs,
-        dynamic_axes={name: {0: "batch"} for name in inputs + outputs},
-        opset_version=ONNX_OPSET,
-        dynamo=False,
-    )
+    with warnings.catch_warnings():
+        # the TorchScript exporter is chosen on purpose: it needs no onnxscript, and an MLP
+        # exports the same through it
+        warnings.simplefilter("ignore", DeprecationWarning)
+        _onnx_export(torch, module, dummy, buf, inputs, outputs)
     with atomic_file(out / "policy.onnx", "wb") as f:
         f.write(buf.getvalue())
     # the numpy runner's file

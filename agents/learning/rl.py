@@ -70,7 +70,7 @@ import pickletools
 import platform
 import time
 import zipfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -837,10 +837,15 @@ def finish_policy_file(path: str | Path, cfg: TrainConfig) -> None:
     rewrite_policy_zip(path, info=info, strip_machine_info=True)
 
 
-def evaluation_episodes(cfg: EvalConfig) -> list[tuple[int, dict[str, Any]]]:
-    """The fixed (seed, reset options) of the learning-curve evaluation."""
+def evaluation_episodes(
+    cfg: EvalConfig, regimes: Sequence[str] = REGIMES
+) -> list[tuple[int, dict[str, Any]]]:
+    """The fixed (seed, reset options) of the learning-curve evaluation: ``episodes_per_regime``
+    in each of ``regimes`` (those the rig has; a regime's seeds do not depend on the others)."""
     out = []
     for j, regime in enumerate(REGIMES):
+        if regime not in regimes:
+            continue
         for i in range(cfg.episodes_per_regime):
             out.append((cfg.seed + j * cfg.episodes_per_regime + i, {"regime": regime}))
     return out
@@ -1084,7 +1089,9 @@ def train(
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
 
     eval_env = make_version(cfg.env_id, **cfg.env_kwargs)
-    episodes = evaluation_episodes(cfg.evaluation)
+    # the regimes the training rig has (an identified rig may lack one): the others are scored
+    eval_regimes = eval_env.unwrapped.settings.sampler.regimes_present()
+    episodes = evaluation_episodes(cfg.evaluation, eval_regimes)
     base = None
     callbacks: list[Any] = []
     if cfg.residual is not None:
@@ -1146,15 +1153,16 @@ def train(
             "mean_return": float(np.mean(rets)),
             "std_return": float(np.std(rets)),
         }
-        for j, regime in enumerate(REGIMES):
-            row[f"return_{regime}"] = float(np.mean(rets[j * k : (j + 1) * k]))
+        for regime in REGIMES:  # NaN for a regime the rig does not have
+            j = eval_regimes.index(regime) if regime in eval_regimes else -1
+            row[f"return_{regime}"] = float(np.mean(rets[j * k : (j + 1) * k])) if j >= 0 else math.nan
         if target is not None:
             row.update(target_met=target.met, target_margin=target.margin)
             row.update({f"suppression_{r}": v for r, v in target.suppression.items()})
             row.update({f"rms_error_{r}": v for r, v in target.rms_error.items()})
         rows.append(row)
         model.logger.record("eval/mean_return", row["mean_return"])
-        for regime in REGIMES:
+        for regime in eval_regimes:
             model.logger.record(f"eval/return_{regime}", row[f"return_{regime}"])
         if target is not None:
             model.logger.record("eval/target_margin", target.margin)

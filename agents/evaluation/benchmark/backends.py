@@ -97,6 +97,7 @@ def _run_benchmark(
         )
     full_record = dict(
         record,
+        **_design_regimes_record(cfg),
         presets=list(cfg.presets),
         controllers=list(cfg.controllers),
         voltages={p: list(v) for p, v in cfg.voltages.items()},
@@ -161,6 +162,18 @@ def _run_benchmark(
     if report:
         write_report(csv_path, out)
     return csv_path
+
+
+def _design_regimes_record(cfg: BenchmarkConfig) -> dict[str, str]:
+    """The design model's regimes in one line (for the report), when there is a design model."""
+    if cfg.design_params is None:
+        return {}
+    from drill_env.agents.evaluation.benchmark.grid import describe_regimes, design_regimes
+
+    try:
+        return {"design_regimes": describe_regimes(design_regimes(cfg.design_model()))}
+    except (ValueError, RuntimeError) as exc:
+        return {"design_regimes": f"not found ({exc})"}
 
 
 def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:

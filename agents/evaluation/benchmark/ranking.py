@@ -147,6 +147,7 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
     +-:data:`LINEAR_BELOW`); resolved differences filled, unresolved ones open. The
     controllers left out are named with their score under the panels."""
     from matplotlib.lines import Line2D
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
 
     from drill_env._figures import subplots
 
@@ -159,6 +160,7 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
     y = np.arange(k)[::-1]
     pairs = {(r["a"], r["b"]): r for r in st.pairs.to_dict("records")}
     widest = LINEAR_BELOW
+    lowest = -LINEAR_BELOW  # the most negative end of an interval (a pair not resolved)
     shortfalls: list[float] = []
     for yi, r in zip(y, shown, strict=True):
         c = r["controller"]
@@ -181,6 +183,7 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
             continue
         p = pairs[(best, c)]
         widest = max(widest, p["high"])
+        lowest = min(lowest, p["low"])
         ax2.errorbar(
             p["difference"],
             yi,
@@ -196,10 +199,14 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
     # better to the right in both panels
     ax1.set_xlim(min(1.0, 2.0 * max(shortfalls)), max(SHORTFALL_FLOOR, min(shortfalls)) / 2.0)
     ax1.set_xlabel(f"shortfall 1 - mean {st.score} [-]\n(log scale; 0.99 -> 1e-2, 0.999 -> 1e-3)")
+    # ticks at 1, 2 and 5 of each decade, labelled as numbers (0.005), no crowded minor labels
+    ax1.xaxis.set_major_locator(FixedLocator([m * 10.0**e for e in range(-5, 1) for m in (1, 2, 5)]))
+    ax1.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    ax1.xaxis.set_minor_formatter(NullFormatter())
     ax1.grid(alpha=0.3, which="both")
     ax2.axvline(0.0, color="gray", lw=0.8)
     ax2.set_xscale("symlog", linthresh=LINEAR_BELOW, linscale=0.5)
-    ax2.set_xlim(2.0 * widest, -LINEAR_BELOW)
+    ax2.set_xlim(2.0 * widest, 2.0 * lowest)
     ax2.set_xlabel(
         f"{best} - controller [-], paired difference\nof mean {st.score} (linear within +-{LINEAR_BELOW:g})"
     )
