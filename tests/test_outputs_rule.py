@@ -537,3 +537,41 @@ def test_a_ctrl_c_that_python_swallows_still_exits_130():
     assert "Exception ignored" in proc.stderr  # Python swallowed it ...
     assert proc.returncode == 130, proc.stderr  # ... the command did not
     assert "interrupted (Ctrl-C)" in proc.stderr
+
+
+# -- the committed results stay regenerable --------------------------------------------------------
+
+
+def test_every_committed_results_folder_is_accepted_by_the_command_that_writes_it():
+    """results/README.md's commands write into folders made before folders had markers: each is
+    accepted by its own command (and refused by another one)."""
+    import re
+
+    from drill_env.agents.commands.benchmark import BENCHMARK_FILES
+    from drill_env.agents.commands.train import TRAIN_FILES
+    from drill_env.agents.evaluation.sim_to_real import SIM_TO_REAL_FILES
+    from drill_env.commands.bifurcation import BIFURCATION_FILES
+    from drill_env.commands.discrepancy import STUDY_FILES
+    from drill_env.commands.identify import IDENTIFY_FILES
+    from drill_env.outputs import check_command_folder
+
+    root = Path(__file__).resolve().parents[1]
+    own = {
+        "benchmark": BENCHMARK_FILES,
+        "bifurcation": BIFURCATION_FILES,
+        "discrepancy-study": STUDY_FILES,
+        "train": TRAIN_FILES,
+        "sim-to-real": SIM_TO_REAL_FILES,
+    }
+    text = (root / "results" / "README.md").read_text()
+    found = set(re.findall(r"drill-env ([a-z-]+) [^`\n]*?--out (results/[^\s`]+)", text))
+    checked = 0
+    for command, folder in sorted(found):
+        if command not in own or not (root / folder).is_dir():
+            continue
+        check_command_folder(root / folder, command, own=own[command])
+        checked += 1
+        if command != "bifurcation":
+            with pytest.raises(OutputFolderError):
+                check_command_folder(root / folder, "identify", own=IDENTIFY_FILES)
+    assert checked >= 10
