@@ -4,6 +4,7 @@ the command line end to end against `drill-env emulate-rig` on loopback."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -132,7 +133,9 @@ def _lockstep(controller: str, voltage: float, warmup: float, duration: float, w
     from drill_env.agents.evaluation.rig_runs import resolve_controller
 
     rig = LockstepRig(EmulatedRig(*emulated_plant("brake", None)), **kw)
-    info = rig.hello()
+    # lockstep has no wall clock: announced 1000 times slower than it, the loop's wall-clock
+    # checks (a call overrunning its period) never act on how this host schedules the test
+    info = dataclasses.replace(rig.hello(), time_scale=1e-3)
     env, ctrl, name = resolve_controller(controller, "brake", info.counts_per_rev, info.sample_rate_hz)
     res = run_loop(rig, info, env, ctrl, name, RunSettings("brake", voltage, duration, warmup, window))
     return rig, res
