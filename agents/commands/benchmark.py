@@ -31,7 +31,15 @@ def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
 
 
 # what `drill-env benchmark` writes (a folder of these from before folders had markers is its own)
-BENCHMARK_FILES = ("benchmark.csv", "benchmark_config.json", "summary.md", "*.png")
+BENCHMARK_FILES = (
+    "benchmark.csv",
+    "benchmark_config.json",
+    "summary.md",
+    "provenance.json",
+    "ranking.json",
+    "ranking.md",
+    "*.png",
+)
 
 
 def resumed_count(out: Path) -> int:
