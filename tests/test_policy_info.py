@@ -125,7 +125,7 @@ def test_a_lone_policy_file_with_its_record_runs_on_its_own_version(tmp_path):
 
     assert observation_version("ppo", "brake", tmp_path) == 3
     env = make_env("brake", EpisodeSettings(), 3)
-    ctrl = build_controller("ppo", env, "brake", agents_dir=tmp_path)
+    ctrl = build_controller("ppo", env, "brake", agents_dir=tmp_path, trusted=True)
     # the benchmark's run of it at 1 V: suppressed (a v1 reading would apply 0.13 V: suppression 0)
     m = evaluate(ctrl, "brake", 1.0, 0, EpisodeSettings(), env=env)
     assert m.suppression > 0.95 and not m.stalled
@@ -146,7 +146,7 @@ def test_a_policy_of_the_other_rig_is_refused(tmp_path):
     with pytest.raises(
         ValueError, match=r"was trained on DrillString-v3 \(preset 'brake'\), not on preset 'no_brake'"
     ):
-        build_controller("ppo", env, "no_brake", agents_dir=tmp_path)
+        build_controller("ppo", env, "no_brake", agents_dir=tmp_path, trusted=True)
     env.close()
 
 

@@ -26,6 +26,7 @@ from typing import Any
 
 from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.registry import CONTROLLERS, controller_style
+from drill_env.outputs import save_figure
 
 __all__ = [
     "COLORS",
@@ -407,5 +408,5 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     for ax, labels in pending.values():  # once the layout is final: clear of every marker
         place_labels(ax, labels)
     path = Path(out) / f"robustness_{preset}.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path

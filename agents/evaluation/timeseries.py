@@ -23,6 +23,7 @@ import numpy as np
 from drill_env.agents.evaluation.episodes import EpisodeSettings, make_env, run_episode
 from drill_env.agents.evaluation.plants import Plant
 from drill_env.agents.registry import CLASSICAL, LEARNED, controller_style
+from drill_env.outputs import save_figure
 
 __all__ = ["GROUPS", "run_trace", "timeseries_figures"]
 
@@ -40,6 +41,7 @@ def run_trace(
     agents_dir: str | None = None,
     gains_file: str | None = None,
     design_params: Any = None,
+    trusted: bool = False,
 ):
     """One closed-loop episode of ``controller`` (built on the design model ``design_params``,
     default the preset's) on ``plant``, with the 1 kHz true lower-disk samples of the whole
@@ -57,7 +59,9 @@ def run_trace(
         design_params=design_params,
     )
     try:
-        ctrl = build_controller(controller, design, preset, agents_dir=agents_dir, gains_file=gains_file)
+        ctrl = build_controller(
+            controller, design, preset, agents_dir=agents_dir, gains_file=gains_file, trusted=trusted
+        )
         n = episode.n_steps(env.unwrapped.control_dt)
         return run_episode(
             env, ctrl, seed=seed, n_steps=n, options={"nominal_voltage": float(voltage)}, window_steps=n
@@ -95,6 +99,7 @@ def timeseries_figures(
     gains_file: str | None = None,
     design_params: Any = None,
     progress: Any = None,
+    trusted: bool = False,
 ) -> list[Path]:
     """``timeseries_<preset>_<plant>_<group>.png`` for each plant and controller group (see the
     module docstring). A controller that cannot be built (e.g. no trained policy) is left out
@@ -108,7 +113,12 @@ def timeseries_figures(
     out = Path(out)
     paths: list[Path] = []
     errors: list[str] = []
-    kw = {"agents_dir": agents_dir, "gains_file": gains_file, "design_params": design_params}
+    kw = {
+        "agents_dir": agents_dir,
+        "gains_file": gains_file,
+        "design_params": design_params,
+        "trusted": trusted,
+    }
     for q in plants:
         open_loop = run_trace("open_loop", preset, voltage, seed, episode, q, **kw)
         for group, members in GROUPS.items():
@@ -190,5 +200,5 @@ def _figure(Patch, u_limit, traces, open_loop, q: Plant, group, preset, voltage,
     )
     fig.tight_layout(rect=(0, 0.75 / fig.get_figheight(), 1, 1))
     p = out / f"timeseries_{preset}_{q.name}_{group}.png"
-    fig.savefig(p, dpi=100)
+    save_figure(fig, p, dpi=100)
     return p

@@ -169,8 +169,9 @@ def rewrite_policy_zip(
         replace[POLICY_INFO_MEMBER] = (json.dumps(_jsonable(dict(info)), indent=2) + "\n").encode()
     with zipfile.ZipFile(path) as zf:
         items = [(i, zf.read(i.filename)) for i in zf.infolist()]
-    tmp = path.with_suffix(".zip.tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+    from drill_env.outputs import atomic_file
+
+    with atomic_file(path, "wb") as f, zipfile.ZipFile(f, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for item, content in items:
             if item.filename in replace:
                 content = replace.pop(item.filename)
@@ -182,4 +183,3 @@ def rewrite_policy_zip(
             member = zipfile.ZipInfo(name, date_time=_ZIP_TIME)
             member.compress_type = zipfile.ZIP_DEFLATED
             zf.writestr(member, content)
-    tmp.replace(path)

@@ -58,8 +58,9 @@ controllers' target check instead of the return (:func:`train`).
 Policy files are code: a stable-baselines3 ``.zip`` stores some of its objects (the spaces,
 the policy class and its arguments, the schedules) as pickles, and unpickling can run
 arbitrary code. :func:`load_policy` loads the policies committed under ``results/agents/``
-(and their copy installed with the package) silently and warns (:class:`UntrustedPolicyWarning`) for any other file unless told
-``trusted=True``. :func:`policy_observation_version` reads only the zip's JSON and unpickles
+(and their copy installed with the package) and refuses any other file
+(:class:`UntrustedPolicyError`) unless told ``trusted=True`` (or the environment sets
+:data:`TRUST_ENV_VAR`, as a command does once its user has vouched for the files). :func:`policy_observation_version` reads only the zip's JSON and unpickles
 nothing.
 """
 
@@ -75,9 +76,8 @@ import pickle
 import pickletools
 import platform
 import time
-import warnings
 import zipfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -89,6 +89,7 @@ from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.agents.learning._config import config_section
 from drill_env.envs import ENV_IDS, ENV_VERSIONS, make_version
 from drill_env.envs.task import REGIMES
+from drill_env.outputs import atomic_path, atomic_write_json, atomic_write_text, save_figure
 from drill_env.params import load_yaml
 
 __all__ = [
@@ -104,10 +105,12 @@ __all__ = [
     "COMMITTED_POLICY_DIR",
     "PACKAGED_POLICY_DIR",
     "UntrustedPolicyWarning",
+    "UntrustedPolicyError",
     "MAX_POLICY_INFLATED_BYTES",
     "TRUST_ENV_VAR",
     "check_policy_zip",
     "trust_from_environment",
+    "refuse_untrusted",
     "untrusted_policy_note",
     "policy_observation_version",
     "plateau",
@@ -486,6 +489,22 @@ class UntrustedPolicyWarning(UserWarning):
     """A policy file from outside ``results/agents/`` is loaded: loading it may run code."""
 
 
+class UntrustedPolicyError(ValueError):
+    """A policy file from outside ``results/agents/`` was to be loaded without being trusted
+    (nothing in it was unpickled)."""
+
+
+def refuse_untrusted(path: str | Path, trusted: bool = False) -> None:
+    """Raise :class:`UntrustedPolicyError` for a policy file from outside ``results/agents/``
+    unless ``trusted`` or :data:`TRUST_ENV_VAR` is set (nothing is read from the file)."""
+    note = untrusted_policy_note(path)
+    if note is not None and not (trusted or trust_from_environment()):
+        raise UntrustedPolicyError(
+            f"{note}; pass trusted=True for a file you made or trust (on the command line: "
+            f"--trust-policies, or set {TRUST_ENV_VAR}=1)"
+        )
+
+
 def untrusted_policy_note(path: str | Path) -> str | None:
     """Why loading ``path`` needs trust, or None for a policy committed under
     ``results/agents/`` (symbolic links resolved: a link out of it is not committed)."""
@@ -633,7 +652,7 @@ def is_correction_file(path: str | Path) -> bool:
     return stored_policy_class(path) in names
 
 
-def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
+def upgrade_policy_file(path: str | Path, algo: str | None = None, *, trusted: bool = False) -> list[str]:
     """Bring a policy saved by :func:`train` to the present format, the weights and every
     other entry of the zip byte for byte as they were: the record of what it was trained on
     added where it carries none (:mod:`drill_env.agents.learning.policy_info`, made from the
@@ -642,7 +661,9 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     selves, and for a residual policy the policy class as the one that refuses to load
     without its base (:func:`drill_env.agents.learning.residual.correction_policy_class`).
     Returns the entries rewritten or added (empty: the file was up to date and is untouched).
-    Unpickles the file's former objects: for trusted files only, as :func:`load_policy`."""
+    Unpickles the file's former objects: a file from outside ``results/agents/`` needs
+    ``trusted=True``, as in :func:`load_policy`; a zip that inflates beyond
+    :data:`MAX_POLICY_INFLATED_BYTES` is refused even then."""
     from stable_baselines3.common.save_util import data_to_json
 
     from drill_env.agents.learning.policy_info import (
@@ -654,6 +675,8 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
     from drill_env.agents.learning.residual import correction_policy_class
 
     path = Path(path)
+    check_policy_zip(path)
+    refuse_untrusted(path, trusted)
     data = _read_data(path)
     if data is None:
         raise ValueError(f"policy: {path} is not a stable-baselines3 model")
@@ -695,18 +718,18 @@ def load_policy(
     carried one from the ``config.yaml`` beside it; a file with neither is refused, naming
     what is missing. ``algo``, if given, must be the one the file says.
 
-    A file outside ``results/agents/`` is loaded with an :class:`UntrustedPolicyWarning`
-    (loading unpickles objects stored in it) unless ``trusted=True`` (a file you made)."""
+    A file outside ``results/agents/`` is refused (:class:`UntrustedPolicyError`, before
+    anything in it is read: loading unpickles objects stored in it, which can run code) unless
+    ``trusted=True`` (a file you made or trust) or :data:`TRUST_ENV_VAR` is set; a zip that
+    inflates beyond :data:`MAX_POLICY_INFLATED_BYTES` is refused even when trusted."""
     from drill_env.agents.learning.policy_info import POLICY_INFO_MEMBER, policy_training_record
 
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy: no such file {str(path)!r}")
     check_policy_zip(path)
+    refuse_untrusted(path, trusted)
     record, source = policy_training_record(path)
-    note = None if trusted else untrusted_policy_note(path)
-    if note is not None:
-        warnings.warn(note, UntrustedPolicyWarning, stacklevel=2)
     stored_algo = record.get("algo")
     if algo is None:
         algo = stored_algo
@@ -821,10 +844,15 @@ def finish_policy_file(path: str | Path, cfg: TrainConfig) -> None:
     rewrite_policy_zip(path, info=info, strip_machine_info=True)
 
 
-def evaluation_episodes(cfg: EvalConfig) -> list[tuple[int, dict[str, Any]]]:
-    """The fixed (seed, reset options) of the learning-curve evaluation."""
+def evaluation_episodes(
+    cfg: EvalConfig, regimes: Sequence[str] = REGIMES
+) -> list[tuple[int, dict[str, Any]]]:
+    """The fixed (seed, reset options) of the learning-curve evaluation: ``episodes_per_regime``
+    in each of ``regimes`` (those the rig has; a regime's seeds do not depend on the others)."""
     out = []
     for j, regime in enumerate(REGIMES):
+        if regime not in regimes:
+            continue
         for i in range(cfg.episodes_per_regime):
             out.append((cfg.seed + j * cfg.episodes_per_regime + i, {"regime": regime}))
     return out
@@ -881,7 +909,7 @@ def update_convergence(out_dir: str | Path) -> dict[str, Any]:
     curve = pd.read_csv(out_dir / "eval.csv")
     conv = plateau(curve["mean_return"].to_numpy(), **summary["config"]["convergence"])
     summary.update(converged=conv["converged"], convergence=conv)
-    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    atomic_write_json(out_dir / "training_summary.json", summary)
     plot_learning_curve(out_dir, summary)
     return summary
 
@@ -1068,7 +1096,9 @@ def train(
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
 
     eval_env = make_version(cfg.env_id, **cfg.env_kwargs)
-    episodes = evaluation_episodes(cfg.evaluation)
+    # the regimes the training rig has (an identified rig may lack one): the others are scored
+    eval_regimes = eval_env.unwrapped.settings.sampler.regimes_present()
+    episodes = evaluation_episodes(cfg.evaluation, eval_regimes)
     base = None
     callbacks: list[Any] = []
     if cfg.residual is not None:
@@ -1086,13 +1116,14 @@ def train(
             callbacks.append(burn_in)
 
     def save(path: Path) -> None:
-        if cfg.residual is None:
-            model.save(str(path))
-            return
-        from drill_env.agents.learning.residual import saved_as_correction
+        with atomic_path(path, suffix=".zip") as tmp:  # never a half-written policy, never via a link
+            if cfg.residual is None:
+                model.save(str(tmp))
+                return
+            from drill_env.agents.learning.residual import saved_as_correction
 
-        with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
-            model.save(str(path))
+            with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
+                model.save(str(tmp))
 
     def current_policy() -> Any:
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
@@ -1129,15 +1160,16 @@ def train(
             "mean_return": float(np.mean(rets)),
             "std_return": float(np.std(rets)),
         }
-        for j, regime in enumerate(REGIMES):
-            row[f"return_{regime}"] = float(np.mean(rets[j * k : (j + 1) * k]))
+        for regime in REGIMES:  # NaN for a regime the rig does not have
+            j = eval_regimes.index(regime) if regime in eval_regimes else -1
+            row[f"return_{regime}"] = float(np.mean(rets[j * k : (j + 1) * k])) if j >= 0 else math.nan
         if target is not None:
             row.update(target_met=target.met, target_margin=target.margin)
             row.update({f"suppression_{r}": v for r, v in target.suppression.items()})
             row.update({f"rms_error_{r}": v for r, v in target.rms_error.items()})
         rows.append(row)
         model.logger.record("eval/mean_return", row["mean_return"])
-        for regime in REGIMES:
+        for regime in eval_regimes:
             model.logger.record(f"eval/return_{regime}", row[f"return_{regime}"])
         if target is not None:
             model.logger.record("eval/target_margin", target.margin)
@@ -1214,12 +1246,12 @@ def train(
     import pandas as pd
 
     curve = pd.DataFrame(rows)
-    curve.to_csv(out_dir / "eval.csv", index=False, float_format="%.6g")
+    atomic_write_text(out_dir / "eval.csv", curve.to_csv(index=False, float_format="%.6g"))
     progress_csv = run_dir / "progress.csv"
     if progress_csv.is_file() and progress_csv.stat().st_size > 0:
         prog = pd.read_csv(progress_csv)
         keep = [c for c in prog.columns if c.startswith(("time/", "rollout/", "train/"))]
-        prog[keep].to_csv(out_dir / "progress.csv", index=False, float_format="%.6g")
+        atomic_write_text(out_dir / "progress.csv", prog[keep].to_csv(index=False, float_format="%.6g"))
     conv = plateau(curve["mean_return"].to_numpy(), **vars(cfg.convergence))
     summary = {
         "algo": cfg.algo,
@@ -1252,15 +1284,14 @@ def train(
             "gymnasium": gym.__version__,
         },
     }
-    with open(out_dir / "config.yaml", "w") as f:
-        yaml.safe_dump(cfg.to_dict(), f, sort_keys=False)
+    atomic_write_text(out_dir / "config.yaml", yaml.safe_dump(cfg.to_dict(), sort_keys=False))
     plot_learning_curve(out_dir, summary)
     eval_env.close()
     wall = time.perf_counter() - t_start
     summary["wall_time_s"] = round(wall, 1)
     if max_wall_time_s is not None:
         summary["overrun_s"] = round(wall - max_wall_time_s, 1)
-    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    atomic_write_json(out_dir / "training_summary.json", summary)
     return summary
 
 
@@ -1312,5 +1343,5 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     ax.set_title("training episodes")
     fig.tight_layout()
     path = out_dir / "learning_curve.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path

@@ -132,7 +132,38 @@ def training(results: Path) -> str:
     return note + _table(["learner", "rig", "seeds that reached it", "median time", "worst time"], rows)
 
 
+def leaderboard(results: Path) -> str:
+    """Per committed ranking: the leader, its mean suppression and interval, and how many pairs
+    of the controllers at 0.99 or more the paired intervals resolve."""
+    rows = []
+    for folder in ("benchmark", "plant_family"):
+        rec = json.loads((results / folder / "ranking.json").read_text(encoding="utf-8"))
+        for rk in rec["rankings"]:
+            lead = rk["scores"][0]
+            score = {r["controller"]: r["score"] for r in rk["scores"]}
+            top = [q for q in rk["pairs"] if min(score[q["a"]], score[q["b"]]) >= 0.99]
+            rows.append(
+                [
+                    f"`{folder}` {rk['key']}",
+                    lead["controller"],
+                    f"{lead['score']:.4f} [{lead['low']:.4f}, {lead['high']:.4f}]",
+                    str(sum(v >= 0.99 for v in score.values())),
+                    f"{sum(q['resolved'] for q in top)} of {len(top)}",
+                ]
+            )
+    note = "*From `benchmark/ranking.json` and `plant_family/ranking.json` (95 % paired BCa intervals).*\n\n"
+    header = [
+        "ranking",
+        "leader",
+        "its suppression [interval]",
+        "controllers at 0.99+",
+        "their pairs resolved",
+    ]
+    return note + _table(header, rows)
+
+
 HEADLINES: dict[str, Callable[[Path], str]] = {
+    "leaderboard": leaderboard,
     "benchmark": benchmark,
     "plant_family": plant_family,
     "robust_rl": robust_rl,

@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from drill_env.outputs import save_figure
 from drill_env.params import IDENTIFIED_SPEED_RAD_S, RIG_VOLTAGE_LIMIT
 
 __all__ = [
@@ -805,6 +806,6 @@ def save_figures(diagram: BifurcationDiagram, out_dir, check: BruteForceCheck | 
         fig = (ax[0] if isinstance(ax, np.ndarray | list | tuple) else ax).figure
         if kind == "fig9":  # the others lay themselves out before placing their labels
             fig.tight_layout()
-        fig.savefig(out / name, dpi=130)
+        save_figure(fig, out / name, dpi=130)
         paths.append(out / name)
     return paths

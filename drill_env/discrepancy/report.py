@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drill_env.outputs import save_figure
+
 __all__ = ["write_report", "plot_spectra", "parameter_table"]
 
 
@@ -100,7 +102,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         fontsize=7,
     )
     fig.tight_layout()
-    fig.savefig(out / "candidates.png", dpi=110)
+    save_figure(fig, out / "candidates.png", dpi=110)
     figs.append(("candidates.png", "Held-out gain of each candidate against its significance threshold."))
 
     # equation error per run
@@ -129,7 +131,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     axes[1].set_xticklabels([eq.run.label.replace(" (", "\n(") for eq in eqs], fontsize=6)
     axes[1].set_xlabel("run (windows from the start to the end of each recording)")
     fig.tight_layout()
-    fig.savefig(out / "equation_error.png", dpi=110)
+    save_figure(fig, out / "equation_error.png", dpi=110)
     figs.append(
         (
             "equation_error.png",
@@ -146,7 +148,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             plot_spectra(ax, res.nominal[name], res.after.get(name), runs[name].label)
         axes[0][0].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "spectra.png", dpi=110)
+        save_figure(fig, out / "spectra.png", dpi=110)
         figs.append(
             (
                 "spectra.png",
@@ -172,7 +174,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             )
         axes[0][0].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "residual_spectra.png", dpi=110)
+        save_figure(fig, out / "residual_spectra.png", dpi=110)
         figs.append(
             (
                 "residual_spectra.png",
@@ -201,7 +203,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         axes[-1, 0].set_xlabel("time since start of recording [s]")
         axes[0, 0].legend(fontsize=7, loc="upper right")
         fig.tight_layout()
-        fig.savefig(out / "trajectories.png", dpi=110)
+        save_figure(fig, out / "trajectories.png", dpi=110)
         figs.append(
             (
                 "trajectories.png",
@@ -232,7 +234,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         ax.set_ylabel("lower speed min / mean / max [rad/s]")
         ax.legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "bifurcation.png", dpi=110)
+        save_figure(fig, out / "bifurcation.png", dpi=110)
         figs.append(
             (
                 "bifurcation.png",
