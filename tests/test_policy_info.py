@@ -66,10 +66,10 @@ def test_each_committed_policy_carries_its_record_and_acts_as_before_its_convers
     before = load_policy(former, trusted=True)
     obs = _observations(before.observation_space)
     actions_before = before.predict(obs)[0]
-    assert upgrade_policy_file(former) == [POLICY_INFO_MEMBER]
+    assert upgrade_policy_file(former, trusted=True) == [POLICY_INFO_MEMBER]
     # the conversion is the committed file, byte for byte, and it is idempotent
     assert former.read_bytes() == committed.read_bytes()
-    assert upgrade_policy_file(former) == []
+    assert upgrade_policy_file(former, trusted=True) == []
     (former.parent / "config.yaml").unlink()  # the record alone is enough now
     (former.parent / "training_summary.json").unlink()
     after = load_policy(former, trusted=True)
@@ -88,7 +88,7 @@ def test_a_policy_with_no_record_and_no_config_is_refused_naming_what_is_missing
         lambda: load_policy(lone, algo="ppo", trusted=True),
         lambda: policy_observation_version(lone),
         lambda: policy_training_record(lone),
-        lambda: upgrade_policy_file(lone),
+        lambda: upgrade_policy_file(lone, trusted=True),
     ):
         with pytest.raises(ValueError, match=missing) as exc:
             read()
