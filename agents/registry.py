@@ -4,6 +4,9 @@ from their committed policies.
 * ``open_loop``, ``pi_upper``, ``pi_lower``, ``torque_feedback``, ``lqi``: built on an
   environment's :class:`~drill_env.agents.controllers.base.ControllerSpec` with the gains that
   ``drill-env tune`` wrote to ``configs/agents/controllers.yaml`` for the preset;
+* ``soft_torque``, ``z_torque``: the industry's stick-slip controllers, designed on the
+  design model by their published rules with nothing tuned
+  (:mod:`drill_env.agents.controllers.soft_torque`, :mod:`drill_env.agents.controllers.z_torque`);
 * ``lqi_angle_ff``: that LQI plus adaptive feedforward on harmonics of the lower disk's
   measured angle (:mod:`drill_env.agents.controllers.angle_feedforward`), for friction locked to the bit's angle;
 * ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
@@ -76,7 +79,16 @@ def __getattr__(name: str):
 
 # The one list of the benchmark's controllers, in the order of its tables and legends: the
 # figures, the command-line help and the checks of a controller name all derive from these.
-CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi_angle_ff")
+CLASSICAL = (
+    "open_loop",
+    "pi_upper",
+    "pi_lower",
+    "torque_feedback",
+    "soft_torque",
+    "z_torque",
+    "lqi",
+    "lqi_angle_ff",
+)
 LEARNED = ("ppo", "sac", "ppo_lqi_clone", "ppo_robust", "sac_robust")
 # the algorithm of each learned controller
 _ALGO = {"ppo": "ppo", "sac": "sac", "ppo_lqi_clone": "ppo", "ppo_robust": "ppo", "sac_robust": "sac"}
@@ -100,6 +112,8 @@ STYLES = {
     "ppo": ControllerStyle("tab:purple", "P"),
     "sac": ControllerStyle("tab:brown", "X"),
     "ppo_lqi_clone": ControllerStyle("darkgoldenrod", "H"),
+    "soft_torque": ControllerStyle("limegreen", "+"),
+    "z_torque": ControllerStyle("indigo", "x"),
 }
 # Styles of controllers added without one of their own, in the order of CONTROLLERS: none of
 # these colours or markers is in STYLES, so a new controller is told apart from every other.
@@ -214,11 +228,18 @@ def build_controller(
 
         return classical_controller(name, ControllerSpec.from_env(env), preset, gains_file)
     if name in LEARNED:
+        from drill_env.agents.learning.policy_info import policy_training_record
         from drill_env.agents.learning.rl import load_policy
+        from drill_env.envs import ENV_IDS
 
-        policy = load_policy(
-            policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name, trusted=trusted
-        )
+        path = policy_path(name, preset, agents_dir)
+        trained_on = policy_training_record(path)[0]["env_id"]
+        if ENV_IDS.get(trained_on) != preset:
+            raise ValueError(
+                f"policy: {path} was trained on {trained_on} (preset {ENV_IDS.get(trained_on)!r}), "
+                f"not on preset {preset!r}"
+            )
+        policy = load_policy(path, algo=_ALGO[name], name=name, trusted=trusted)
         policy.check_env(env)
         _rebase(policy, env, preset)
         return policy

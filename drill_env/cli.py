@@ -57,6 +57,7 @@ class _Commands(TyperGroup):
     """Every command runs inside one handler for the expected error types and for Ctrl-C."""
 
     def invoke(self, ctx):  # noqa: ANN001, ANN201 (click's signature)
+        _one_line_warnings()
         try:
             return super().invoke(ctx)
         except (typer.Exit, typer.Abort, typer.BadParameter.__mro__[2]):  # click's own: passed on
@@ -67,6 +68,25 @@ class _Commands(TyperGroup):
             interrupted(
                 "every file written so far is complete (each is replaced whole); nothing else was written"
             )
+
+
+def _one_line_warnings() -> None:
+    """Warnings of a category marked ``one_line`` (e.g. a regime the rig does not have) are
+    shown as one ``warning: ...`` line, without Python's source line; the others as usual."""
+    import warnings
+
+    previous = warnings.showwarning
+    if getattr(previous, "_one_line", False):
+        return
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001, ANN202
+        if getattr(category, "one_line", False):
+            typer.secho(f"warning: {message}", fg=typer.colors.YELLOW, err=True)
+        else:
+            previous(message, category, filename, lineno, file, line)
+
+    show._one_line = True  # type: ignore[attr-defined]
+    warnings.showwarning = show
 
 
 def interrupted(kept: str) -> None:

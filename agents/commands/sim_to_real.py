@@ -59,12 +59,13 @@ def sim_to_real(
     import dataclasses
 
     from drill_env.agents.evaluation.sim_to_real import (
+        SIM_TO_REAL_FILES,
         SimToRealConfig,
         parse_voltages,
         quick_config,
         run_sim_to_real,
     )
-    from drill_env.outputs import check_output_folder
+    from drill_env.outputs import check_command_folder, check_new_folder
 
     try:
         volts = parse_voltages(voltages) if voltages is not None else None
@@ -85,11 +86,11 @@ def sim_to_real(
     ctrl_list = None
     if controllers is not None:
         ctrl_list = tuple(c.strip() for c in controllers.split(",") if c.strip())
-    check_output_folder(out, "--out")
-    if data is not None:
-        check_output_folder(data, "--data")
-        if data.resolve() == out.resolve():
-            _fail(f"--data {data}: must not be the output folder --out")
+    if data is not None and (data.resolve() == out.resolve() or out.resolve() in data.resolve().parents):
+        _fail(f"--data {data}: must not be the output folder --out or lie inside it")
+    check_command_folder(out, "sim-to-real", "--out", own=SIM_TO_REAL_FILES)
+    if data is not None:  # a new dataset, never mixed with the runs of another one
+        check_new_folder(data, "--data", what="dataset")
     try:
         extra: dict = {"truth_file": None if truth is None else str(truth)}
         if ctrl_list is not None:

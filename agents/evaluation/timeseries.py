@@ -23,6 +23,7 @@ import numpy as np
 from drill_env.agents.evaluation.episodes import EpisodeSettings, make_env, run_episode
 from drill_env.agents.evaluation.plants import Plant
 from drill_env.agents.registry import CLASSICAL, LEARNED, controller_style
+from drill_env.outputs import save_figure
 
 __all__ = ["GROUPS", "run_trace", "timeseries_figures"]
 
@@ -104,10 +105,6 @@ def timeseries_figures(
     module docstring). A controller that cannot be built (e.g. no trained policy) is left out
     of its figure; the error is raised only if no figure could be made. ``progress`` receives
     each written path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
     from drill_env.analysis.plots import AMPLIFIER_LIMIT_V
@@ -136,9 +133,7 @@ def timeseries_figures(
             if not traces:  # the open loop alone
                 traces["open_loop"] = open_loop
             paths.append(
-                _figure(
-                    plt, Patch, AMPLIFIER_LIMIT_V, traces, open_loop, q, group, preset, voltage, seed, out
-                )
+                _figure(Patch, AMPLIFIER_LIMIT_V, traces, open_loop, q, group, preset, voltage, seed, out)
             )
             if progress is not None:
                 progress(paths[-1])
@@ -147,11 +142,13 @@ def timeseries_figures(
     return paths
 
 
-def _figure(
-    plt, Patch, u_limit, traces, open_loop, q: Plant, group, preset, voltage, seed, out: Path
-) -> Path:
+def _figure(Patch, u_limit, traces, open_loop, q: Plant, group, preset, voltage, seed, out: Path) -> Path:
+    from matplotlib.lines import Line2D
+
+    from drill_env._figures import subplots
+
     n = len(traces)
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         n,
         2,
         figsize=(12, 1.9 * n + 1.6),
@@ -186,12 +183,10 @@ def _figure(
     lo = min(-0.2, min(float(np.min(tr.voltage)) for tr in traces.values()) - 0.3)
     axes[0][1].set_ylim(lo, u_limit + 0.4)
     handles = [
-        plt.Line2D(
-            [], [], color="0.4", lw=1.0, label="controller: lower-disk speed / voltage (colour per row)"
-        ),
-        plt.Line2D([], [], color="0.72", lw=0.8, label="open loop on the same plant and seed"),
-        plt.Line2D([], [], color="black", lw=0.7, ls=":", label="target speed w* (design model)"),
-        plt.Line2D([], [], color="tab:red", lw=0.6, ls="--", label=f"amplifier limit {u_limit:g} V"),
+        Line2D([], [], color="0.4", lw=1.0, label="controller: lower-disk speed / voltage (colour per row)"),
+        Line2D([], [], color="0.72", lw=0.8, label="open loop on the same plant and seed"),
+        Line2D([], [], color="black", lw=0.7, ls=":", label="target speed w* (design model)"),
+        Line2D([], [], color="tab:red", lw=0.6, ls="--", label=f"amplifier limit {u_limit:g} V"),
     ]
     if stuck_any:
         handles.append(Patch(color="tab:red", alpha=0.15, label="lower disk stuck"))
@@ -205,6 +200,5 @@ def _figure(
     )
     fig.tight_layout(rect=(0, 0.75 / fig.get_figheight(), 1, 1))
     p = out / f"timeseries_{preset}_{q.name}_{group}.png"
-    fig.savefig(p, dpi=100)
-    plt.close(fig)
+    save_figure(fig, p, dpi=100)
     return p

@@ -37,6 +37,19 @@ def identify(
     no_bifurcation: bool = typer.Option(
         False, "--no-bifurcation", help="Skip the identified model's bifurcation diagram."
     ),
+    no_effects: bool = typer.Option(
+        False,
+        "--no-effects",
+        help="Fit the base model only: no discrepancy tests, no effect added (the model a lab would "
+        "then test with drill-env discrepancy --params rig.yaml).",
+    ),
+    effects: str | None = typer.Option(
+        None,
+        "--effects",
+        help="Comma-separated library effects the structure search may add (default: every one; "
+        "drill-env discrepancy's library, e.g. position_friction_lower,motor_inductance).",
+    ),
+    rounds: int = typer.Option(3, "--rounds", help="Rounds of discrepancy tests at most (1-5)."),
 ) -> None:
     """Identify every parameter of the rig model (friction curves, inertias, motor constant, string)
     from constant-voltage and random-level runs; write rig.yaml usable by every command."""
@@ -52,33 +65,65 @@ def identify(
     from drill_env.identify.identification import identify as run_identify
     from drill_env.identify.identification import parse_known
     from drill_env.identify.report import write_outputs
-    from drill_env.outputs import check_output_folder, output_lock
+    from drill_env.outputs import check_command_folder, command_folder
     from drill_env.params import available_presets
     from drill_env.recordings.dataset import load_dataset
 
     if structure is not None and structure not in available_presets():
         _fail(f"--structure: {structure!r}; allowed: {', '.join(available_presets())}")
+    if no_effects and effects is not None:
+        _fail("--effects: cannot be given with --no-effects (the base-only fit searches no effect)")
+    if not 1 <= rounds <= 5:
+        _fail(f"--rounds: {rounds}; allowed: 1 to 5")
+    allowed = None
+    if effects is not None:
+        from drill_env.structure_search import check_effect_names
+
+        names = [e.strip() for e in effects.split(",") if e.strip()]
+        if not names:
+            _fail("--effects: empty; give one or more library effects, or --no-effects")
+        try:
+            allowed = check_effect_names(names)
+        except ValueError as exc:
+            _fail(f"--{exc}")
     try:
         known_values = parse_known(known)
     except ValueError as exc:
         _fail(f"--{exc}")
-    check_output_folder(out, "--out")
+    check_command_folder(out, "identify", "--out", own=IDENTIFY_FILES)
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout is not None else None
     dataset = load_dataset(data_dir)
     from drill_env.commands.discrepancy import _stage_progress
 
-    with output_lock(out, "identify"):
+    with command_folder(out, "identify", "--out", own=IDENTIFY_FILES):
         try:
             with _stage_progress() as progress:
-                res = run_identify(
-                    dataset, structure=structure, known=known_values, heldout=held, progress=progress
-                )
+                if no_effects:
+                    res = run_identify(
+                        dataset, structure=structure, known=known_values, heldout=held, progress=progress
+                    )
+                    search = None
+                else:
+                    from drill_env.structure_search import identify_structure
+
+                    search = identify_structure(
+                        dataset,
+                        structure=structure,
+                        known=known_values,
+                        heldout=held,
+                        allowed=allowed,
+                        max_rounds=rounds,
+                        progress=progress,
+                    )
+                    res = search.identification
         except ValueError as exc:
             _fail(str(exc))
         typer.echo(
             "drawing the figures and the bifurcation diagram" if not no_figures else "writing the files"
         )
-        written = write_outputs(res, out, figures=not no_figures, bifurcation=not no_bifurcation)
+        written = write_outputs(
+            res, out, figures=not no_figures, bifurcation=not no_bifurcation, search=search
+        )
     if res.scale_assumed:
         typer.secho(f"warning: {res.scale_sentence()}", fg=typer.colors.YELLOW, err=True)
     for p in res.not_identifiable:
@@ -89,6 +134,14 @@ def identify(
             fg=typer.colors.YELLOW,
             err=True,
         )
+    if search is not None:
+        typer.echo(f"structure: {search.verdict} ({len(search.rounds)} round(s); stopped: {search.stopped})")
+        if search.suspect:
+            typer.secho(
+                "warning: an unexplained residual remains; suspect parameters: " + ", ".join(search.suspect),
+                fg=typer.colors.YELLOW,
+                err=True,
+            )
     files = ", ".join(k for k in ("rig.yaml", "identification.json", "report.md") if written.get(k))
     typer.echo(f"wrote {files} to {out} ({res.timings.get('total', 0):.0f} s)")
     if res.params is None:
@@ -100,6 +153,17 @@ def identify(
             err=True,
         )
         raise typer.Exit(code=1)
+
+
+# what `drill-env identify` writes (a folder of these from before folders had markers is its own)
+IDENTIFY_FILES = (
+    "rig.yaml",
+    "identification.json",
+    "report.md",
+    "friction.png",
+    "heldout.png",
+    "bifurcation.png",
+)
 
 
 def register(app: typer.Typer) -> None:

@@ -26,6 +26,7 @@ stiffness when none is given (the result then says so first).
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -35,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.identify.dynamics import oscillation_frequency
+from drill_env.identify.effect_fit import LAG_EFFECTS, EffectResult, effect_results, effect_rows, lag_profile
 from drill_env.identify.joint import HUMP_AMPLITUDES, HUMP_RATES, JointFit, fitted_params, joint_fit, run_rows
 from drill_env.identify.plan import RUN_THAT_IDENTIFIES
 from drill_env.params import (
@@ -64,6 +66,11 @@ ESSENTIAL = (
 )
 FIRST_PASS_NOISE = EquationErrorConfig(quantisation_harmonics=16, rate_span_factors=(1,))
 MAX_RELATIVE_HALF_WIDTH = 1.0  # a 95 % half-width above |value| x this: not identifiable
+# the same for a parameter the model can run without (a hump term, a slope, the negative side):
+# a value the data leave this loose is reported as not determined, never as a plain number
+NOT_DETERMINED_HALF_WIDTH = 0.25
+FLAT_HALF_WIDTH = 0.25
+EFFECT_ITERATIONS = 3  # re-evaluations of the effects' columns at the fitted base parameters  # a direction of the fit looser than this (relative units) is flat
 
 
 @dataclass(frozen=True)
@@ -111,12 +118,49 @@ class Identification:
     heldout_runs: list[str]
     equations: dict[str, RunEquations]
     oscillation_hz: float
+    rows: dict[str, Any] = field(default_factory=dict)  # run -> the joint fit's rows (RunRows)
     timings: dict[str, float] = field(default_factory=dict)
     heldout: dict[str, Any] = field(default_factory=dict)  # run -> RunComparison
+    # the library effects fitted with the base parameters (name -> parameters, intervals)
+    effects: dict[str, EffectResult] = field(default_factory=dict)
+    lag_profiles: dict[str, dict[float, float]] = field(default_factory=dict)  # lag -> profile
+    measurement: Any = None  # MeasurementModel of a fitted encoder eccentricity (None: exact readings)
 
     @property
     def not_identifiable(self) -> list[ParameterResult]:
         return [p for p in self.parameters.values() if not p.identified and p.name != self.scale[0]]
+
+    @property
+    def flat_directions(self) -> list[dict[str, Any]]:
+        """The flat directions of the fit: eigenvectors of the base parameters' covariance in
+        relative units (d p / p) whose 95 % half-width exceeds :data:`FLAT_HALF_WIDTH`; each
+        with the parameters it moves (loading above 0.2) and the runs that would fix them."""
+        f = self.fit
+        names = [
+            n for n in f.free if n in IDENTIFIED_PARAMETERS and n != self.scale[0] and f.values[n] != 0.0
+        ]
+        if not names:
+            return []
+        idx = [f.free.index(n) for n in names]
+        v = np.array([abs(f.values[n]) for n in names])
+        info_sd = f.sd_information[idx]
+        corr = f.cov[np.ix_(idx, idx)] / np.outer(
+            np.maximum(np.sqrt(np.diag(f.cov)[idx]), 1e-300), np.maximum(np.sqrt(np.diag(f.cov)[idx]), 1e-300)
+        )
+        # what the data excite (the window noise alone), in relative units
+        c_rel = corr * np.outer(info_sd / v, info_sd / v)
+        lam, vec = np.linalg.eigh(c_rel)
+        out = []
+        for k in np.argsort(lam)[::-1]:
+            half = 1.96 * math.sqrt(max(float(lam[k]), 0.0))
+            if half <= FLAT_HALF_WIDTH:
+                break
+            load = {
+                names[i]: float(vec[i, k]) for i in np.argsort(-np.abs(vec[:, k])) if abs(vec[i, k]) > 0.2
+            }
+            needs = sorted({RUN_THAT_IDENTIFIES[n] for n in load})
+            out.append({"half_width": half, "loadings": load, "run_that_identifies_it": "; ".join(needs)})
+        return out
 
     @property
     def blocking(self) -> list[ParameterResult]:
@@ -308,7 +352,8 @@ def _results(
             lo = max(lo, 0.0)
         # identifiable: the runs excite it (a misfit, e.g. a missing effect, widens the interval
         # but is named in the report, not taken for a lack of excitation)
-        identified = 1.96 * fit.sd_excited(name) <= MAX_RELATIVE_HALF_WIDTH * abs(v)
+        limit = MAX_RELATIVE_HALF_WIDTH if name in ESSENTIAL else NOT_DETERMINED_HALF_WIDTH
+        identified = 1.96 * fit.sd_excited(name) <= limit * abs(v)
         note = needs = ""
         if not identified:
             needs = RUN_THAT_IDENTIFIES[name]
@@ -321,7 +366,11 @@ def _results(
             name,
             v,
             (lo, hi),
-            _method(name, fit, scale, assumed) if identified else "not identifiable from these data",
+            _method(name, fit, scale, assumed)
+            if identified
+            else (
+                "not identifiable from these data" if name in ESSENTIAL else "not determined by these data"
+            ),
             identified,
             note,
             needs,
@@ -337,6 +386,7 @@ def identify(
     heldout: list[str] | None = None,
     simulate_heldout: bool = True,
     progress: Callable[[str, int, int], None] | None = None,
+    effects: Mapping[str, float | None] | None = None,
 ) -> Identification:
     """Identify every parameter of the rig model from ``dataset`` (see the module docstring).
 
@@ -348,6 +398,9 @@ def identify(
             [N m/V]: the scale the data cannot fix.
         heldout: run names kept out of the fit for validation (default: every third run by
             voltage, as ``drill-env discrepancy``; none with fewer than four runs).
+        effects: library effects (:mod:`drill_env.recordings.effects` names) fitted jointly with
+            every base parameter (:mod:`.effect_fit`): name -> the first estimate of a lag
+            effect's time constant [s] (profiled about it), None for the others.
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -379,6 +432,13 @@ def identify(
     p0 = _initial(scale, balance, states, freq)
     eqs: dict[str, RunEquations] = {}
     rows: dict[str, Any] = {}
+    effects = dict(effects or {})
+    lags = {n: t for n, t in effects.items() if n in LAG_EFFECTS}
+    lag_ci: dict[str, tuple[float, float]] = {}
+    profiles: dict[str, dict[float, float]] = {}
+
+    def rows_of(eq: RunEquations):
+        return effect_rows(eq, effects) if effects else run_rows(eq)
 
     def fit_pass(pass_: int, previous: JointFit | None) -> JointFit:
         t1 = time.perf_counter()
@@ -389,7 +449,7 @@ def identify(
         config = FIRST_PASS_NOISE if previous is None else None
         for i, r in enumerate(dataset.runs):
             eqs[r.name] = RunEquations(r, weights_at, noise, config)
-            rows[r.name] = run_rows(eqs[r.name])
+            rows[r.name] = rows_of(eqs[r.name])
             if progress:
                 progress(f"equation error, pass {pass_}", i + 1, len(dataset.runs))
         if sum(len(x.sigma) for x in rows.values()) < 20:
@@ -398,6 +458,39 @@ def identify(
                 "barely moved in these runs. Record on the plan of `drill-env identify --plan`"
             )
         fit = joint_fit([rows[r.name] for r in dataset.runs], scale)
+        at_eqs = dict(eqs)  # the equations with the effects' columns at the latest fit
+        for _ in range(EFFECT_ITERATIONS if (previous is not None and effects) else 0):
+            # an effect that scales a friction level (position, drift, heating) has columns that
+            # depend on the base parameters: re-evaluate them at this fit's until it settles
+            at = _weights_params(fit, weights_at)
+            for r in dataset.runs:
+                moved = copy.copy(eqs[r.name])
+                moved.params = at
+                at_eqs[r.name] = moved
+                rows[r.name] = rows_of(moved)
+            again = joint_fit([rows[r.name] for r in dataset.runs], scale)
+            change = max(
+                abs(again.values[n] - fit.values[n]) / max(abs(fit.values[n]), 1e-12)
+                for n in IDENTIFIED_PARAMETERS
+            )
+            fit = again
+            if change < 1e-4:
+                break
+        for name in lags if previous is not None else ():
+            # the lag's time constant: the profile of the joint fit about its estimate
+            cand_bounds = (1e-4, 5.0)
+
+            def fit_at(tau: float, name: str = name, terms: int = fit.hump_terms) -> JointFit:
+                effects[name] = tau
+                return joint_fit([rows_of(at_eqs[r.name]) for r in dataset.runs], scale, hump_terms=terms)
+
+            first = effects[name]
+            assert first is not None
+            tau, _, lag_ci[name], profiles[name] = lag_profile(fit_at, first, cand_bounds)
+            effects[name] = tau
+            for r in dataset.runs:
+                rows[r.name] = rows_of(at_eqs[r.name])
+            fit = joint_fit([rows[r.name] for r in dataset.runs], scale)
         timings[f"pass_{pass_}"] = time.perf_counter() - t1
         return fit
 
@@ -414,18 +507,27 @@ def identify(
     blocking = [
         p for p in parameters.values() if not p.identified and p.name in ESSENTIAL and p.name != scale[0]
     ]
+    found = effect_results(fit, effects, lag_ci) if effects else {}
+    if found:
+        desc += "; with " + ", ".join(found) + " (fitted jointly)"
     params = None
     if not blocking:
         try:
-            params = fitted_params(fit, name=f"{structure}-identified", description=desc)
+            params = _with_effects(
+                fitted_params(fit, name=f"{structure}-identified", description=desc), found
+            )
         except ParameterError:
             params = None
     train_params = None
     if train_fit is not None and params is not None:
         try:
-            train_params = fitted_params(train_fit, name=f"{structure}-identified-train", description=desc)
+            train_found = effect_results(train_fit, effects, lag_ci) if effects else {}
+            train_params = _with_effects(
+                fitted_params(train_fit, name=f"{structure}-identified-train", description=desc), train_found
+            )
         except ParameterError:
             train_params = None
+    measurement = _measurement(found)
     ident = Identification(
         dataset=dataset,
         structure=structure,
@@ -441,8 +543,12 @@ def identify(
         train_runs=train,
         heldout_runs=held,
         equations=eqs,
+        rows=rows,
         oscillation_hz=freq,
         timings=timings,
+        effects=found,
+        lag_profiles=profiles,
+        measurement=measurement,
     )
     if simulate_heldout and held and train_params is not None:
         from drill_env.recordings.compare import compare_run
@@ -451,13 +557,42 @@ def identify(
         cache: dict = {}
         for i, name in enumerate(held):
             ident.heldout[name] = compare_run(
-                train_params, eqs[name], dataset.encoder_counts_per_rev, measured_cache=cache
+                train_params,
+                eqs[name],
+                dataset.encoder_counts_per_rev,
+                measured_cache=cache,
+                measurement=measurement,
             )
             if progress:
                 progress("simulate held-out runs", i + 1, len(held))
         timings["heldout"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return ident
+
+
+def _with_effects(params: RigParams, found: Mapping[str, EffectResult]) -> RigParams:
+    """``params`` with the physical effects of ``found`` switched on (ParameterError when the
+    fitted values are not physical)."""
+    fields_: dict[str, float] = {}
+    for e in found.values():
+        if e.admissible is not None:
+            raise ParameterError(f"{e.name}: {e.admissible}")
+        if e.kind == "physical":
+            fields_.update(e.model_fields)
+    return params.replace(**fields_) if fields_ else params
+
+
+def _measurement(found: Mapping[str, EffectResult]):
+    """The measurement model of the fitted encoder eccentricities (None: none fitted)."""
+    fields_: dict[str, float] = {}
+    for e in found.values():
+        if e.kind == "measurement":
+            fields_.update(e.model_fields)
+    if not fields_:
+        return None
+    from drill_env.measurement import MeasurementModel
+
+    return MeasurementModel(**fields_)
 
 
 def _weights_params(fit: JointFit, fallback: RigParams) -> RigParams:

@@ -62,6 +62,10 @@ class RunRows:
     speed_l: np.ndarray  # (lower windows, support) |x3| on each window's support [rad/s]
     kernel: np.ndarray  # (support,) the triangle kernel / h^2 [1]
     negative_upper: int  # upper windows in which the upper disk turns backwards
+    # columns of the effects fitted with the base parameters: d r / d c for each coefficient c
+    # (the residual of the model with the effects is x_lin p + humps + x_eff c); none: base only
+    x_eff: np.ndarray | None = None  # (windows, len(effect_names))
+    effect_names: tuple[str, ...] = ()
 
     def hump(self, beta: float) -> np.ndarray:
         """H(beta) on every row (zero on the upper disk's) [N m per N m of T]."""
@@ -148,6 +152,13 @@ class JointFit:
         return float(math.sqrt(max(self.cov[i, i], 0.0)))
 
 
+def _effect_names(rows: list[RunRows]) -> tuple[str, ...]:
+    names = {r.effect_names for r in rows}
+    if len(names) > 1:
+        raise ValueError(f"rows: the runs carry different effect columns {sorted(names)}")
+    return names.pop() if names else ()
+
+
 def _stack(rows: list[RunRows]):
     x = np.vstack([r.x_lin / r.sigma[:, None] for r in rows])
     return x
@@ -169,7 +180,12 @@ class _Problem:
         self.free_lin = free_lin
         x = _stack(rows)
         idx = [LINEAR.index(p) for p in free_lin]
+        self.k_lin = len(idx)  # the base parameters (>= 0); the effects' coefficients follow (free)
+        self.effect_names = _effect_names(rows)
         self.a = x[:, idx]
+        if self.effect_names:
+            x_eff = np.vstack([r.x_eff / r.sigma[:, None] for r in rows])
+            self.a = np.column_stack([self.a, x_eff])
         self.y = -x[:, LINEAR.index(scale[0])] * scale[1]
         self.inv_sigma = np.concatenate([1.0 / r.sigma for r in rows])
         self.run_of_row = np.concatenate([np.full(r.sigma.size, i) for i, r in enumerate(rows)])
@@ -233,7 +249,7 @@ def _grid_search(prob: _Problem, terms: int) -> tuple[tuple[float, ...], float]:
         here = (tuple(float(BETA_GRID[i]) for i in sel), ss)
         if ss < best_any[1]:
             best_any = here
-        if ss < best[1] and not np.any(coef[:k] < 0.0):
+        if ss < best[1] and not np.any(coef[: prob.k_lin] < 0.0):
             best = here
     return best if best[0] else best_any
 
@@ -261,7 +277,7 @@ def _refine(
     Gauss-Newton)."""
     terms = len(betas)
     k = prob.a.shape[1]
-    lo = np.concatenate([np.zeros(k), np.full(terms, -np.inf), np.full(terms, BETA_BOUNDS[0])])
+    lo = np.concatenate([_linear_lower(prob), np.full(terms, -np.inf), np.full(terms, BETA_BOUNDS[0])])
     hi = np.concatenate([np.full(k, np.inf), np.full(terms, np.inf), np.full(terms, BETA_BOUNDS[1])])
     if start is None:
         coef, _ = prob.lstsq([prob.hump(b) for b in betas])
@@ -269,7 +285,7 @@ def _refine(
     else:
         x0 = np.asarray(start, dtype=float)
     x0 = np.clip(x0, lo, hi)
-    if start is None and np.any(x0[:k] == 0.0):
+    if start is None and np.any(x0[: prob.k_lin] == 0.0):
         # a linear parameter clipped to its bound: start from the bounded linear fit at these rates
         x0[: k + terms] = _bounded_linear(prob, [prob.hump(b) for b in betas], k)
     sol = optimize.least_squares(
@@ -288,10 +304,17 @@ def _refine(
     return sol.x, float(r @ r)
 
 
+def _linear_lower(prob: _Problem) -> np.ndarray:
+    """Lower bounds of the columns of ``prob.a``: 0 for the base parameters, none for the
+    effects' coefficients."""
+    k = prob.a.shape[1]
+    return np.concatenate([np.zeros(prob.k_lin), np.full(k - prob.k_lin, -np.inf)])
+
+
 def _bounded_linear(prob: _Problem, extra: list[np.ndarray], k: int) -> np.ndarray:
     """The linear parameters (>= 0) and hump amplitudes (free) at fixed rates."""
     a = np.column_stack([prob.a, *extra]) if extra else prob.a
-    lo = np.concatenate([np.zeros(k), np.full(len(extra), -np.inf)])
+    lo = np.concatenate([_linear_lower(prob), np.full(len(extra), -np.inf)])
     return optimize.lsq_linear(a, prob.y, bounds=(lo, np.inf), method="bvls").x
 
 
@@ -302,7 +325,7 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
     negative = sum(r.negative_upper for r in rows) >= NEGATIVE_MIN_WINDOWS
     free_lin = _free_linear(scale[0], negative)
     prob = _Problem(rows, scale, free_lin)
-    k = len(free_lin)
+    k = prob.a.shape[1]
     fits: dict[int, tuple[np.ndarray, float]] = {}
     for terms in (0, 1, 2) if hump_terms is None else (hump_terms,):
         betas, _ = _grid_search(prob, terms)
@@ -346,7 +369,9 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
         theta = theta.copy()
         theta[[k, k + 1]] = theta[[k + 1, k]]
         theta[[k + 2, k + 3]] = theta[[k + 3, k + 2]]
-    names = list(free_lin) + list(HUMP_AMPLITUDES[:chosen]) + list(HUMP_RATES[:chosen])
+    names = (
+        list(free_lin) + list(prob.effect_names) + list(HUMP_AMPLITUDES[:chosen]) + list(HUMP_RATES[:chosen])
+    )
     jac = _jacobian(prob, theta, chosen)
     res = _residual(prob, theta, chosen)
     p = jac.shape[1]
@@ -417,3 +442,21 @@ def fitted_params(fit: JointFit, *, name: str, description: str) -> RigParams:
     """The fit as a validated :class:`RigParams`."""
     values = {n: fit.values[n] for n in IDENTIFIED_PARAMETERS}  # the numeric fields; the rest by name
     return RigParams(**values, effects=ModelEffects(), name=name, description=description)
+
+
+def residual_ss(rows: list[RunRows], fit: JointFit) -> tuple[float, int]:
+    """The weighted sum of squares of ``rows`` at ``fit``'s values (rows the fit may not have
+    used, e.g. held-out runs' with the same effect columns), and the number of windows."""
+    p = np.array([fit.values[n] for n in LINEAR])
+    ss, n = 0.0, 0
+    for r in rows:
+        res = r.x_lin @ p
+        if r.x_eff is not None and r.effect_names:
+            res = res + r.x_eff @ np.array([fit.values.get(n_, 0.0) for n_ in r.effect_names])
+        for amp, rate in zip(HUMP_AMPLITUDES, HUMP_RATES, strict=True):
+            if fit.values.get(amp, 0.0) != 0.0:
+                res = res + fit.values[amp] * r.hump(fit.values[rate])
+        z = res / r.sigma
+        ss += float(z @ z)
+        n += z.size
+    return ss, n

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.identify.identification import Identification
-from drill_env.outputs import atomic_write_text
+from drill_env.outputs import atomic_write_text, save_figure
 from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
 
 __all__ = ["identification_json", "write_outputs", "UNITS"]
@@ -66,11 +66,16 @@ def _finite(x: Any) -> Any:
     return x
 
 
-def identification_json(res: Identification) -> dict[str, Any]:
-    """The content of identification.json."""
+def identification_json(res: Identification, search: Any = None) -> dict[str, Any]:
+    """The content of identification.json (``search``: the structure search that led to ``res``,
+    a :class:`drill_env.structure_search.StructureSearch`)."""
     f = res.fit
     return _finite(
         {
+            "effects": {n: e.as_dict() for n, e in res.effects.items()},
+            "measurement": res.measurement.to_dict() if res.measurement is not None else {},
+            "structure_search": search.as_dict() if search is not None else None,
+            "flat_directions": res.flat_directions,
             "structure": res.structure,
             "scale": {
                 "parameter": res.scale[0],
@@ -137,7 +142,69 @@ def _parameter_rows(res: Identification) -> list[str]:
         how = (
             p.method + (f"; {p.note}" if p.note else "") + (f"; identified by: {p.needs}" if p.needs else "")
         )
-        lines.append(f"| {n} | {SYMBOLS[n]} | {_fmt(p.value, 5)} | {ci} | {UNITS[n]} | {how} |")
+        if not p.identified and p.name != res.scale[0]:
+            # never a plain number: the value the model uses is in the how column
+            value, ci = "not determined", "-"
+            how = f"{how}; the model uses {_fmt(p.value, 5)}"
+        else:
+            value = _fmt(p.value, 5)
+        lines.append(f"| {n} | {SYMBOLS[n]} | {value} | {ci} | {UNITS[n]} | {how} |")
+    return lines
+
+
+def _effect_rows(res: Identification) -> list[str]:
+    lines = [
+        "| effect | parameter | value | 95 % interval | section of rig.yaml |",
+        "|---|---|---|---|---|",
+    ]
+    for e in res.effects.values():
+        section = "measurement" if e.kind == "measurement" else "effects"
+        for k, v in e.parameters.items():
+            lo, hi = e.ci95.get(k, (math.nan, math.nan))
+            ci = f"[{_fmt(lo)}, {_fmt(hi)}]" if math.isfinite(lo) and math.isfinite(hi) else "-"
+            where = section if k in e.model_fields else "(not in the file: how the fit spreads it)"
+            lines.append(f"| {e.name} | {k} | {_fmt(v, 5)} | {ci} | {where} |")
+    return lines
+
+
+def _rounds_section(search: Any) -> list[str]:
+    lines = [
+        "## Structure: the effects the data need",
+        "",
+        "After each fit, the discrepancy tests ran on the held-out runs; an effect of the library they "
+        "named was added and every base parameter re-identified jointly with its parameters. Gap: the "
+        "held-out equation error per window of the model fitted without those runs (1 is the noise "
+        "floor).",
+        "",
+        "| round | model tested | verdict | named | added | gap before | gap after | largest base changes |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in search.rounds:
+        changes = sorted(r.base_changes.items(), key=lambda kv: -abs(kv[1]))[:4]
+        ch = ", ".join(f"{SYMBOLS.get(k, k)} {v:+.1%}" for k, v in changes if abs(v) >= 5e-4) or "-"
+        after = _fmt(r.gap_after, 3) if r.gap_after is not None else "-"
+        lines.append(
+            f"| {r.number} | {' + '.join(['base', *r.model_effects])} | {r.verdict} ({r.confidence:.2f}) | "
+            f"{', '.join(r.named) or '-'} | {', '.join(r.added) or '-'} | {_fmt(r.gap_before, 3)} | {after} | {ch} |"
+        )
+    lines += ["", f"Stopped: {search.stopped}.", ""]
+    for r in search.rounds:
+        lines.append(
+            f"- Round {r.number}: {r.reason}" + (f" (signature: {r.signature})" if r.signature else "")
+        )
+        if r.refused:
+            lines.append(
+                f"  Named but not in the effects allowed (--effects): {', '.join(r.refused)}: not added."
+            )
+    lines.append("")
+    if search.suspect:
+        lines += [
+            "**An unexplained residual remains: these parameters are suspect** (the residual moves them: "
+            "their spread from run to run is well beyond what the noise gives): "
+            + ", ".join(f"`{n}`" for n in search.suspect)
+            + ". Do not trust them until the residual is explained (see `drill-env discrepancy`).",
+            "",
+        ]
     return lines
 
 
@@ -155,7 +222,7 @@ def _sample_params(res: Identification, n: int = 200, seed: int = 0) -> list[Rig
         return []
     out = []
     for d in draws:
-        values = dict(zip(f.free, d, strict=True))
+        values = {k: v for k, v in zip(f.free, d, strict=True) if k in IDENTIFIED_PARAMETERS}
         try:
             out.append(base.replace(**{k: float(v) for k, v in values.items()}))
         except ValueError:
@@ -165,14 +232,10 @@ def _sample_params(res: Identification, n: int = 200, seed: int = 0) -> list[Rig
 
 def _friction_figure(res: Identification, p: RigParams, path: Path) -> None:
     """The identified friction curves (``p``: the identified rig, ``res.params``)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from drill_env._figures import subplots
     from drill_env.friction import lower_friction_curve, upper_slip_friction
 
-    fig, (ax_u, ax_l) = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, (ax_u, ax_l) = subplots(1, 2, figsize=(12, 4.8))
     top_l = max(res.max_lower_speed, 1.0)
     w_l = np.linspace(0.0, top_l, 300)
     w_up = max([abs(s.mean_upper_speed) for s in res.states] + [1.0])
@@ -222,20 +285,16 @@ def _friction_figure(res: Identification, p: RigParams, path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> bool:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from drill_env._figures import subplots
 
     comps = [c for c in res.heldout.values() if c.t is not None]
     if not comps:
         return False
-    fig, axes = plt.subplots(len(comps), 1, figsize=(11, 2.6 * len(comps)), squeeze=False)
+    fig, axes = subplots(len(comps), 1, figsize=(11, 2.6 * len(comps)), squeeze=False)
     for ax, c in zip(axes[:, 0], comps, strict=True):
         t = c.t - c.t[0]
         k = t <= window_s
@@ -252,8 +311,7 @@ def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> 
     axes[-1, 0].set_xlabel("time since the start of the recording [s]")
     axes[0, 0].legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return True
 
 
@@ -261,12 +319,9 @@ def _bifurcation_figure(
     res: Identification, params: RigParams, path: Path, progress=None
 ) -> dict[str, Any] | None:
     """The bifurcation diagram of ``params`` (the identified rig, ``res.params``) with the data."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
+    from drill_env._figures import subplots
     from drill_env.analysis import bifurcation_diagram
     from drill_env.analysis.plots import plot_bifurcation
 
@@ -277,7 +332,7 @@ def _bifurcation_figure(
         diagram = bifurcation_diagram(params, u_max=u_max, u_min=0.0)
     except Exception as exc:  # noqa: BLE001 (the report says why the figure is missing)
         return {"error": f"{type(exc).__name__}: {exc}"}
-    fig, ax = plt.subplots(figsize=(11, 5.5))
+    fig, ax = subplots(figsize=(11, 5.5))
     plot_bifurcation(diagram, ax=ax, legend=False, alpha=0.8)
     ax.set_title(
         f"bifurcation diagram of the identified model ({res.structure}) with the data's steady states"
@@ -295,8 +350,7 @@ def _bifurcation_figure(
         ]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return {
         "u_max": u_max,
         "points": {k: v.u for k, v in diagram.points.items()},
@@ -305,7 +359,7 @@ def _bifurcation_figure(
 
 
 def write_outputs(
-    res: Identification, out: Path, *, figures: bool = True, bifurcation: bool = True
+    res: Identification, out: Path, *, figures: bool = True, bifurcation: bool = True, search: Any = None
 ) -> dict[str, Any]:
     """Write rig.yaml (when every parameter the model needs is identified), identification.json,
     report.md and the figures into ``out``; returns what was written."""
@@ -321,9 +375,12 @@ def write_outputs(
             header += f"# SCALE ASSUMED: {res.scale[0]} = {res.scale[1]:g} (the paper's); see report.md\n"
         import yaml
 
-        atomic_write_text(out / "rig.yaml", header + yaml.safe_dump(res.params.to_dict(), sort_keys=False))
+        data = res.params.to_dict()
+        if res.measurement is not None and res.measurement.active:
+            data["measurement"] = res.measurement.to_dict()
+        atomic_write_text(out / "rig.yaml", header + yaml.safe_dump(data, sort_keys=False))
         written["rig.yaml"] = True
-    record = identification_json(res)
+    record = identification_json(res, search)
     figs: dict[str, str] = {}
     bif: dict[str, Any] | None = None
     if figures and res.params is not None:
@@ -339,12 +396,12 @@ def write_outputs(
     atomic_write_text(
         out / "identification.json", json.dumps(_finite(record), indent=2, allow_nan=False) + "\n"
     )
-    atomic_write_text(out / "report.md", _report(res, figs, bif))
+    atomic_write_text(out / "report.md", _report(res, figs, bif, search))
     written.update({"identification.json": True, "report.md": True, "figures": figs})
     return written
 
 
-def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | None) -> str:
+def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | None, search: Any = None) -> str:
     ds = res.dataset
     lines = [f"# Identification of the {res.structure} rig", ""]
     lines += [f"**{res.scale_sentence()}**", ""]
@@ -363,6 +420,35 @@ def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | Non
                 f"- `{p.name}`: {p.note or 'interval wider than the value'}; identified by: {p.needs}"
             )
         lines.append("")
+    if res.flat_directions:
+        lines += ["Flat directions of the fit (the data fix only a combination of these):", ""]
+        for fd in res.flat_directions:
+            lines.append(
+                f"- {' + '.join(f'{c:+.2f} {SYMBOLS.get(n, n)}' for n, c in fd['loadings'].items())} "
+                f"(relative units): a 95 % half-width of {fd['half_width']:.3g}; "
+                f"determined by: {fd['run_that_identifies_it']}"
+            )
+        lines.append("")
+    if search is not None:
+        lines += _rounds_section(search)
+    elif res.effects:
+        pass
+    else:
+        lines += [
+            "Base model only (`--no-effects`): no discrepancy tests ran; run `drill-env discrepancy "
+            "DATASET --params rig.yaml` to test it.",
+            "",
+        ]
+    if res.effects:
+        lines += [
+            "## Effects of the model",
+            "",
+            "Fitted jointly with every base parameter (their intervals from the same fit; a lag's time "
+            "constant from the profile of the fit):",
+            "",
+            *_effect_rows(res),
+            "",
+        ]
     if res.fit.residual_variance > MISFIT_WARN:
         lines += [
             f"**The fit leaves {res.fit.residual_variance:.3g} times the noise floor** (1 for a model that "
