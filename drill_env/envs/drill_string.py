@@ -334,7 +334,7 @@ class DrillStringEnv(gym.Env):
         self.observation_space = s.observation_space()
         self._action_to_volts = s.action_to_volts
         # the action space's bound with its float32 rounding (check_actions's)
-        self._action_high = float(self.action_space.high[0]) * (1.0 + float(np.finfo(np.float32).eps))
+        self._action_high = float(s.action_space().high[0]) * (1.0 + float(np.finfo(np.float32).eps))
         self._action_offset = s.action_offset
         self._ecfg = s.ecfg
         n = s.n_sub
