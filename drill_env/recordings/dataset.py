@@ -726,9 +726,12 @@ def _write_dataset(
         meta["sample_rate_hz"] = rates[0]
     if description:
         meta["description"] = description
-    atomic_write_text(folder / "dataset.json", json.dumps(meta, indent=2) + "\n")
+    # dataset.json is what makes the folder a dataset: removed first and written last, so that
+    # a write interrupted (Ctrl-C, a full disk) leaves a folder that never loads as complete
+    (folder / "dataset.json").unlink(missing_ok=True)
     for r in runs:
         df = pd.DataFrame({"t": r.t, "u": r.u, "theta_u": r.theta_u, "theta_l": r.theta_l})
         with atomic_file(folder / f"{r.name}.csv", "w", newline="") as f:
             df.to_csv(f, index=False, float_format="%.12g")
+    atomic_write_text(folder / "dataset.json", json.dumps(meta, indent=2) + "\n")
     return folder
