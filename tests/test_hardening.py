@@ -479,6 +479,23 @@ def test_ctrl_c_stops_a_long_simulation_in_the_api_within_a_second():
     assert time.perf_counter() - sent[0] < 1.0
 
 
+def test_ctrl_c_stops_a_long_batch_simulation_in_the_api_within_a_second():
+    from drill_env.simulator import simulate_batch
+
+    simulate_batch("brake", [1.0, 2.0], 60.0)  # compiled
+    sent: list[float] = []
+
+    def interrupt():
+        time.sleep(1.0)
+        sent.append(time.perf_counter())
+        os.kill(os.getpid(), signal.SIGINT)
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        simulate_batch("brake", [1.0, 2.0, 3.0, 4.0], 1e6, dt=1e4)
+    assert time.perf_counter() - sent[0] < 1.0
+
+
 def test_ctrl_c_stops_the_simulate_command_and_says_so():
     """The reproducer: `drill-env simulate --duration 1e9 --dt 1e8` kept running after SIGINT
     (1e9 s is now refused; the longest run allowed, 1e7 s, takes hours)."""
