@@ -91,7 +91,12 @@ def test_upgrading_a_former_residual_file_changes_its_objects_and_nothing_else(t
     obs = _observations(policy.observation_space, 64)
     actions_before = policy.predict(obs)[0]
     model_before = policy.policy.model
-    assert upgrade_policy_file(path, trusted=True) == ["learning_rate", "lr_schedule", "policy_class", "drill_env.json"]
+    assert upgrade_policy_file(path, trusted=True) == [
+        "learning_rate",
+        "lr_schedule",
+        "policy_class",
+        "drill_env.json",
+    ]
     after = _entries(path)
     assert list(after) == [*before, "drill_env.json"]  # the record of what it was trained on added
     assert {name for name in before if before[name] != after[name]} == {"data"}  # weights untouched

@@ -125,7 +125,7 @@ def test_a_lone_policy_file_with_its_record_runs_on_its_own_version(tmp_path):
 
     assert observation_version("ppo", "brake", tmp_path) == 3
     env = make_env("brake", EpisodeSettings(), 3)
-    ctrl = build_controller("ppo", env, "brake", agents_dir=tmp_path, trusted=True)
+    ctrl = build_controller("ppo", env, "brake", agents_dir=tmp_path, trusted=True)  # a copy made here
     # the benchmark's run of it at 1 V: suppressed (a v1 reading would apply 0.13 V: suppression 0)
     m = evaluate(ctrl, "brake", 1.0, 0, EpisodeSettings(), env=env)
     assert m.suppression > 0.95 and not m.stalled

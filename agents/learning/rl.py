@@ -500,8 +500,8 @@ def refuse_untrusted(path: str | Path, trusted: bool = False) -> None:
     note = untrusted_policy_note(path)
     if note is not None and not (trusted or trust_from_environment()):
         raise UntrustedPolicyError(
-            f"{note}; pass trusted=True for a file you made or trust (on the command line: "
-            f"--trust-policies, or set {TRUST_ENV_VAR}=1)"
+            f"{note} (pass trusted=True to load one; on the command line --trust-policies, or "
+            f"set {TRUST_ENV_VAR}=1)"
         )
 
 
