@@ -4,6 +4,9 @@ from their committed policies.
 * ``open_loop``, ``pi_upper``, ``pi_lower``, ``torque_feedback``, ``lqi``: built on an
   environment's :class:`~drill_env.agents.controllers.base.ControllerSpec` with the gains that
   ``drill-env tune`` wrote to ``configs/agents/controllers.yaml`` for the preset;
+* ``soft_torque``, ``z_torque``: the industry's stick-slip controllers, designed on the
+  design model by their published rules with nothing tuned
+  (:mod:`drill_env.agents.controllers.soft_torque`, :mod:`drill_env.agents.controllers.z_torque`);
 * ``lqi_angle_ff``: that LQI plus adaptive feedforward on harmonics of the lower disk's
   measured angle (:mod:`drill_env.agents.controllers.angle_feedforward`), for friction locked to the bit's angle;
 * ``ppo``, ``sac``: the policies trained by ``drill-env train`` and kept under
@@ -76,7 +79,16 @@ def __getattr__(name: str):
 
 # The one list of the benchmark's controllers, in the order of its tables and legends: the
 # figures, the command-line help and the checks of a controller name all derive from these.
-CLASSICAL = ("open_loop", "pi_upper", "pi_lower", "torque_feedback", "lqi", "lqi_angle_ff")
+CLASSICAL = (
+    "open_loop",
+    "pi_upper",
+    "pi_lower",
+    "torque_feedback",
+    "soft_torque",
+    "z_torque",
+    "lqi",
+    "lqi_angle_ff",
+)
 LEARNED = ("ppo", "sac", "ppo_lqi_clone", "ppo_robust", "sac_robust")
 # the algorithm of each learned controller
 _ALGO = {"ppo": "ppo", "sac": "sac", "ppo_lqi_clone": "ppo", "ppo_robust": "ppo", "sac_robust": "sac"}
@@ -100,6 +112,8 @@ STYLES = {
     "ppo": ControllerStyle("tab:purple", "P"),
     "sac": ControllerStyle("tab:brown", "X"),
     "ppo_lqi_clone": ControllerStyle("darkgoldenrod", "H"),
+    "soft_torque": ControllerStyle("limegreen", "+"),
+    "z_torque": ControllerStyle("indigo", "x"),
 }
 # Styles of controllers added without one of their own, in the order of CONTROLLERS: none of
 # these colours or markers is in STYLES, so a new controller is told apart from every other.
@@ -203,17 +217,29 @@ def build_controller(
     *,
     agents_dir: str | Path | None = None,
     gains_file: str | Path | None = None,
+    trusted: bool = False,
 ):
-    """Any benchmark controller by name for environment ``env`` of ``preset``."""
+    """Any benchmark controller by name for environment ``env`` of ``preset``. A learned
+    controller's policy from outside ``results/agents/`` needs ``trusted`` (see
+    :func:`drill_env.agents.learning.rl.load_policy`)."""
     if name in CLASSICAL:
         from drill_env.agents.controllers.base import ControllerSpec
         from drill_env.agents.controllers.gains import classical_controller
 
         return classical_controller(name, ControllerSpec.from_env(env), preset, gains_file)
     if name in LEARNED:
+        from drill_env.agents.learning.policy_info import policy_training_record
         from drill_env.agents.learning.rl import load_policy
+        from drill_env.envs import ENV_IDS
 
-        policy = load_policy(policy_path(name, preset, agents_dir), algo=_ALGO[name], name=name)
+        path = policy_path(name, preset, agents_dir)
+        trained_on = policy_training_record(path)[0]["env_id"]
+        if ENV_IDS.get(trained_on) != preset:
+            raise ValueError(
+                f"policy: {path} was trained on {trained_on} (preset {ENV_IDS.get(trained_on)!r}), "
+                f"not on preset {preset!r}"
+            )
+        policy = load_policy(path, algo=_ALGO[name], name=name, trusted=trusted)
         policy.check_env(env)
         _rebase(policy, env, preset)
         return policy
@@ -260,7 +286,7 @@ def observation_version(name: str, preset: str, agents_dir: str | Path | None = 
     return policy_observation_version(policy_path(name, preset, agents_dir))
 
 
-def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any:
+def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any], *, trusted: bool = False) -> Any:
     """The trained policy ``name`` of a distillation (``warm_start.policy``, one of
     :data:`drill_env.agents.learning.warm_start.WARM_START_POLICIES`) as the benchmark loads it for the
     preset of ``env_id`` from the default agents folder (:func:`build_controller`: a missing
@@ -275,6 +301,6 @@ def teacher_policy(name: str, env_id: str, env_kwargs: Mapping[str, Any]) -> Any
 
     env = make_version(env_id, **env_kwargs)
     try:
-        return build_controller(name, env, ENV_IDS[env_id])
+        return build_controller(name, env, ENV_IDS[env_id], trusted=trusted)
     finally:
         env.close()

@@ -130,21 +130,15 @@ def quick_suppression(model, cfg, preset: str, folder: Path) -> tuple[dict, dict
     # v2 observe the same; v2's action is a correction) is read from it
     (policy.parent / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
     bench = BenchmarkConfig.preset_grid(
-        (preset,), quick=True, controllers=(cfg.algo,), agents_dir=str(agents)
+        (preset,), quick=True, controllers=(cfg.algo,), agents_dir=str(agents), trust_policies=True
+    )  # the policy this process just trained
+    csv = run_benchmark(
+        bench,
+        folder / f"bench_{preset}_{model.num_timesteps}",
+        backend="sequential",
+        fresh=True,
+        report=False,
     )
-    import warnings
-
-    from drill_env.agents.learning.rl import UntrustedPolicyWarning
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UntrustedPolicyWarning)  # the policy this process just trained
-        csv = run_benchmark(
-            bench,
-            folder / f"bench_{preset}_{model.num_timesteps}",
-            backend="sequential",
-            fresh=True,
-            report=False,
-        )
     rows = pd.read_csv(csv)
     failed = rows["error"].dropna() if "error" in rows else []
     if len(failed):
@@ -302,12 +296,10 @@ def write_curves(runs: list[dict], out: Path) -> None:
     """``curves.csv`` (one row per check) and ``learning_curves_<rig>.png``: 1 - the smaller
     of the two cycle regimes' suppression and the training return against env-steps and
     training wall seconds, the median over seeds with the range of the seeds shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
     import pandas as pd
+
+    from drill_env._figures import subplots
 
     rows = []
     for r in runs:
@@ -336,7 +328,7 @@ def write_curves(runs: list[dict], out: Path) -> None:
     df["worst"] = df[[f"suppression_{g}" for g in CYCLE_REGIMES]].min(axis=1)
     colours = {"ppo": "tab:purple", "sac": "tab:brown"}
     for preset, dp in df.groupby("preset"):
-        fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharey="row")
+        fig, axes = subplots(2, 2, figsize=(11, 7), sharey="row")
         for algo, da in dp.groupby("algo"):
             # align the seeds by check: the checks fall at the same env-steps in every seed
             g = da.groupby("check")
@@ -378,7 +370,6 @@ def write_curves(runs: list[dict], out: Path) -> None:
         fig.suptitle(f"Learning from scratch on {rig} (quick benchmark)")
         fig.tight_layout()
         fig.savefig(out / f"learning_curves_{preset}.png", dpi=110)
-        plt.close(fig)
 
 
 def write_summary(result: dict, out: Path) -> None:

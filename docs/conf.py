@@ -41,6 +41,7 @@ extensions = [
     "cli_reference",
     "env_page",
     "results_pages",
+    "headlines",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
@@ -69,6 +70,9 @@ suppress_warnings = [
 # -- autodoc -------------------------------------------------------------------------
 autodoc_member_order = "bysource"
 autodoc_typehints = "description"
+# types go into the parameters the docstring documents; without this, autodoc appends a second
+# "Parameters" list with every parameter the docstring already describes
+autodoc_typehints_description_target = "documented_params"
 autodoc_default_options = {"show-inheritance": False}
 autodoc_mock_imports: list[str] = []
 napoleon_google_docstring = True

@@ -25,7 +25,7 @@ if TYPE_CHECKING:  # the lazy names below, for type checkers and editors
     from drill_env.result import EventLog, SimulationResult
     from drill_env.simulator import simulate, simulate_batch
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # The public names, imported on first use (PEP 562): ``import drill_env`` and the command line's
 # ``--help`` load neither numba nor SciPy nor torch until a name that needs them is used.

@@ -57,6 +57,7 @@ class _Commands(TyperGroup):
     """Every command runs inside one handler for the expected error types and for Ctrl-C."""
 
     def invoke(self, ctx):  # noqa: ANN001, ANN201 (click's signature)
+        _one_line_warnings()
         try:
             return super().invoke(ctx)
         except (typer.Exit, typer.Abort, typer.BadParameter.__mro__[2]):  # click's own: passed on
@@ -67,6 +68,25 @@ class _Commands(TyperGroup):
             interrupted(
                 "every file written so far is complete (each is replaced whole); nothing else was written"
             )
+
+
+def _one_line_warnings() -> None:
+    """Warnings of a category marked ``one_line`` (e.g. a regime the rig does not have) are
+    shown as one ``warning: ...`` line, without Python's source line; the others as usual."""
+    import warnings
+
+    previous = warnings.showwarning
+    if getattr(previous, "_one_line", False):
+        return
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001, ANN202
+        if getattr(category, "one_line", False):
+            typer.secho(f"warning: {message}", fg=typer.colors.YELLOW, err=True)
+        else:
+            previous(message, category, filename, lineno, file, line)
+
+    show._one_line = True  # type: ignore[attr-defined]
+    warnings.showwarning = show
 
 
 def interrupted(kept: str) -> None:
@@ -234,6 +254,8 @@ def _register_commands() -> None:
                 continue  # that package is not installed: its commands are not offered
             raise
         for mod in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+            if mod.name.startswith("_"):
+                continue  # a helper of the commands (e.g. _trust), not a command
             importlib.import_module(f"{package_name}.{mod.name}").register(app)
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         ep.load()(app)

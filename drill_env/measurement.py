@@ -150,6 +150,6 @@ def write_model_yaml(params, path: str | Path, measurement: MeasurementModel | N
     data = params.to_dict()
     if measurement is not None and measurement.active:
         data["measurement"] = measurement.to_dict()
-    out = Path(path)
-    out.write_text(yaml.safe_dump(data, sort_keys=False))
-    return out
+    from drill_env.outputs import atomic_write_text
+
+    return atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))

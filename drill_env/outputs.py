@@ -53,12 +53,24 @@ __all__ = [
     "check_output_file",
     "check_output_folder",
     "check_new_folder",
+    "MARKER_NAME",
+    "OutputWriteError",
+    "ResumeError",
+    "check_command_folder",
+    "command_folder",
+    "refuse_link",
+    "save_figure",
+    "atomic_write_json",
+    "track_created",
+    "keep_on_error",
+    "atomic_path",
     "clear_folder",
     "refuse_links",
     "open_append",
 ]
 
 LOCK_NAME = ".drill-env.lock"
+MARKER_NAME = ".drill-env-output.json"  # names the command whose outputs a folder holds
 
 
 class OutputFolderError(ValueError):
@@ -67,6 +79,15 @@ class OutputFolderError(ValueError):
 
 class OutputFolderBusy(OutputFolderError):
     """Another run is writing into the output folder."""
+
+
+class ResumeError(OutputFolderError):
+    """A partial file left by an interrupted run cannot be resumed from (empty, truncated,
+    foreign, another version's): the message names it and the choice (``--fresh``)."""
+
+
+class OutputWriteError(OutputFolderError):
+    """A file could not be written (a full disk, a write error): the message names the path."""
 
 
 # -- output paths checked before any work ----------------------------------------------------------
@@ -111,6 +132,12 @@ def check_output_file(path: str | os.PathLike[str], option: str = "--out") -> Pa
     Raises :class:`OutputFolderError` naming ``option`` and the path.
     """
     path = Path(path)
+    if path.is_symlink():
+        dangling = "a dangling link" if not path.exists() else "a symbolic link"
+        raise OutputFolderError(
+            f"{option} {path}: is {dangling} (to {os.readlink(path)}); output files are never written "
+            "through links: remove the link or choose another path"
+        )
     if path.is_dir():
         raise OutputFolderError(f"{option} {path}: is a folder; expected a file path")
     if path.exists() and not path.is_file():
@@ -162,7 +189,7 @@ def check_new_folder(
     check_output_folder(path, option)
     if not path.is_dir():
         return []
-    entries = sorted(p for p in path.iterdir() if p.name != LOCK_NAME)
+    entries = sorted(p for p in path.iterdir() if p.name not in (LOCK_NAME, MARKER_NAME))
     if not entries:
         return []
     shown = ", ".join(p.name for p in entries[:3]) + (
@@ -329,7 +356,49 @@ def _take_over(path: Path, ident: tuple[int, int] | None) -> None:
     os.unlink(aside)
 
 
-def _acquire(folder: Path, what: str, folder_key: str) -> tuple[Path, str]:
+def _flock_free(path: Path) -> bool:
+    """True when no process holds the kernel lock (``flock``) on the lock file ``path``.
+
+    A run of this version holds it while it writes; the kernel releases it when that run
+    ends in any way (killed included), so a lock file nobody holds is left by a run that is
+    gone."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: cannot tell
+        return False
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return True
+    finally:
+        os.close(fd)
+
+
+def _hold(fd: int) -> None:
+    """Take the kernel lock on a lock file just created (released by the kernel if we die)."""
+    try:
+        import fcntl
+    except ImportError:
+        return
+    with contextlib.suppress(OSError):
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        n = os.write(fd, view)
+        view = view[n:]
+
+
+def _acquire(folder: Path, what: str, folder_key: str) -> tuple[Path, str, int]:
     path = folder / LOCK_NAME
     token = uuid.uuid4().hex
     record = {
@@ -344,14 +413,15 @@ def _acquire(folder: Path, what: str, folder_key: str) -> tuple[Path, str]:
     data = (json.dumps(record, indent=1) + "\n").encode()
     for _ in range(5):
         try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY | getattr(os, "O_NOFOLLOW", 0), 0o644)
         except FileExistsError:
             holder, ident = _read_holder(path)
             if holder is None:
                 continue  # released in the meantime: try again
-            if _is_stale(holder, folder_key):
+            if _is_stale(holder, folder_key) or (not holder and _flock_free(path)):
+                gone = _describe(holder) if holder else "an empty or unreadable lock that no run holds"
                 warnings.warn(
-                    f"{folder}: taking over the lock left by a run that is gone ({_describe(holder)}); "
+                    f"{folder}: taking over the lock left by a run that is gone ({gone}); "
                     "its results in this folder may be incomplete",
                     RuntimeWarning,
                     stacklevel=4,
@@ -366,23 +436,31 @@ def _acquire(folder: Path, what: str, folder_key: str) -> tuple[Path, str]:
             raise OutputFolderError(
                 f"cannot lock the output folder {folder}: {exc.strerror or exc}"
             ) from None
+        _hold(fd)
         try:
-            os.write(fd, data)
+            _write_all(fd, data)
             os.fsync(fd)
-        finally:
+        except OSError as exc:  # a full disk: no 0-byte lock is left to block the next run
             os.close(fd)
-        return path, token
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            raise OutputWriteError(f"cannot write {path}: {_reason(exc)}; nothing was written") from None
+        return path, token, fd
     raise OutputFolderBusy(f"{folder} is in use by another drill-env run (its lock {path} keeps changing)")
 
 
-def _release(path: Path, token: str) -> None:
+def _release(path: Path, token: str, fd: int) -> None:
     try:
-        holder = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return
-    if isinstance(holder, dict) and holder.get("token") == token:  # still ours
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()
+        try:
+            holder = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return
+        if isinstance(holder, dict) and holder.get("token") == token:  # still ours
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+    finally:
+        with contextlib.suppress(OSError):
+            os.close(fd)  # releases the kernel lock
 
 
 @contextlib.contextmanager
@@ -391,13 +469,30 @@ def output_lock(folder: str | os.PathLike[str], what: str = "drill-env") -> Iter
 
     ``what`` names the run in the lock file and in the message another run gets. Raises
     :class:`OutputFolderBusy` if another run holds the folder, :class:`OutputFolderError` if
-    it cannot be created.
+    it cannot be created. Folders created here are removed again at the end when they are
+    left empty (a run refused or failed before it wrote anything leaves no empty folder).
     """
     folder = Path(folder)
+    made: list[Path] = []
+    probe = folder
+    while not probe.exists() and not probe.is_symlink() and probe != probe.parent:
+        made.append(probe)
+        probe = probe.parent
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputFolderError(f"cannot create the output folder {folder}: {exc.strerror or exc}") from None
+    try:
+        with _locked(folder, what) as held:
+            yield held
+    finally:
+        for p in made:  # innermost first
+            with contextlib.suppress(OSError):
+                p.rmdir()
+
+
+@contextlib.contextmanager
+def _locked(folder: Path, what: str) -> Iterator[Path]:
     key = os.path.realpath(folder)
     me = threading.get_ident()
     with _HELD_GUARD:
@@ -411,7 +506,7 @@ def output_lock(folder: str | os.PathLike[str], what: str = "drill-env") -> Iter
             with _HELD_GUARD:
                 _HELD[key][me] -= 1
         return
-    path, token = _acquire(folder, what, key)
+    path, token, fd = _acquire(folder, what, key)
     with _HELD_GUARD:
         _HELD.setdefault(key, {})[me] = 1
     try:
@@ -422,7 +517,7 @@ def output_lock(folder: str | os.PathLike[str], what: str = "drill-env") -> Iter
             threads.pop(me, None)
             if not threads:
                 _HELD.pop(key, None)
-        _release(path, token)
+        _release(path, token, fd)
 
 
 # -- files replaced whole --------------------------------------------------------------------------
@@ -431,21 +526,39 @@ _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 
 
+def refuse_link(path: str | os.PathLike[str]) -> Path:
+    """Refuse an output path that is a symbolic link (checked with ``lstat``, never followed):
+    a result is never written through a link to a file elsewhere."""
+    path = Path(path)
+    if path.is_symlink():
+        raise OutputFolderError(
+            f"{path}: is a symbolic link (to {os.readlink(path)}); output files are never written "
+            "through links: remove the link or choose another folder"
+        )
+    return path
+
+
 @contextlib.contextmanager
 def atomic_file(path: str | os.PathLike[str], mode: str = "w", **open_kwargs: Any) -> Iterator[IO[Any]]:
     """Open a unique temporary file beside ``path``; on success it replaces ``path`` in one step.
 
-    On an error the temporary file is removed and ``path`` is left as it was. ``mode`` is
-    ``"w"`` or ``"wb"``; ``open_kwargs`` go to :func:`open` (``encoding``, ``newline``).
+    ``path`` must not be a symbolic link (refused, never followed). On an error the temporary
+    file is removed and ``path`` is left as it was; a write error (a full disk) is raised as
+    :class:`OutputWriteError` naming ``path``. ``mode`` is ``"w"`` or ``"wb"``;
+    ``open_kwargs`` go to :func:`open` (``encoding``, ``newline``).
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"mode: expected 'w' or 'wb', got {mode!r}")
-    path = Path(path)
+    path = refuse_link(path)
+    existed = path.exists()
     try:
         perms = path.stat().st_mode & 0o7777
     except OSError:
         perms = 0o666 & ~_UMASK
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise OutputWriteError(f"cannot write {path}: {_reason(exc)}") from None
     try:
         if mode == "w":
             open_kwargs.setdefault("encoding", "utf-8")
@@ -455,11 +568,50 @@ def atomic_file(path: str | os.PathLike[str], mode: str = "w", **open_kwargs: An
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, perms)
+        refuse_link(path)  # a link planted while the file was written
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, ValueError):
+            raise OutputWriteError(
+                f"cannot write {path}: {_reason(exc)}; {path} was left as it was"
+            ) from None
         raise
+    if not existed:
+        _created(path)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str], suffix: str = ".tmp") -> Iterator[Path]:
+    """A unique temporary file name beside ``path`` for a library that writes by file name
+    (stable-baselines3's ``model.save``); on success it replaces ``path`` in one step, on an
+    error it is removed and ``path`` is left as it was. ``path`` must not be a link."""
+    path = refuse_link(path)
+    existed = path.exists()
+    try:
+        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+        os.close(fd)
+    except OSError as exc:
+        raise OutputWriteError(f"cannot write {path}: {_reason(exc)}") from None
+    tmp = Path(name)
+    try:
+        yield tmp
+        refuse_link(path)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_UMASK)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, ValueError):
+            raise OutputWriteError(
+                f"cannot write {path}: {_reason(exc)}; {path} was left as it was"
+            ) from None
+        raise
+    if not existed:
+        _created(path)
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
@@ -474,6 +626,189 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     with atomic_file(path, "wb") as f:
         f.write(data)
     return Path(path)
+
+
+def atomic_write_json(path: str | os.PathLike[str], data: Any, **dump_kwargs: Any) -> Path:
+    """Write ``data`` as JSON (``indent=2`` unless given) atomically, never through a link."""
+    dump_kwargs.setdefault("indent", 2)
+    return atomic_write_text(path, json.dumps(data, **dump_kwargs) + "\n")
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], **savefig_kwargs: Any) -> Path:
+    """Save a Matplotlib figure to ``path`` atomically and never through a link.
+
+    The format comes from the suffix (``.png``, ``.svg``, ``.pdf``); ``savefig_kwargs`` go to
+    :meth:`matplotlib.figure.Figure.savefig` (``dpi``). A figure made with ``Figure()`` gets
+    an Agg canvas: the user's pyplot backend is never touched.
+    """
+    path = Path(path)
+    canvas = getattr(fig, "canvas", None)
+    if canvas is None or type(canvas).__name__ == "FigureCanvasBase":
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        FigureCanvasAgg(fig)
+    savefig_kwargs.setdefault("format", path.suffix.lstrip(".") or "png")
+    with atomic_file(path, "wb") as f:
+        fig.savefig(f, **savefig_kwargs)
+    return path
+
+
+# -- one command's outputs per folder --------------------------------------------------------------
+
+
+def _marker_command(folder: Path) -> str | None:
+    """The command named by ``folder``'s marker (None: no marker; ``"?"``: unreadable)."""
+    marker = folder / MARKER_NAME
+    if marker.is_symlink():
+        return "?"
+    if not marker.exists():
+        return None
+    try:
+        data = json.loads(marker.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return "?"
+    return str(data.get("command", "?")) if isinstance(data, dict) else "?"
+
+
+def check_command_folder(
+    path: str | os.PathLike[str],
+    command: str,
+    option: str = "--out",
+    *,
+    own: tuple[str, ...] = (),
+) -> Path:
+    """Check, before any work and writing nothing, that ``path`` may hold ``command``'s outputs.
+
+    An output folder holds one command's outputs, named by its marker file
+    (:data:`MARKER_NAME`): a folder that is absent or empty, or whose marker names
+    ``command``, is accepted. Refused with one line naming ``option``: a folder whose marker
+    names another command, a dataset (``dataset.json``), and a folder without a marker that
+    holds anything but regular files matching the glob patterns ``own`` (what ``command``
+    wrote before folders had markers).
+    """
+    import fnmatch
+
+    path = check_output_folder(path, option)
+    if not path.is_dir():
+        return path
+    marked = _marker_command(path)
+    if marked == command:
+        return path
+    if marked is not None:
+        raise OutputFolderError(
+            f"{option} {path}: holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder holds "
+            f"one command's outputs, never mixed: choose another folder for `drill-env {command}`"
+        )
+    if (path / "dataset.json").exists() or (path / "dataset.json").is_symlink():
+        raise OutputFolderError(
+            f"{option} {path}: holds a dataset (dataset.json); outputs are never written into a dataset "
+            "folder: choose another folder"
+        )
+    entries = sorted(p for p in path.iterdir() if p.name != LOCK_NAME)
+    for p in entries:
+        if p.is_symlink():
+            raise OutputFolderError(
+                f"{option} {path}: {p.name} is a symbolic link (to {os.readlink(p)}); output files are never "
+                "written through links: remove the link or choose another folder"
+            )
+    foreign = [
+        p
+        for p in entries
+        if p.is_symlink() or (p.is_file() and not any(fnmatch.fnmatch(p.name, pat) for pat in own))
+    ]  # a subfolder is an output folder of its own, checked when it is written
+    if foreign:
+        shown = ", ".join(p.name for p in foreign[:3]) + (
+            f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+        )
+        raise OutputFolderError(
+            f"{option} {path}: holds what `drill-env {command}` does not write ({shown}); a folder holds "
+            "one command's outputs, never mixed: choose a new or empty folder"
+        )
+    return path
+
+
+class _Session:
+    """What one command created in its output folder (removed again on a write error)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = os.path.realpath(folder)
+        self.created: list[Path] = []
+
+
+_SESSIONS: list[_Session] = []
+
+
+def _created(path: Path) -> None:
+    """Record a new file in the innermost :func:`command_folder` holding it."""
+    where = os.path.realpath(path.parent)
+    with _HELD_GUARD:
+        for session in reversed(_SESSIONS):
+            if where == session.folder or where.startswith(session.folder + os.sep):
+                session.created.append(path)
+                return
+
+
+def track_created(path: str | os.PathLike[str]) -> None:
+    """Record a file a writer outside this module created (an append file), so that a write
+    error in the enclosing :func:`command_folder` removes it."""
+    _created(Path(path))
+
+
+def keep_on_error(path: str | os.PathLike[str]) -> None:
+    """Keep ``path`` (a resume file: the rows finished so far) when a write error ends the
+    enclosing :func:`command_folder`; every other file the run created is removed then."""
+    path = Path(path)
+    with _HELD_GUARD:
+        for session in _SESSIONS:
+            session.created = [p for p in session.created if p != path]
+
+
+def _is_write_error(exc: BaseException) -> bool:
+    return isinstance(exc, OutputWriteError) or (isinstance(exc, OSError) and not isinstance(exc, ValueError))
+
+
+@contextlib.contextmanager
+def command_folder(
+    path: str | os.PathLike[str],
+    command: str,
+    option: str = "--out",
+    *,
+    own: tuple[str, ...] = (),
+) -> Iterator[Path]:
+    """The output folder of one run of ``command``: checked (:func:`check_command_folder`),
+    created if missing, locked (:func:`output_lock`) and marked as ``command``'s while the
+    block runs; yields the folder.
+
+    Every file written with this module's writers inside it is tracked: if the block fails
+    with a write error (a full disk), the files this run created are removed (the error names
+    the path); files of an earlier run that were being replaced are left as they were. A
+    folder this run created is removed again when it is left empty (a refused or failed run).
+    """
+    folder = check_command_folder(path, command, option, own=own)
+    with output_lock(folder, command):
+        session = _Session(folder)
+        marker = folder / MARKER_NAME
+        new_marker = not marker.exists()
+        with _HELD_GUARD:
+            _SESSIONS.append(session)
+        try:
+            if new_marker:
+                atomic_write_json(marker, {"command": command, "written_by": "drill-env"})
+            yield folder
+        except BaseException as exc:
+            if _is_write_error(exc):
+                for p in reversed(session.created):
+                    with contextlib.suppress(OSError):
+                        p.unlink()
+            if new_marker:
+                left = [p for p in folder.iterdir() if p.name not in (LOCK_NAME, MARKER_NAME)]
+                if not left:
+                    with contextlib.suppress(OSError):
+                        marker.unlink()
+            raise
+        finally:
+            with _HELD_GUARD:
+                _SESSIONS.remove(session)
 
 
 def fresh_run_folder(parent: str | os.PathLike[str], name: str) -> Path:

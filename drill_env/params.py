@@ -253,7 +253,9 @@ class RigParams:
     def to_yaml(self, path: str | Path) -> None:
         import yaml
 
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+        from drill_env.outputs import atomic_write_text
+
+        atomic_write_text(path, yaml.safe_dump(self.to_dict(), sort_keys=False))
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], *, source: str = "parameters") -> RigParams:

@@ -19,7 +19,7 @@ __all__ = ["precompile"]
 
 def precompile(progress: Callable[[str, float], None] | None = None) -> dict[str, float]:
     """Compile (or load from the cache) the simulator, the sensors, the single and the
-    vector environments; returns the wall time [s] of each part.
+    vector environments and the rig's emulator and observer; returns the wall time [s] of each part.
 
     ``progress(part, seconds)`` is called after each part.
     """
@@ -45,11 +45,22 @@ def precompile(progress: Callable[[str, float], None] | None = None) -> dict[str
         venv.step(np.zeros((2, 1), dtype=np.float32))
         venv.close()
 
+    def rig() -> None:
+        from drill_env.envs.config import EnvSettings
+        from drill_env.rig.emulator import EmulatedRig, emulated_plant
+        from drill_env.rig.observer import Observer
+
+        params, sensors = emulated_plant("brake", None)
+        emulated = EmulatedRig(params, sensors)
+        counts, _ = emulated.advance(50)
+        Observer(EnvSettings(), 2000, 1000.0).update(1, counts[:, 0], counts[:, 1], 0.0)
+
     times = {}
     for name, part in (
         ("simulator", simulator),
         ("environment", single_env),
         ("vector environment", vector_env),
+        ("rig", rig),
     ):
         t0 = time.perf_counter()
         part()

@@ -204,10 +204,10 @@ class SimulationResult:
 
     def plot(self, ax=None):
         """Lower- and upper-disk speeds and the twist against time (matplotlib)."""
-        import matplotlib.pyplot as plt
+        from drill_env._figures import user_subplots
 
         if ax is None:
-            _, ax = plt.subplots(3, 1, sharex=True, figsize=(8, 6))
+            _, ax = user_subplots(3, 1, sharex=True, figsize=(8, 6))
         ax[0].plot(self.t, self.x3, lw=1)
         ax[0].set_ylabel("x3 = lower speed [rad/s]")
         ax[1].plot(self.t, self.x2, lw=1)

@@ -55,6 +55,20 @@ _BOOL = re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$")
 _NULL = re.compile(r"^(?:~|null|Null|NULL|)$")
 
 
+# Characters YAML does not allow in a stream (C0 controls but tab, LF and CR; DEL; C1
+# controls but NEL; surrogates; U+FFFE/U+FFFF), and a CR that does not end a CR LF pair: a
+# file of CR-only line endings reads as one line in some readers and many in others.
+_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x84\x86-\x9f\ud800-\udfff\ufffe\uffff]|\r(?!\n)")
+_CONTROL_NAMES = {
+    "\x00": "NUL",
+    "\x07": "BEL",
+    "\x08": "BS",
+    "\x1b": "ESC",
+    "\x7f": "DEL",
+    "\r": "a CR not followed by LF",
+}
+
+
 class _Bounded(ValueError):
     """A bound of this reader exceeded (the message names it)."""
 
@@ -241,6 +255,15 @@ def parse_yaml(
     if len(text.encode("utf-8", "surrogatepass")) > MAX_YAML_BYTES:
         raise error(
             f"{source}: larger than {MAX_YAML_BYTES} bytes; a {what} is at most {MAX_YAML_BYTES} bytes"
+        )
+    bad = _CONTROL.search(text)
+    if bad is not None:
+        line = text.count("\n", 0, bad.start()) + 1
+        col = bad.start() - (text.rfind("\n", 0, bad.start()) + 1) + 1
+        raise error(
+            f"{source}: line {line}, column {col}: control character U+{ord(bad.group()):04X} "
+            f"({_CONTROL_NAMES.get(bad.group(), 'not printable')}); allowed: printable text, tab "
+            "and line feed (LF or CR LF line endings)"
         )
     loader = _Loader(text)
     try:

@@ -47,6 +47,24 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import drill_env  # noqa: E402
 
+# The library never changes the user's matplotlib backend (it draws what it saves with the
+# object-oriented API): the tests run under a backend of their own that no library code would
+# pick, and every test checks that it is still the backend when the test ends.
+_USERS_BACKEND = "svg"
+os.environ["MPLBACKEND"] = _USERS_BACKEND  # subprocesses started by the tests inherit it
+if "matplotlib" in sys.modules:  # imported before this file (by a plugin)
+    sys.modules["matplotlib"].use(_USERS_BACKEND)
+
+
+@pytest.fixture(autouse=True)
+def _users_matplotlib_backend_unchanged():
+    yield
+    matplotlib = sys.modules.get("matplotlib")
+    if matplotlib is not None:
+        assert matplotlib.get_backend().lower() == _USERS_BACKEND, (
+            f"the user's matplotlib backend {_USERS_BACKEND!r} was changed to {matplotlib.get_backend()!r}"
+        )
+
 
 @pytest.fixture(scope="session")
 def brake() -> drill_env.RigParams:

@@ -68,6 +68,13 @@ def generated_files() -> set[str]:
     readme = (results / "README.md").read_text(encoding="utf-8")
     for folder in _results_pages_module().readme_sections(readme):
         names.add(f"results/readme_{folder}.md")
+    for ranking in results.rglob("ranking.json"):
+        names.add("results/leaderboard_" + "_".join(ranking.parent.relative_to(results).parts) + ".md")
+    names.add("results/leaderboard_ranks.md")
+    spec = importlib.util.spec_from_file_location("headlines", DOCS / "_ext" / "headlines.py")
+    headlines = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(headlines)
+    names |= {f"results/headline_{page}.md" for page in headlines.HEADLINES}
     return names
 
 

@@ -6,17 +6,14 @@ from __future__ import annotations
 
 import math
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import pytest
 
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-import pytest  # noqa: E402
-
-from drill_env.analysis import bifurcation_diagram  # noqa: E402
-from drill_env.analysis.plots import (  # noqa: E402
+from drill_env._figures import renderer as figure_renderer
+from drill_env.analysis import bifurcation_diagram
+from drill_env.analysis.plots import (
     AMPLIFIER_LIMIT_V,
     IDENTIFIED_SPEED_RAD_S,
     Label,
@@ -25,7 +22,7 @@ from drill_env.analysis.plots import (  # noqa: E402
     plot_equilibria,
     plot_period,
 )
-from drill_env.analysis.sweep import SweepRun  # noqa: E402
+from drill_env.analysis.sweep import SweepRun
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +144,7 @@ def test_the_extended_brake_diagram_draws_both_limits_and_shades_the_model_only_
 
 
 def _boxes(ax):
-    r = ax.figure.canvas.get_renderer()
+    r = figure_renderer(ax.figure)
     return [t.get_window_extent(r) for t in ax.texts]
 
 
@@ -297,3 +294,43 @@ def test_robustness_and_plant_figures_run_on_a_small_frame(tmp_path):
     p = robustness_figure(df, "brake", tmp_path)
     q = _plants_figure(df, "brake", tmp_path, ["km_x1.05"])
     assert p.stat().st_size > 20_000 and q.stat().st_size > 10_000
+
+
+def test_the_library_never_sets_the_matplotlib_backend():
+    """No ``matplotlib.use`` in the package (a notebook's inline plots would stop after any call
+    that saves a figure); the figures it saves are drawn with the object-oriented API. The
+    backend of the whole test run is checked after every test (conftest.py)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    calls = []
+    for folder in ("drill_env", "agents", "benchmarks"):
+        for path in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if (
+                    isinstance(node, ast.Call)
+                    and isinstance(node.func, ast.Attribute)
+                    and node.func.attr == "use"
+                ):
+                    owner = node.func.value
+                    if isinstance(owner, ast.Name) and owner.id in {"matplotlib", "mpl"}:
+                        calls.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert calls == []
+
+
+def test_a_saved_figure_leaves_pyplot_alone(tmp_path, no_brake):
+    """Saving the paper's figures opens no pyplot figure (none to close, none shown)."""
+    from drill_env.analysis.plots import save_figures
+
+    diagram = no_brake
+    before = plt.get_fignums()
+    paths = save_figures(diagram, tmp_path)
+    assert plt.get_fignums() == before
+    assert [p.name for p in paths] == [
+        "fig6_equilibria.png",
+        "fig8_bifurcation.png",
+        "period.png",
+        "fig9_limit_cycles.png",
+    ]
+    assert all(p.stat().st_size > 10_000 for p in paths)

@@ -91,9 +91,9 @@ def test_upgrading_a_former_residual_file_changes_its_objects_and_nothing_else(t
     obs = _observations(policy.observation_space, 64)
     actions_before = policy.predict(obs)[0]
     model_before = policy.policy.model
-    assert upgrade_policy_file(path) == ["learning_rate", "lr_schedule", "policy_class"]
+    assert upgrade_policy_file(path) == ["learning_rate", "lr_schedule", "policy_class", "drill_env.json"]
     after = _entries(path)
-    assert list(after) == list(before)
+    assert list(after) == [*before, "drill_env.json"]  # the record of what it was trained on added
     assert {name for name in before if before[name] != after[name]} == {"data"}  # weights untouched
     assert stored_policy_class(path) == (
         "drill_env.agents.learning.residual",
@@ -113,9 +113,19 @@ def test_upgrading_a_former_residual_file_changes_its_objects_and_nothing_else(t
 
 
 def test_a_correction_file_without_the_config_of_its_base_is_refused(tmp_path):
-    shutil.copy(AGENTS / "ppo_robust" / "policy.zip", tmp_path / "policy.zip")
-    with pytest.raises(ValueError, match=r"holds the correction of a residual policy, but no config\.yaml"):
-        load_policy(tmp_path / "policy.zip", algo="ppo", trusted=True)
+    import json
+
+    from drill_env.agents.learning.policy_info import POLICY_INFO_MEMBER, rewrite_policy_zip
+
+    path = tmp_path / "policy.zip"
+    shutil.copy(AGENTS / "ppo_robust" / "policy.zip", path)
+    info = json.loads(_entries(path)[POLICY_INFO_MEMBER])
+    del info["training_config"]["residual"]  # a record that names no base
+    rewrite_policy_zip(path, info=info)
+    with pytest.raises(
+        ValueError, match=r"holds the correction of a residual policy, but its training record"
+    ):
+        load_policy(path, algo="ppo", trusted=True)
 
 
 def test_a_residual_policy_is_saved_as_a_correction_that_sb3_refuses_alone(tmp_path):

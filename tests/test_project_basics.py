@@ -36,13 +36,45 @@ def test_version_is_the_package_metadata_s():
     res = CliRunner().invoke(app, ["--version"])
     assert res.exit_code == 0, res.output
     assert res.output == f"drill-env {version('drill-env')}\n"
-    assert version("drill-env") == PYPROJECT["project"]["version"] == drill_env.__version__
+    assert version("drill-env") == drill_env.__version__
+
+
+def test_the_version_is_written_in_one_place():
+    """``drill_env/__init__.py`` holds it; the build reads it from there (hatch), the
+    citation and the changelog's newest release repeat it and are checked here."""
+    assert "version" not in PYPROJECT["project"] and "version" in PYPROJECT["project"]["dynamic"]
+    assert PYPROJECT["tool"]["hatch"]["version"]["path"] == "drill_env/__init__.py"
+    init = (ROOT / "drill_env" / "__init__.py").read_text()
+    assert init.count("__version__ = ") == 1
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert cff["version"] == drill_env.__version__
+
+
+def test_the_changelog_keeps_a_changelog():
+    """Keep a Changelog 1.1: an Unreleased section, then each release ``## [X.Y.Z] - date``
+    newest first, the newest being the package's version; each release lists each kind of
+    change once; every section has its link at the end."""
+    import re
+
+    text = (ROOT / "CHANGELOG.md").read_text()
+    sections = re.findall(r"^## \[([^\]]+)\](?: - (\d{4}-\d{2}-\d{2}))?$", text, flags=re.MULTILINE)
+    assert sections[0] == ("Unreleased", "")
+    releases = sections[1:]
+    assert releases and releases[0][0] == drill_env.__version__
+    assert all(date for _, date in releases)
+    assert [d for _, d in releases] == sorted((d for _, d in releases), reverse=True)
+    kinds = {"Added", "Changed", "Deprecated", "Removed", "Fixed", "Security", "Performance"}
+    for body in re.split(r"^## ", text, flags=re.MULTILINE)[2:]:
+        headings = re.findall(r"^### (.+)$", body, flags=re.MULTILINE)
+        assert set(headings) <= kinds and len(headings) == len(set(headings)), headings
+    for name, _ in sections:
+        assert re.search(rf"^\[{re.escape(name)}\]: https://", text, flags=re.MULTILINE), name
 
 
 def test_python_m_drill_env_runs_the_command_line():
     res = _python_m("--version")
     assert res.returncode == 0, res.stderr
-    assert res.stdout == f"drill-env {PYPROJECT['project']['version']}\n"
+    assert res.stdout == f"drill-env {drill_env.__version__}\n"
     res = _python_m("simulate", "--duration", "2", "--dt", "0.5", "--voltage", "1")
     assert res.returncode == 0, res.stderr
     assert "rig: brake, u = 1 V, 2 s simulated" in res.stdout
@@ -74,7 +106,8 @@ def test_licence_and_classifiers_agree():
 def test_citation_names_the_project_and_the_paper_it_models():
     cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
     assert cff["cff-version"] == "1.2.0" and cff["type"] == "software"
-    assert cff["version"] == PYPROJECT["project"]["version"] and cff["license"] == "MIT"
+    assert cff["version"] == drill_env.__version__ and cff["license"] == "MIT"
+    assert str(cff["date-released"]) and cff["repository-code"] == PYPROJECT["project"]["urls"]["Repository"]
     assert cff["authors"] == [{"name": "drill-env developers"}]
     (paper,) = cff["references"]
     assert paper["type"] == "article" and paper["doi"] == "10.1115/1.1850535"

@@ -26,7 +26,7 @@ from drill_env.agents.learning.residual import (
 )
 from drill_env.agents.learning.rl import (
     TrainConfig,
-    UntrustedPolicyWarning,
+    UntrustedPolicyError,
     load_config,
     load_policy,
     make_train_vec_env,
@@ -184,12 +184,13 @@ def test_a_tiny_robust_training_run_writes_a_policy_the_benchmark_loads(tmp_path
     assert observation_version("ppo_robust", "brake", agents_dir) == 1
     settings = EpisodeSettings(duration=3.0, window=1.0, warmup_time=5.0, warmup_jitter=0.0)
     env = make_env("brake", settings, 1)
-    with pytest.warns(UntrustedPolicyWarning):
-        policy = build_controller("ppo_robust", env, "brake", agents_dir=agents_dir)
+    with pytest.raises(UntrustedPolicyError, match="trusted=True"):
+        build_controller("ppo_robust", env, "brake", agents_dir=agents_dir)
+    policy = build_controller("ppo_robust", env, "brake", agents_dir=agents_dir, trusted=True)
     m = evaluate(policy, "brake", 1.0, 0, settings, name="ppo_robust", env=env)
     assert m.controller == "ppo_robust" and m.sim_status == 0 and np.isfinite(m.rms_error)
     with pytest.raises(ValueError, match="no trained ppo_robust policy for preset 'no_brake'"):
-        build_controller("ppo_robust", env, "no_brake", agents_dir=agents_dir)
+        build_controller("ppo_robust", env, "no_brake", agents_dir=agents_dir, trusted=True)
 
 
 class _ConstantPolicy:
@@ -242,8 +243,7 @@ def test_a_residual_base_with_options_is_that_feedforward_in_training_and_in_the
     assert np.isfinite(summary["best_eval_return"])
     saved = yaml.safe_load((tmp_path / "ppo_robust" / "config.yaml").read_text())
     assert saved["residual"]["base_options"] == {"variable_step": True}
-    with pytest.warns(UntrustedPolicyWarning):
-        policy = load_policy(tmp_path / "ppo_robust" / "policy.zip")
+    policy = load_policy(tmp_path / "ppo_robust" / "policy.zip", trusted=True)  # made by this test
     assert policy.describe()["residual_on"]["variable_step"] is True
     env = gym.make("DrillString-v1", warmup_time=10.0, warmup_jitter=0.0)
     spec = ControllerSpec.from_env(env)
@@ -318,8 +318,9 @@ def test_a_residual_policy_that_observes_its_base_sees_what_the_training_rigs_sh
     assert observation_version("ppo_robust", "brake", agents_dir) == 1
     settings = EpisodeSettings(duration=3.0, window=1.0, warmup_time=5.0, warmup_jitter=0.0)
     env = make_env("brake", settings, 1)
-    with pytest.warns(UntrustedPolicyWarning):
-        policy = build_controller("ppo_robust", env, "brake", agents_dir=agents_dir)
+    with pytest.raises(UntrustedPolicyError, match="trusted=True"):
+        build_controller("ppo_robust", env, "brake", agents_dir=agents_dir)
+    policy = build_controller("ppo_robust", env, "brake", agents_dir=agents_dir, trusted=True)
     assert isinstance(policy, ResidualPolicy) and policy.observe_base
     n_obs = env.observation_space.shape[0]
     assert policy.policy.observation_space.shape == (n_obs + 2,)

@@ -189,6 +189,38 @@ def _yaml_options(d: Path, path: str) -> dict[str, list[str]]:
             str(d / "t"),
         ],
         "tune --params": ["tune", "--params", path, "--out", str(d / "gains.yaml")],
+        "benchmark --design-params": [
+            "benchmark",
+            "--design-params",
+            path,
+            "--preset",
+            "brake",
+            "--out",
+            str(d / "bench"),
+            "--quick",
+        ],
+        "synth --plant": ["synth", "--plant", path, "--out", str(d / "s"), "--answer", str(d / "a.json")],
+        "synth --params": [
+            "synth",
+            "--effect",
+            "none",
+            "--params",
+            path,
+            "--out",
+            str(d / "s"),
+            "--answer",
+            str(d / "a.json"),
+        ],
+        # the dataset is read after the nominal model: a missing one is never reached
+        "discrepancy --params": [
+            "discrepancy",
+            str(d / "no-data"),
+            "--params",
+            path,
+            "--out",
+            str(d / "disc"),
+        ],
+        "sim-to-real --truth": ["sim-to-real", "--truth", path, "--out", str(d / "s2r"), "--quick"],
     }
 
 
@@ -206,6 +238,19 @@ BAD_FILES = {
     ),
     "huge-int": ("motor_constant: 1" + "0" * 5000 + "\n", ["motor_constant", "too large"]),
     "overflow": ("motor_constant: 1e999\n", ["motor_constant", "overflows"]),
+    "nul": ("name: x\nmotor_constant: 3.5\x00\n", ["line 2, column 20", "U+0000 (NUL)"]),
+    "bel": ("name: x\x07\n", ["line 1, column 8", "U+0007 (BEL)"]),
+    "esc": ("name: x\nlower_static: 1\ndescription: \x1b[31mred\n", ["line 3, column 14", "U+001B (ESC)"]),
+    "cr-only": ("name: x\rmotor_constant: 3.5\r", ["line 1, column 8", "CR not followed by LF"]),
+    "python-tag": ("name: !!python/object/apply:os.system ['true']\n", ["not valid YAML", "line 1"]),
+    "laughs": (
+        "a: &a [x, x, x, x, x, x, x, x, x, x]\n"
+        + "".join(
+            f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n" for p, c in zip("abcdefgh", "bcdefghi", strict=True)
+        )
+        + "name: *i\n",
+        ["more than", "expanded size"],
+    ),
 }
 
 
@@ -225,7 +270,7 @@ def test_every_yaml_option_refuses_a_bad_file_in_one_line(tmp_path, option, kind
     text, words = BAD_FILES[kind]
     _bench_file(tmp_path)
     path = tmp_path / f"{kind}.yaml"
-    path.write_text(text)
+    path.write_bytes(text.encode())  # as given: no newline translation
     line = _one_error_line(runner.invoke(app, _yaml_options(tmp_path, str(path))[option]))
     assert f"{kind}.yaml" in line
     for w in words:

@@ -30,6 +30,10 @@ def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
         _fail(f"{name} must be a comma-separated list of numbers, got {text!r}")
 
 
+# what `drill-env benchmark` writes (a folder of these from before folders had markers is its own)
+BENCHMARK_FILES = ("benchmark.csv", "benchmark_config.json", "summary.md", "*.png")
+
+
 def resumed_count(out: Path) -> int:
     """Complete rows of the benchmark CSV in ``out`` (what an interrupted run keeps)."""
     try:
@@ -50,6 +54,15 @@ def register(app: typer.Typer) -> None:
         controllers: str | None = typer.Option(
             None,
             help=f"Comma-separated subset of: {', '.join(KNOWN_CONTROLLERS)} (default: all).",
+        ),
+        controller: list[str] | None = typer.Option(
+            None,
+            "--controller",
+            help="A controller of your own, scored beside the shipped ones (--controllers): "
+            "package.module:Name, path/to/file.py:Name or path/to/policy.zip, optionally LABEL=SPEC "
+            "(the name of its rows); repeatable. Name is a class or factory whose result has "
+            "predict(obs, state, episode_start, deterministic), see docs/howto/own_controller.md; a "
+            "policy zip from outside results/agents/ needs --trust-policies.",
         ),
         voltages: str | None = typer.Option(
             None,
@@ -167,6 +180,13 @@ def register(app: typer.Typer) -> None:
 
         if backend not in BACKENDS:
             _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
+        if ray_address and backend == "ray":  # an address nothing answers at: said within seconds
+            from drill_env.ray_cluster import check_ray_address
+
+            try:
+                check_ray_address(ray_address)
+            except ValueError as exc:
+                _fail(f"--{str(exc).replace('_', '-', 1)}")
         presets = RIG_PRESETS if "all" in names else tuple(dict.fromkeys(names))
         ctrls = CONTROLLERS
         if controllers is not None:
@@ -191,6 +211,14 @@ def register(app: typer.Typer) -> None:
             ):
                 allowed = f"[0, {MAX_EPISODE_S:g}]" if low is None else f"(0, {MAX_EPISODE_S:g}]"
                 _fail(f"--{name.lstrip('-')}: {value!r} s; allowed: {allowed} s")
+        from drill_env.agents.evaluation.controller_spec import controller_label
+
+        custom: list[tuple[str, str]] = []
+        for item in controller or []:
+            try:
+                custom.append((controller_label(item), item))
+            except ValueError as exc:
+                _fail(str(exc))
         seed_list = tuple(range(seeds)) if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
         vs = _floats(voltages, "--voltages")
         from drill_env.agents.evaluation.plants import FAMILY, NOMINAL, Plant, plants_in, standard_family
@@ -260,6 +288,8 @@ def register(app: typer.Typer) -> None:
                     gains_file=None if gains is None else str(gains),
                     plants=tuple(plant_list),
                     design_params=None if design_params is None else str(design_params),
+                    custom=tuple(custom),
+                    trust_policies=trust_policies,
                 )
             else:
                 cfg = BenchmarkConfig.preset_grid(
@@ -272,6 +302,8 @@ def register(app: typer.Typer) -> None:
                     gains_file=None if gains is None else str(gains),
                     plants=tuple(plant_list),
                     design_params=None if design_params is None else str(design_params),
+                    custom=tuple(custom),
+                    trust_policies=trust_policies,
                 )
         except ValueError as exc:
             _fail(str(exc))
@@ -286,15 +318,12 @@ def register(app: typer.Typer) -> None:
                 f"the grid has {n_runs:,} runs; allowed: at most {MAX_RUNS:,} (fewer seeds, voltages or controllers)"
             )
         # every file the runs will need, before the first run
-        from drill_env.agents.learning.rl import (
-            TRUST_ENV_VAR,
-            check_policy_zip,
-            trust_from_environment,
-            untrusted_policy_note,
-        )
+        from drill_env.agents.commands._trust import vouch_for_policies
+        from drill_env.agents.learning.policy_info import policy_training_record
+        from drill_env.agents.learning.rl import check_policy_zip
         from drill_env.agents.registry import LEARNED, load_gains, policy_path
 
-        untrusted: list[str] = []
+        policies: list[Path] = []
         try:
             if any(c not in LEARNED for c in cfg.controllers):
                 load_gains(cfg.gains_file)
@@ -303,25 +332,20 @@ def register(app: typer.Typer) -> None:
                     for p in cfg.presets:
                         path = policy_path(c, p, cfg.agents_dir)
                         check_policy_zip(path)
-                        if untrusted_policy_note(path) is not None:
-                            untrusted.append(str(path))
+                        policy_training_record(path)  # what it was trained on, or refused
+                        policies.append(path)
         except ValueError as exc:
             if "policy" not in str(exc):
                 _fail(f"--gains: {exc}")
             _fail(f"--agents-dir: {exc}" if agents_dir is not None else str(exc))
-        import sys
+        option = "--agents-dir" if agents_dir is not None else "agents folder"
+        if vouch_for_policies(policies, flag=trust_policies, option=option):
+            import dataclasses
 
-        if untrusted and not (trust_policies or trust_from_environment()) and not sys.stdin.isatty():
-            _fail(
-                f"--agents-dir: {untrusted[0]}"
-                + (f" (and {len(untrusted) - 1} more)" if len(untrusted) > 1 else "")
-                + " is not one of the committed policies in results/agents/; loading a policy unpickles "
-                "Python objects, which can run arbitrary code, and this run has no terminal to warn on: "
-                f"pass --trust-policies (or set {TRUST_ENV_VAR}=1) to load files you made or trust"
-            )
-        from drill_env.outputs import OutputFolderError, check_output_folder, output_lock
+            cfg = dataclasses.replace(cfg, trust_policies=True)
+        from drill_env.outputs import OutputFolderError, check_command_folder, command_folder
 
-        check_output_folder(out, "--out")
+        check_command_folder(out, "benchmark", "--out", own=BENCHMARK_FILES)
         if not fresh:
             from drill_env.agents.evaluation.benchmark import check_resumable
 
@@ -332,12 +356,27 @@ def register(app: typer.Typer) -> None:
 
         held = ExitStack()
         try:
-            held.enter_context(output_lock(out, "benchmark"))  # OUT is this run's alone, resume included
+            # OUT is this run's alone, resume included
+            held.enter_context(command_folder(out, "benchmark", "--out", own=BENCHMARK_FILES))
         except OutputFolderError as exc:
             _fail(str(exc))
         with held:
             n = len(cfg.jobs())
             console = Console(stderr=True)
+            if cfg.design_params is not None:
+                from drill_env.agents.evaluation.benchmark.grid import describe_regimes, design_regimes
+
+                try:
+                    console.print(
+                        f"design model {cfg.design_params}: {describe_regimes(design_regimes(cfg.design_model()))}"
+                        + ("" if vs is not None else "; the grid's voltages are chosen in them"),
+                        highlight=False,
+                        soft_wrap=True,
+                    )
+                except (ValueError, RuntimeError) as exc:
+                    console.print(
+                        f"design model {cfg.design_params}: regimes not found: {exc}", highlight=False
+                    )
             console.print(
                 f"benchmark: {len(cfg.controllers)} controllers x "
                 + " + ".join(f"{len(cfg.voltages[p])} voltages ({p})" for p in cfg.presets)
@@ -420,6 +459,7 @@ def register(app: typer.Typer) -> None:
                         agents_dir=cfg.agents_dir,
                         gains_file=cfg.gains_file,
                         design_params=cfg.design_model(),
+                        trusted=cfg.trust_policies,
                         progress=lambda path: typer.echo(f"wrote {path}", err=True),
                     )
                 except ValueError as exc:
@@ -427,8 +467,19 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"wrote {len(made)} time-series figures of {p} in {out}")
         import pandas as pd
 
+        from drill_env.agents.evaluation.benchmark.runs import NOT_MADE
+
         rows = pd.read_csv(csv_path, keep_default_na=False)
-        failed = rows[rows["error"].astype(str) != ""]
+        errors = rows["error"].astype(str)
+        not_made = rows[errors.str.startswith(NOT_MADE)]
+        for (p, v), group in not_made.groupby(["preset", "voltage"], sort=True):
+            typer.secho(
+                f"not made: {len(group)} run(s) at {float(v):g} V ({p}): "
+                f"{group.iloc[0]['error'][len(NOT_MADE) :]}",
+                fg=typer.colors.YELLOW,
+                err=True,
+            )
+        failed = rows[(errors != "") & ~errors.str.startswith(NOT_MADE)]
         if len(failed):
             first = failed.iloc[0]
             typer.secho(

@@ -58,7 +58,7 @@ def register(app: typer.Typer) -> None:
         date is not touched.
         """
         from drill_env.agents.learning.cards import policy_folders
-        from drill_env.agents.learning.rl import untrusted_policy_note, upgrade_policy_file
+        from drill_env.agents.learning.rl import check_policy_zip, untrusted_policy_note, upgrade_policy_file
 
         if not agents_dir.is_dir():
             _fail(f"AGENTS_DIR: {agents_dir} is not a folder")
@@ -67,6 +67,11 @@ def register(app: typer.Typer) -> None:
             _fail(
                 f"AGENTS_DIR: no policy folder (policy.zip, config.yaml, training_summary.json) under {agents_dir}"
             )
+        for folder in folders:  # a zip bomb is refused even when trusted, before any rewrite
+            try:
+                check_policy_zip(folder / "policy.zip")
+            except ValueError as exc:
+                _fail(str(exc))
         if not trusted:
             for folder in folders:
                 note = untrusted_policy_note(folder / "policy.zip")
@@ -74,7 +79,7 @@ def register(app: typer.Typer) -> None:
                     _fail(f"{note} (pass --trusted to rewrite it)")
         for folder in folders:
             try:
-                changed = upgrade_policy_file(folder / "policy.zip")
+                changed = upgrade_policy_file(folder / "policy.zip", trusted=trusted)
             except ValueError as exc:
                 _fail(str(exc))
             what = f"rewrote {', '.join(changed)}" if changed else "up to date"

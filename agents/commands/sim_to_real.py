@@ -40,6 +40,14 @@ def sim_to_real(
     quick: bool = typer.Option(
         False, "--quick", help="A smoke run: short recordings and episodes, one seed, a coarse tuning."
     ),
+    trust_policies: bool = typer.Option(
+        False,
+        "--trust-policies",
+        help="Load the learned controllers' policy files from outside results/agents/ (a "
+        "$DRILL_ENV_AGENTS_DIR folder; loading one can run code it holds) in a run without a "
+        "terminal, which otherwise refuses them; also DRILL_ENV_TRUST_POLICIES=1. On a terminal "
+        "you are asked.",
+    ),
 ) -> None:
     """Truth plant with a hidden effect -> synth data -> discrepancy -> model.yaml -> retune on it ->
     benchmark on the truth plant, before (nominal design) and after (design on the corrected model).
@@ -51,12 +59,13 @@ def sim_to_real(
     import dataclasses
 
     from drill_env.agents.evaluation.sim_to_real import (
+        SIM_TO_REAL_FILES,
         SimToRealConfig,
         parse_voltages,
         quick_config,
         run_sim_to_real,
     )
-    from drill_env.outputs import check_output_folder
+    from drill_env.outputs import check_command_folder, check_new_folder
 
     try:
         volts = parse_voltages(voltages) if voltages is not None else None
@@ -77,11 +86,11 @@ def sim_to_real(
     ctrl_list = None
     if controllers is not None:
         ctrl_list = tuple(c.strip() for c in controllers.split(",") if c.strip())
-    check_output_folder(out, "--out")
-    if data is not None:
-        check_output_folder(data, "--data")
-        if data.resolve() == out.resolve():
-            _fail(f"--data {data}: must not be the output folder --out")
+    if data is not None and (data.resolve() == out.resolve() or out.resolve() in data.resolve().parents):
+        _fail(f"--data {data}: must not be the output folder --out or lie inside it")
+    check_command_folder(out, "sim-to-real", "--out", own=SIM_TO_REAL_FILES)
+    if data is not None:  # a new dataset, never mixed with the runs of another one
+        check_new_folder(data, "--data", what="dataset")
     try:
         extra: dict = {"truth_file": None if truth is None else str(truth)}
         if ctrl_list is not None:
@@ -95,6 +104,15 @@ def sim_to_real(
     except ValueError as exc:
         msg = str(exc)  # the config's field names are the options' names
         _fail(f"--{msg}" if msg.startswith(("voltages:", "seeds:", "controllers:")) else msg)
+    from drill_env.agents.commands._trust import vouch_for_policies
+    from drill_env.agents.registry import LEARNED, policy_path
+
+    try:
+        policies = [policy_path(c, cfg.preset) for c in cfg.controllers if c in LEARNED]
+    except ValueError as exc:
+        _fail(str(exc))
+    if vouch_for_policies(policies, flag=trust_policies, option="agents folder"):
+        cfg = dataclasses.replace(cfg, trust_policies=True)
     res = run_sim_to_real(out, cfg, data_dir=data, progress=lambda line: typer.echo(line, err=True))
     typer.echo(f"wrote {len(res.files)} files to {out}; see {out / 'summary.md'}")
 

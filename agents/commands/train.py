@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 from contextlib import ExitStack
 from pathlib import Path
@@ -10,6 +11,19 @@ import typer
 
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.outputs import fresh_run_folder
+
+# what `drill-env train` writes into OUT and into its logs folder (a folder of these from
+# before folders had markers is its own)
+TRAIN_FILES = (
+    "policy.zip",
+    "config.yaml",
+    "training_summary.json",
+    "eval.csv",
+    "progress.csv",
+    "learning_curve.png",
+    "policy.md",
+)
+TRAIN_LOG_FILES = ("final_policy.zip", "progress.csv", "events.out.tfevents.*")
 
 
 def _fail(message: str) -> None:
@@ -94,6 +108,14 @@ def register(app: typer.Typer) -> None:
             "(effects included), e.g. a discrepancy result's model.yaml; sets env_kwargs.params.",
         ),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+        trust_policies: bool = typer.Option(
+            False,
+            "--trust-policies",
+            help="Load the warm start's teacher policy from outside results/agents/ (a "
+            "$DRILL_ENV_AGENTS_DIR folder; loading one can run code it holds) in a run without a "
+            "terminal, which otherwise refuses it; also DRILL_ENV_TRUST_POLICIES=1. On a "
+            "terminal you are asked.",
+        ),
     ) -> None:
         """Train ALGO on the config's environment; learning curve every evaluation.
 
@@ -113,6 +135,12 @@ def register(app: typer.Typer) -> None:
             _fail(f"--total-timesteps must be >= 1, got {total_timesteps!r}")
         if max_wall_time is not None and not (math.isfinite(max_wall_time) and max_wall_time > 0):
             _fail(f"--max-wall-time must be a positive number of seconds, got {max_wall_time!r}")
+        from drill_env.outputs import check_command_folder
+
+        if out is not None:  # before anything is loaded or written
+            check_command_folder(out, "train", "--out", own=TRAIN_FILES)
+        if run_dir is not None:
+            check_command_folder(run_dir, "train", "--run-dir", own=TRAIN_LOG_FILES)
         from drill_env.agents.learning.rl import load_config
         from drill_env.agents.learning.rl import train as run_training
 
@@ -137,10 +165,17 @@ def register(app: typer.Typer) -> None:
             cfg = dataclasses.replace(cfg, env_kwargs={**cfg.env_kwargs, "params": str(params.resolve())})
         teacher = None
         if cfg.warm_start is not None and cfg.warm_start.policy is not None:
-            from drill_env.agents.registry import teacher_policy
+            from drill_env.agents.commands._trust import vouch_for_policies
+            from drill_env.agents.registry import policy_path, teacher_policy
+            from drill_env.envs import ENV_IDS
 
+            try:
+                path = policy_path(cfg.warm_start.policy, ENV_IDS[cfg.env_id])
+            except ValueError as exc:
+                _fail(str(exc))
+            trusted = vouch_for_policies([path], flag=trust_policies, option="warm_start.policy")
             try:  # a missing or mismatched teacher is bad input, found before any training
-                teacher = teacher_policy(cfg.warm_start.policy, cfg.env_id, cfg.env_kwargs)
+                teacher = teacher_policy(cfg.warm_start.policy, cfg.env_id, cfg.env_kwargs, trusted=trusted)
             except ValueError as exc:
                 _fail(str(exc))
         from drill_env.envs import ENV_IDS, ENV_VERSIONS
@@ -164,12 +199,18 @@ def register(app: typer.Typer) -> None:
         def on_eval(step: int, ret: float) -> None:
             typer.echo(f"  eval at {step:>9d} steps: mean return {ret:9.2f}", err=True)
 
-        from drill_env.outputs import OutputFolderError, output_lock
+        from drill_env.outputs import OutputFolderError, command_folder
 
         held = ExitStack()
         try:
-            held.enter_context(output_lock(out, "train"))  # OUT is this training's alone until it ends
+            # OUT and its logs are this training's alone until it ends
+            held.enter_context(command_folder(out, "train", "--out", own=TRAIN_FILES))
+            held.enter_context(command_folder(run_dir, "train", "--run-dir", own=TRAIN_LOG_FILES))
         except OutputFolderError as exc:
+            held.close()
+            if agents_dir is not None:
+                with contextlib.suppress(OSError):
+                    agents_dir.rmdir()
             _fail(str(exc))
         with held:
             summary = run_training(

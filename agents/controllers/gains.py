@@ -15,12 +15,15 @@ from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.agents.controllers.base import Controller, ControllerSpec
 from drill_env.params import load_yaml
 
-__all__ = ["BUILT_ON", "classical_controller", "gains_path", "load_gains"]
+__all__ = ["BUILT_ON", "DESIGNED", "classical_controller", "gains_path", "load_gains"]
 
 # Controllers built on another's tuned gains: the LQI with angle-locked adaptive feedforward
 # is the tuned LQI plus an adaptation designed per operating point on the nominal model
 # (drill_env.agents.controllers.angle_feedforward), with nothing tuned of its own.
 BUILT_ON = {"lqi_angle_ff": "lqi"}
+# Controllers designed in closed form on the design model by their published rules: no gains
+# file entry (drill_env.agents.controllers.soft_torque, drill_env.agents.controllers.z_torque).
+DESIGNED = ("soft_torque", "z_torque")
 
 
 def gains_path() -> Path:
@@ -71,7 +74,17 @@ def classical_controller(
 
     if kind == "open_loop":
         return OpenLoop(spec)
-    known = ["open_loop", *TUNED_GAINS, *BUILT_ON]
+    if kind in DESIGNED:
+        if options:
+            raise ValueError(f"options: {kind!r} takes none, got {dict(options)!r}")
+        if kind == "soft_torque":
+            from drill_env.agents.controllers.soft_torque import SoftTorque
+
+            return SoftTorque.design(spec)
+        from drill_env.agents.controllers.z_torque import ZTorque
+
+        return ZTorque.design(spec)
+    known = ["open_loop", *DESIGNED, *TUNED_GAINS, *BUILT_ON]
     if kind not in known:
         raise ValueError(f"controller: {kind!r} is not one of {known}")
     data = load_gains(gains_file)

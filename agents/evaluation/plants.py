@@ -145,9 +145,9 @@ class Plant:
             data["actuator_delay"] = n / rate
         if sensors:
             data["sensors"] = sensors
-        out = Path(path)
-        out.write_text(yaml.safe_dump(data, sort_keys=False))
-        return out
+        from drill_env.outputs import atomic_write_text
+
+        return atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
 
     @property
     def is_nominal(self) -> bool:

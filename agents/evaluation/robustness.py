@@ -26,6 +26,7 @@ from typing import Any
 
 from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.registry import CONTROLLERS, controller_style
+from drill_env.outputs import save_figure
 
 __all__ = [
     "COLORS",
@@ -293,10 +294,7 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     """``robustness_<preset>.png``: per regime (rows) and metric (columns), each controller's
     per-plant means (dots), their mean (bar), the nominal plant (diamond) and the worst run
     (cross, labelled with its plant)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from drill_env._figures import subplots
 
     rows = robustness_rows(df, preset)
     regimes = [g for g in REGIMES if any(r["regime"] == g for r in rows)]
@@ -305,7 +303,7 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     from drill_env.analysis.plots import Label, place_labels
 
     pending: dict[int, tuple[Any, list]] = {}
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         len(regimes),
         len(METRICS),
         figsize=(15, 1.2 + 0.42 * len(ctrls) * len(regimes) + 0.6 * len(regimes)),
@@ -410,6 +408,5 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     for ax, labels in pending.values():  # once the layout is final: clear of every marker
         place_labels(ax, labels)
     path = Path(out) / f"robustness_{preset}.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path

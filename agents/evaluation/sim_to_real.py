@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.agents.evaluation.episodes import METRIC_COLUMNS, EpisodeSettings
+from drill_env.outputs import save_figure
 
 __all__ = [
     "CONTROLLERS",
@@ -109,6 +110,9 @@ class SimToRealConfig:
     design_points: int = 12  # of drill_env.agents.controllers.tuning's design set (its default)
     tuning_grid: int = 7  # values per gain in drill_env.agents.controllers.tuning's grid search (its default)
     truth_file: str | None = None  # a plant file to take as the truth (effect, magnitude, errors unused)
+    # the user vouched for learned controllers' policies from outside results/agents/ (from
+    # $DRILL_ENV_AGENTS_DIR): they load (their files are code); not part of the result
+    trust_policies: bool = False
 
     def __post_init__(self) -> None:
         from drill_env.envs.task import VOLTAGE_LIMIT
@@ -274,6 +278,19 @@ def _open_loop_run(env, preset: str, voltage: float, seed: int, episode: Episode
     return m
 
 
+# what ``run_sim_to_real`` writes (a folder of these from before folders had markers is its own)
+SIM_TO_REAL_FILES = (
+    "summary.md",
+    "results.csv",
+    "config.json",
+    "gains_corrected.yaml",
+    "truth.yaml",
+    "truth_answer.json",
+    "suppression.png",
+    "timeseries_*V.png",
+)
+
+
 def run_sim_to_real(
     out: str | Path,
     config: SimToRealConfig | None = None,
@@ -286,12 +303,18 @@ def run_sim_to_real(
     ``data_dir`` keeps the synthetic dataset there (default: a temporary folder, removed at
     the end; the dataset is tens of MB). ``progress`` receives one line per stage.
     """
-    from drill_env.outputs import output_lock
+    from drill_env.outputs import check_command_folder, check_new_folder, command_folder
 
     cfg = config or SimToRealConfig()
     say = progress or (lambda line: None)
     out = Path(out)
-    with output_lock(out, "sim-to-real"), tempfile.TemporaryDirectory(prefix="sim_to_real_") as tmp:
+    check_command_folder(out, "sim-to-real", "out", own=SIM_TO_REAL_FILES)
+    if data_dir is not None:  # a new dataset, never mixed with the runs of another one
+        check_new_folder(data_dir, "data_dir", what="dataset")
+    with (
+        command_folder(out, "sim-to-real", "out", own=SIM_TO_REAL_FILES),
+        tempfile.TemporaryDirectory(prefix="sim_to_real_") as tmp,
+    ):
         data = Path(data_dir) if data_dir is not None else Path(tmp) / "data"
         return _run(out, cfg, data, say)
 
@@ -425,7 +448,9 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
             design_env = make_env(preset, cfg.episode, version, design_params=design_model[d])
             try:
                 for c in cfg.controllers:
-                    ctrls[(d, c)] = build_controller(c, design_env, preset, gains_file=g)
+                    ctrls[(d, c)] = build_controller(
+                        c, design_env, preset, gains_file=g, trusted=cfg.trust_policies
+                    )
             finally:
                 design_env.close()
         n_total = len(cfg.voltages) * len(cfg.seeds)
@@ -523,15 +548,13 @@ COINCIDE = 0.02  # [rad/s] before and after closer than this everywhere are said
 
 
 def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConfig, out: Path) -> Path:
-    import matplotlib
+    from matplotlib.lines import Line2D
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from drill_env._figures import subplots
     from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         len(ctrls), 1, figsize=(9, 2.3 * len(ctrls) + 1.4), sharex=True, sharey=True, squeeze=False
     )
     ol = traces[("-", "open_loop")]
@@ -564,11 +587,11 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time since the controller was switched on [s]")
     handles = [
-        plt.Line2D([], [], color="0.7", lw=0.8, label="open loop"),
-        plt.Line2D([], [], ls="--", color="k", lw=2.0, alpha=0.55, label=LABEL["nominal"]),
-        plt.Line2D([], [], color="C0", lw=1.0, label=LABEL["corrected"] + " (controller's colour)"),
-        plt.Line2D([], [], color="0.3", ls=(0, (4, 2)), lw=0.6, label="target speed, nominal model"),
-        plt.Line2D([], [], color="0.3", ls="-", lw=0.6, label="target speed, corrected model"),
+        Line2D([], [], color="0.7", lw=0.8, label="open loop"),
+        Line2D([], [], ls="--", color="k", lw=2.0, alpha=0.55, label=LABEL["nominal"]),
+        Line2D([], [], color="C0", lw=1.0, label=LABEL["corrected"] + " (controller's colour)"),
+        Line2D([], [], color="0.3", ls=(0, (4, 2)), lw=0.6, label="target speed, nominal model"),
+        Line2D([], [], color="0.3", ls="-", lw=0.6, label="target speed, corrected model"),
     ]
     fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
     what = (
@@ -579,21 +602,18 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
     fig.suptitle(f"Truth plant ({what}) at {cfg.timeseries_voltage:g} V, seed {cfg.seeds[0]}", fontsize=10)
     fig.tight_layout(rect=(0, 0.7 / fig.get_figheight(), 1, 1))
     path = out / f"timeseries_{cfg.timeseries_voltage:g}V.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path
 
 
 def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
-    import matplotlib
+    from matplotlib.lines import Line2D
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from drill_env._figures import subplots
     from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         2, len(ctrls), figsize=(3.3 * len(ctrls), 6.4), sharex=True, sharey="row", squeeze=False
     )
     for j, c in enumerate(ctrls):
@@ -626,10 +646,8 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
                 ax.set_ylabel(label)
             ax.grid(alpha=0.3)
     handles = [
-        plt.Line2D([], [], ls="--", marker="o", mfc="none", color="k", label=LABEL["nominal"]),
-        plt.Line2D(
-            [], [], ls="-", marker="s", color="C0", label=LABEL["corrected"] + " (controller's colour)"
-        ),
+        Line2D([], [], ls="--", marker="o", mfc="none", color="k", label=LABEL["nominal"]),
+        Line2D([], [], ls="-", marker="s", color="C0", label=LABEL["corrected"] + " (controller's colour)"),
     ]
     fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
     n = len(cfg.seeds)
@@ -640,8 +658,7 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
     )
     fig.tight_layout(rect=(0, 0.45 / fig.get_figheight(), 1, 1))
     path = out / "suppression.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path
 
 

@@ -23,6 +23,7 @@ import numpy as np
 from drill_env.agents.evaluation.episodes import EpisodeSettings, make_env, run_episode
 from drill_env.agents.evaluation.plants import Plant
 from drill_env.agents.registry import CLASSICAL, LEARNED, controller_style
+from drill_env.outputs import save_figure
 
 __all__ = ["GROUPS", "run_trace", "timeseries_figures"]
 
@@ -40,6 +41,7 @@ def run_trace(
     agents_dir: str | None = None,
     gains_file: str | None = None,
     design_params: Any = None,
+    trusted: bool = False,
 ):
     """One closed-loop episode of ``controller`` (built on the design model ``design_params``,
     default the preset's) on ``plant``, with the 1 kHz true lower-disk samples of the whole
@@ -57,7 +59,9 @@ def run_trace(
         design_params=design_params,
     )
     try:
-        ctrl = build_controller(controller, design, preset, agents_dir=agents_dir, gains_file=gains_file)
+        ctrl = build_controller(
+            controller, design, preset, agents_dir=agents_dir, gains_file=gains_file, trusted=trusted
+        )
         n = episode.n_steps(env.unwrapped.control_dt)
         return run_episode(
             env, ctrl, seed=seed, n_steps=n, options={"nominal_voltage": float(voltage)}, window_steps=n
@@ -95,15 +99,12 @@ def timeseries_figures(
     gains_file: str | None = None,
     design_params: Any = None,
     progress: Any = None,
+    trusted: bool = False,
 ) -> list[Path]:
     """``timeseries_<preset>_<plant>_<group>.png`` for each plant and controller group (see the
     module docstring). A controller that cannot be built (e.g. no trained policy) is left out
     of its figure; the error is raised only if no figure could be made. ``progress`` receives
     each written path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
     from drill_env.analysis.plots import AMPLIFIER_LIMIT_V
@@ -112,7 +113,12 @@ def timeseries_figures(
     out = Path(out)
     paths: list[Path] = []
     errors: list[str] = []
-    kw = {"agents_dir": agents_dir, "gains_file": gains_file, "design_params": design_params}
+    kw = {
+        "agents_dir": agents_dir,
+        "gains_file": gains_file,
+        "design_params": design_params,
+        "trusted": trusted,
+    }
     for q in plants:
         open_loop = run_trace("open_loop", preset, voltage, seed, episode, q, **kw)
         for group, members in GROUPS.items():
@@ -127,9 +133,7 @@ def timeseries_figures(
             if not traces:  # the open loop alone
                 traces["open_loop"] = open_loop
             paths.append(
-                _figure(
-                    plt, Patch, AMPLIFIER_LIMIT_V, traces, open_loop, q, group, preset, voltage, seed, out
-                )
+                _figure(Patch, AMPLIFIER_LIMIT_V, traces, open_loop, q, group, preset, voltage, seed, out)
             )
             if progress is not None:
                 progress(paths[-1])
@@ -138,11 +142,13 @@ def timeseries_figures(
     return paths
 
 
-def _figure(
-    plt, Patch, u_limit, traces, open_loop, q: Plant, group, preset, voltage, seed, out: Path
-) -> Path:
+def _figure(Patch, u_limit, traces, open_loop, q: Plant, group, preset, voltage, seed, out: Path) -> Path:
+    from matplotlib.lines import Line2D
+
+    from drill_env._figures import subplots
+
     n = len(traces)
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         n,
         2,
         figsize=(12, 1.9 * n + 1.6),
@@ -177,12 +183,10 @@ def _figure(
     lo = min(-0.2, min(float(np.min(tr.voltage)) for tr in traces.values()) - 0.3)
     axes[0][1].set_ylim(lo, u_limit + 0.4)
     handles = [
-        plt.Line2D(
-            [], [], color="0.4", lw=1.0, label="controller: lower-disk speed / voltage (colour per row)"
-        ),
-        plt.Line2D([], [], color="0.72", lw=0.8, label="open loop on the same plant and seed"),
-        plt.Line2D([], [], color="black", lw=0.7, ls=":", label="target speed w* (design model)"),
-        plt.Line2D([], [], color="tab:red", lw=0.6, ls="--", label=f"amplifier limit {u_limit:g} V"),
+        Line2D([], [], color="0.4", lw=1.0, label="controller: lower-disk speed / voltage (colour per row)"),
+        Line2D([], [], color="0.72", lw=0.8, label="open loop on the same plant and seed"),
+        Line2D([], [], color="black", lw=0.7, ls=":", label="target speed w* (design model)"),
+        Line2D([], [], color="tab:red", lw=0.6, ls="--", label=f"amplifier limit {u_limit:g} V"),
     ]
     if stuck_any:
         handles.append(Patch(color="tab:red", alpha=0.15, label="lower disk stuck"))
@@ -196,6 +200,5 @@ def _figure(
     )
     fig.tight_layout(rect=(0, 0.75 / fig.get_figheight(), 1, 1))
     p = out / f"timeseries_{preset}_{q.name}_{group}.png"
-    fig.savefig(p, dpi=100)
-    plt.close(fig)
+    save_figure(fig, p, dpi=100)
     return p

@@ -29,6 +29,7 @@ from typing import Any
 import yaml
 
 from drill_env.agents._locations import PACKAGE_DIR, ROOT, shown_path
+from drill_env.yamlio import load_yaml
 
 __all__ = [
     "PolicyDescription",
@@ -180,7 +181,7 @@ def describe_policy(folder: str | Path, config_path: str | Path | None = None) -
     for path in (config_file, summary_file):
         if not path.is_file():
             raise ValueError(f"policy folder: {folder} has no {path.name} (written by drill-env train)")
-    config = yaml.safe_load(config_file.read_text()) or {}
+    config = load_yaml(config_file, what="policy config (written by drill-env train)") or {}
     summary = json.loads(summary_file.read_text())
     if not isinstance(config, Mapping) or "algo" not in config or "env_id" not in config:
         raise ValueError(f"policy folder: {config_file} is not a training config (no algo or env_id)")

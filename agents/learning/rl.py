@@ -51,8 +51,9 @@ improved the return by less than ``tolerance`` (5 %) of the level it reached (an
 Policy files are code: a stable-baselines3 ``.zip`` stores some of its objects (the spaces,
 the policy class and its arguments, the schedules) as pickles, and unpickling can run
 arbitrary code. :func:`load_policy` loads the policies committed under ``results/agents/``
-(and their copy installed with the package) silently and warns (:class:`UntrustedPolicyWarning`) for any other file unless told
-``trusted=True``. :func:`policy_observation_version` reads only the zip's JSON and unpickles
+(and their copy installed with the package) and refuses any other file
+(:class:`UntrustedPolicyError`) unless told ``trusted=True`` (or the environment sets
+:data:`TRUST_ENV_VAR`, as a command does once its user has vouched for the files). :func:`policy_observation_version` reads only the zip's JSON and unpickles
 nothing.
 """
 
@@ -68,9 +69,8 @@ import pickle
 import pickletools
 import platform
 import time
-import warnings
 import zipfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -80,8 +80,9 @@ import yaml
 
 from drill_env.agents._locations import PACKAGE_DIR, ROOT
 from drill_env.agents.learning._config import config_section
-from drill_env.envs import ENV_IDS, make_version
+from drill_env.envs import ENV_IDS, ENV_VERSIONS, make_version
 from drill_env.envs.task import REGIMES
+from drill_env.outputs import atomic_path, atomic_write_json, atomic_write_text, save_figure
 from drill_env.params import load_yaml
 
 __all__ = [
@@ -97,10 +98,12 @@ __all__ = [
     "COMMITTED_POLICY_DIR",
     "PACKAGED_POLICY_DIR",
     "UntrustedPolicyWarning",
+    "UntrustedPolicyError",
     "MAX_POLICY_INFLATED_BYTES",
     "TRUST_ENV_VAR",
     "check_policy_zip",
     "trust_from_environment",
+    "refuse_untrusted",
     "untrusted_policy_note",
     "policy_observation_version",
     "plateau",
@@ -144,6 +147,20 @@ class EvalConfig:
     every_steps: int = 50_000
     episodes_per_regime: int = 4
     seed: int = 10_000
+    # at every evaluation also the learned controllers' target check
+    # (drill_env.agents.evaluation.target_check); the kept policy is then the best by its margin
+    target_check: bool = False
+    stop_at_target: bool = False  # end the training at the first evaluation meeting the target
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "every_steps": self.every_steps,
+            "episodes_per_regime": self.episodes_per_regime,
+        }
+        out["seed"] = self.seed
+        if self.target_check or self.stop_at_target:  # absent from the configs that predate them
+            out.update(target_check=self.target_check, stop_at_target=self.stop_at_target)
+        return out
 
 
 @dataclass(frozen=True)
@@ -203,6 +220,11 @@ class TrainConfig:
                 raise ValueError(f"evaluation.{name}: expected an integer >= 1, got {v!r}")
         if isinstance(e.seed, bool) or not isinstance(e.seed, int) or e.seed < 0:
             raise ValueError(f"evaluation.seed: expected an integer >= 0, got {e.seed!r}")
+        for name in ("target_check", "stop_at_target"):
+            if not isinstance(getattr(e, name), bool):
+                raise ValueError(f"evaluation.{name}: expected true or false, got {getattr(e, name)!r}")
+        if e.stop_at_target and not e.target_check:
+            raise ValueError("evaluation.stop_at_target: needs evaluation.target_check: true")
         c = self.convergence
         if isinstance(c, Mapping):
             c = config_section(ConvergenceConfig, c, "convergence")
@@ -278,7 +300,7 @@ class TrainConfig:
             "normalize_reward": self.normalize_reward,
             "torch_threads": self.torch_threads,
             "hyperparameters": copy.deepcopy(dict(self.hyperparameters)),
-            "evaluation": vars(self.evaluation).copy(),
+            "evaluation": self.evaluation.to_dict(),
             "convergence": vars(self.convergence).copy(),
             **({"residual": self.residual.to_dict()} if self.residual is not None else {}),
             **({"warm_start": self.warm_start.to_dict()} if self.warm_start is not None else {}),
@@ -460,6 +482,22 @@ class UntrustedPolicyWarning(UserWarning):
     """A policy file from outside ``results/agents/`` is loaded: loading it may run code."""
 
 
+class UntrustedPolicyError(ValueError):
+    """A policy file from outside ``results/agents/`` was to be loaded without being trusted
+    (nothing in it was unpickled)."""
+
+
+def refuse_untrusted(path: str | Path, trusted: bool = False) -> None:
+    """Raise :class:`UntrustedPolicyError` for a policy file from outside ``results/agents/``
+    unless ``trusted`` or :data:`TRUST_ENV_VAR` is set (nothing is read from the file)."""
+    note = untrusted_policy_note(path)
+    if note is not None and not (trusted or trust_from_environment()):
+        raise UntrustedPolicyError(
+            f"{note}; pass trusted=True for a file you made or trust (on the command line: "
+            f"--trust-policies, or set {TRUST_ENV_VAR}=1)"
+        )
+
+
 def untrusted_policy_note(path: str | Path) -> str | None:
     """Why loading ``path`` needs trust, or None for a policy committed under
     ``results/agents/`` (symbolic links resolved: a link out of it is not committed)."""
@@ -607,30 +645,42 @@ def is_correction_file(path: str | Path) -> bool:
     return stored_policy_class(path) in names
 
 
-def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
-    """Rewrite the stored objects of a policy saved by :func:`train` in their present form,
-    the weights and every other entry of the zip byte for byte as they were: the objects
-    pickled under a former module path (:func:`renamed_objects`) as their present selves, and
-    for a residual policy (``config.yaml`` beside it with ``residual``) the policy class as the
-    one that refuses to load without its base
-    (:func:`drill_env.agents.learning.residual.correction_policy_class`). Returns the entries
-    rewritten (empty: the file was up to date and is untouched). Unpickles the file's former
-    objects: for trusted files only, as :func:`load_policy`."""
+def upgrade_policy_file(path: str | Path, algo: str | None = None, *, trusted: bool = False) -> list[str]:
+    """Bring a policy saved by :func:`train` to the present format, the weights and every
+    other entry of the zip byte for byte as they were: the record of what it was trained on
+    added where it carries none (:mod:`drill_env.agents.learning.policy_info`, made from the
+    ``config.yaml`` beside it; neither is an error naming what is missing), the objects
+    pickled under a former module path (:func:`renamed_objects`) stored as their present
+    selves, and for a residual policy the policy class as the one that refuses to load
+    without its base (:func:`drill_env.agents.learning.residual.correction_policy_class`).
+    Returns the entries rewritten or added (empty: the file was up to date and is untouched).
+    Unpickles the file's former objects: a file from outside ``results/agents/`` needs
+    ``trusted=True``, as in :func:`load_policy`; a zip that inflates beyond
+    :data:`MAX_POLICY_INFLATED_BYTES` is refused even then."""
     from stable_baselines3.common.save_util import data_to_json
 
+    from drill_env.agents.learning.policy_info import (
+        POLICY_INFO_MEMBER,
+        policy_training_record,
+        read_policy_info,
+        rewrite_policy_zip,
+    )
     from drill_env.agents.learning.residual import correction_policy_class
 
     path = Path(path)
+    check_policy_zip(path)
+    refuse_untrusted(path, trusted)
     data = _read_data(path)
     if data is None:
         raise ValueError(f"policy: {path} is not a stable-baselines3 model")
+    record, source = policy_training_record(path)
     if algo is None:
-        summary = path.parent / "training_summary.json"
-        algo = json.loads(summary.read_text()).get("algo") if summary.is_file() else None
+        algo = record.get("algo")
     if algo not in ALGOS:
         raise ValueError(f"algo: unknown for {path}; pass one of {list(ALGOS)}")
-    config = path.parent / "config.yaml"
-    residual = (yaml.safe_load(config.read_text()) or {}).get("residual") if config.is_file() else None
+    if source != "zip":
+        record = {**record, "algo": algo}
+    residual = record["training_config"].get("residual")
     present: dict[str, Any] = dict(renamed_objects(path))
     if residual is not None and not is_correction_file(path):
         sb3_class = correction_policy_class(algo, stable_baselines3=True)
@@ -640,55 +690,59 @@ def upgrade_policy_file(path: str | Path, algo: str | None = None) -> list[str]:
                 f"stable-baselines3's {sb3_class.__qualname__}; not rewritten"
             )
         present["policy_class"] = correction_policy_class(algo)
-    if not present:
+    add_record = read_policy_info(path) is None
+    if not present and not add_record:
         return []
-    rewritten = json.loads(data_to_json(present))
-    new = {key: rewritten.get(key, value) for key, value in data.items()}
-    with zipfile.ZipFile(path) as zf:
-        items = [(info, zf.read(info.filename)) for info in zf.infolist()]
-    tmp = path.with_suffix(".zip.tmp")
-    with zipfile.ZipFile(tmp, "w") as zf:
-        for info, content in items:
-            if info.filename == "data":
-                content = json.dumps(new, indent=4).encode()  # as stable-baselines3 writes it
-            zf.writestr(info, content)
-    tmp.replace(path)
-    return sorted(present)
+    replace = {}
+    if present:
+        rewritten = json.loads(data_to_json(present))
+        new = {key: rewritten.get(key, value) for key, value in data.items()}
+        replace["data"] = json.dumps(new, indent=4).encode()  # as stable-baselines3 writes it
+    rewrite_policy_zip(path, replace=replace, info=record if add_record else None)
+    return sorted(present) + ([POLICY_INFO_MEMBER] if add_record else [])
 
 
 def load_policy(
     path: str | Path, algo: str | None = None, name: str | None = None, *, trusted: bool = False
 ) -> SB3Policy:
-    """Load a policy saved by :func:`train` (``policy.zip``); the algorithm is read from the
-    ``training_summary.json`` beside it unless given.
+    """Load a policy saved by :func:`train` (``policy.zip``). What it was trained on (the
+    algorithm, the environment, a residual policy's base) is read from the record inside the
+    zip (:mod:`drill_env.agents.learning.policy_info`), or for a file saved before policies
+    carried one from the ``config.yaml`` beside it; a file with neither is refused, naming
+    what is missing. ``algo``, if given, must be the one the file says.
 
-    A file outside ``results/agents/`` is loaded with an :class:`UntrustedPolicyWarning`
-    (loading unpickles objects stored in it) unless ``trusted=True`` (a file you made)."""
+    A file outside ``results/agents/`` is refused (:class:`UntrustedPolicyError`, before
+    anything in it is read: loading unpickles objects stored in it, which can run code) unless
+    ``trusted=True`` (a file you made or trust) or :data:`TRUST_ENV_VAR` is set; a zip that
+    inflates beyond :data:`MAX_POLICY_INFLATED_BYTES` is refused even when trusted."""
+    from drill_env.agents.learning.policy_info import POLICY_INFO_MEMBER, policy_training_record
+
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy: no such file {str(path)!r}")
     check_policy_zip(path)
-    note = None if trusted else untrusted_policy_note(path)
-    if note is not None:
-        warnings.warn(note, UntrustedPolicyWarning, stacklevel=2)
+    refuse_untrusted(path, trusted)
+    record, source = policy_training_record(path)
+    stored_algo = record.get("algo")
     if algo is None:
-        summary = path.parent / "training_summary.json"
-        if summary.is_file():
-            algo = json.loads(summary.read_text()).get("algo")
-    if algo is None:
+        algo = stored_algo
+    elif stored_algo is not None and algo != stored_algo:
+        where = POLICY_INFO_MEMBER if source == "zip" else "config.yaml"
+        raise ValueError(f"algo: {algo!r} given, but {path} was trained with {stored_algo!r} (its {where})")
+    if algo not in ALGOS:
         raise ValueError(f"algo: unknown for {path}; pass one of {list(ALGOS)}")
     import torch
 
     from drill_env.agents.learning.residual import correction_policy_class
 
-    config = path.parent / "config.yaml"
-    residual = _policy_config(config).get("residual") if config.is_file() else None
+    training_config = record["training_config"]
+    residual = training_config.get("residual")
     custom_objects = renamed_objects(path)
     if is_correction_file(path) or residual is not None:
         if residual is None:
             raise ValueError(
-                f"policy: {path} holds the correction of a residual policy, but no config.yaml beside it "
-                "names its base controller (residual: {base: ...})"
+                f"policy: {path} holds the correction of a residual policy, but its training record "
+                f"({POLICY_INFO_MEMBER} or config.yaml beside it) names no base controller (residual: {{base: ...}})"
             )
         # the file names the class that refuses to load alone: stable-baselines3's own instead
         custom_objects["policy_class"] = correction_policy_class(algo, stable_baselines3=True)
@@ -699,13 +753,25 @@ def load_policy(
         return policy
     from drill_env.agents.learning.residual import ResidualPolicy, base_controller
 
-    cfg = load_config(config)
+    cfg = config_from_mapping(training_config, f"the training record of {path}")
     return ResidualPolicy(
         policy,
         base_controller(cfg.residual, cfg.env_id, cfg.env_kwargs),
         cfg.residual.scale,
         observe_base=cfg.residual.observe_base,
     )
+
+
+def config_from_mapping(data: Mapping[str, Any], where: str) -> TrainConfig:
+    """A :class:`TrainConfig` from a training config mapping (``where`` names it in errors)."""
+    data = dict(data)
+    allowed = set(TrainConfig.__dataclass_fields__)
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise ValueError(f"config: unknown key(s) {unknown} in {where}; allowed: {sorted(allowed)}")
+    if "algo" not in data:
+        raise ValueError(f"config: {where} has no 'algo' (one of {list(ALGOS)})")
+    return TrainConfig(**data)
 
 
 def _policy_config(path: Path) -> dict[str, Any]:
@@ -717,13 +783,13 @@ def _policy_config(path: Path) -> dict[str, Any]:
 
 
 def policy_observation_version(path: str | Path) -> int:
-    """The env version (the N of ``DrillString-vN``) a saved policy was trained on, read from
-    the observation space stored in its zip (the policy itself is not loaded) and, where the
-    observation is that of several versions (v1, v2), from the ``env_id`` of the training
-    config next to it."""
-    from drill_env.envs import ENV_VERSIONS
+    """The env version (the N of ``DrillString-vN``) a saved policy was trained on: its
+    ``observation_version`` as the record inside the zip (or, for a file saved before policies
+    carried one, the training config beside it) says, checked against the observation space
+    stored in the zip (the policy itself is not loaded). A file with neither record is
+    refused, never guessed from the observation's size (v1, v2 and v3 observe the same)."""
+    from drill_env.agents.learning.policy_info import policy_training_record
     from drill_env.envs import _core as C
-    from drill_env.envs.config import OBSERVATION_VERSIONS
 
     path = Path(path)
     if not path.is_file():
@@ -735,27 +801,18 @@ def policy_observation_version(path: str | Path) -> int:
         shape = tuple(data["observation_space"]["_shape"])
     except (zipfile.BadZipFile, KeyError, ValueError, TypeError) as exc:
         raise ValueError(f"policy: {path} is not a stable-baselines3 model ({exc})") from None
-    extra = ""
-    config = path.parent / "config.yaml"
-    if config.is_file() and len(shape) == 1:
-        residual = _policy_config(config).get("residual")
-        if isinstance(residual, dict) and residual.get("observe_base") is True:
-            from drill_env.agents.learning.residual import BASE_OBSERVATIONS
-
-            shape = (shape[0] - len(BASE_OBSERVATIONS),)
-            extra = f" after removing its {list(BASE_OBSERVATIONS)}"
-    for v in OBSERVATION_VERSIONS:
-        if shape == (C.n_obs(v),):
-            # v2 observes what v1 does: the env of the training config tells them apart
-            env_id = _policy_config(config).get("env_id") if config.is_file() else None
-            if env_id in ENV_VERSIONS and min(ENV_VERSIONS[env_id], 1) == v:
-                return ENV_VERSIONS[env_id]
-            return v
-    sizes = {v: C.n_obs(v) for v in OBSERVATION_VERSIONS}
-    raise ValueError(
-        f"policy: {path} observes {shape}{extra}, not the observation of any env version "
-        f"(entries per version: {sizes})"
-    )
+    record, source = policy_training_record(path)
+    version = record["observation_version"]
+    if isinstance(version, bool) or not isinstance(version, int) or version < 0:
+        raise ValueError(f"policy: {path}: observation_version {version!r} is not an env version")
+    names = record.get("observation_names")
+    expected = (len(names),) if isinstance(names, list) else (C.n_obs(min(version, 1)),)
+    if shape != expected:
+        raise ValueError(
+            f"policy: {path} observes {shape}, not the {expected} of DrillString-v{version} that its "
+            f"training record ({source}) names"
+        )
+    return int(version)
 
 
 # -- training -------------------------------------------------------------------------------------
@@ -764,23 +821,31 @@ def policy_observation_version(path: str | Path) -> int:
 def strip_machine_info(path: str | Path) -> None:
     """Keep only the package versions in the ``system_info.txt`` SB3 writes into a saved model
     (its OS line names the build machine's kernel); the model itself is untouched."""
-    path = Path(path)
-    with zipfile.ZipFile(path) as zf:
-        items = [(info, zf.read(info.filename)) for info in zf.infolist()]
-    tmp = path.with_suffix(".zip.tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for info, data in items:
-            if info.filename == "system_info.txt":
-                lines = data.decode().splitlines()
-                data = ("\n".join(ln for ln in lines if not ln.startswith("- OS:")) + "\n").encode()
-            zf.writestr(info, data)
-    tmp.replace(path)
+    from drill_env.agents.learning.policy_info import rewrite_policy_zip
+
+    rewrite_policy_zip(path, strip_machine_info=True)
 
 
-def evaluation_episodes(cfg: EvalConfig) -> list[tuple[int, dict[str, Any]]]:
-    """The fixed (seed, reset options) of the learning-curve evaluation."""
+def finish_policy_file(path: str | Path, cfg: TrainConfig) -> None:
+    """A zip just saved by stable-baselines3 as :func:`train` keeps it: the record of what it
+    was trained on inside (:mod:`drill_env.agents.learning.policy_info`), the build machine's
+    OS line out of ``system_info.txt``."""
+    from drill_env import __version__
+    from drill_env.agents.learning.policy_info import policy_info, rewrite_policy_zip
+
+    info = policy_info(cfg.to_dict(), drill_env_version=__version__)
+    rewrite_policy_zip(path, info=info, strip_machine_info=True)
+
+
+def evaluation_episodes(
+    cfg: EvalConfig, regimes: Sequence[str] = REGIMES
+) -> list[tuple[int, dict[str, Any]]]:
+    """The fixed (seed, reset options) of the learning-curve evaluation: ``episodes_per_regime``
+    in each of ``regimes`` (those the rig has; a regime's seeds do not depend on the others)."""
     out = []
     for j, regime in enumerate(REGIMES):
+        if regime not in regimes:
+            continue
         for i in range(cfg.episodes_per_regime):
             out.append((cfg.seed + j * cfg.episodes_per_regime + i, {"regime": regime}))
     return out
@@ -837,7 +902,7 @@ def update_convergence(out_dir: str | Path) -> dict[str, Any]:
     curve = pd.read_csv(out_dir / "eval.csv")
     conv = plateau(curve["mean_return"].to_numpy(), **summary["config"]["convergence"])
     summary.update(converged=conv["converged"], convergence=conv)
-    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    atomic_write_json(out_dir / "training_summary.json", summary)
     plot_learning_curve(out_dir, summary)
     return summary
 
@@ -862,6 +927,9 @@ def _reference_returns(cfg: TrainConfig, episodes) -> dict[str, float]:
     return out
 
 
+# [s] kept free of the wall-time budget for what follows the last evaluation (the final
+# policy, the curve, the figure)
+_FINISH_RESERVE_S = 2.0
 SCHEDULED = ("learning_rate", "clip_range")
 # policy_kwargs.activation_fn by name (the activations the numpy forward pass of SB3Policy knows)
 ACTIVATIONS = ("Tanh", "ReLU")
@@ -979,9 +1047,20 @@ def train(
     that distils a trained policy (``warm_start.policy``) takes it loaded as ``teacher``
     (:func:`drill_env.agents.registry.teacher_policy`).
 
-    ``max_wall_time_s``: stop once this many wall-clock seconds have passed since the start
-    (warm start and evaluations included), after one last evaluation; the summary's
-    ``stopped_by`` says which limit ended the training."""
+    ``max_wall_time_s``: a wall-clock budget from the call on (building the rigs, the warm
+    start, the reference returns and every evaluation included). The clock is read at every
+    step of the rigs, inside rollouts, for every algorithm: training stops as soon as the
+    last evaluation's duration, the longest update between two rollouts seen and 2 s for
+    writing the results no longer fit, then runs one last evaluation. The summary records
+    the budget, the wall time of the whole call and the overrun (wall time - budget,
+    negative when it ended early); ``stopped_by`` says which limit ended the training
+    (``total_timesteps``, ``max_wall_time``, or ``target``: ``evaluation.stop_at_target``).
+
+    With ``evaluation.target_check`` every evaluation also runs the learned controllers'
+    target check (:mod:`drill_env.agents.evaluation.target_check`: suppression and tracking on
+    a grid of the rig's regimes) and the kept policy is the best by its margin (the summary's
+    ``best_target_check``); ``evaluation.stop_at_target`` ends training at the first
+    evaluation that meets it."""
     import gymnasium as gym
     import stable_baselines3
     import torch
@@ -995,6 +1074,7 @@ def train(
         isinstance(max_wall_time_s, (int, float)) and math.isfinite(max_wall_time_s) and max_wall_time_s > 0
     ):
         raise ValueError(f"max_wall_time_s: expected a positive number of seconds, got {max_wall_time_s!r}")
+    t_start = time.perf_counter()  # the wall-time budget counts from here
     out_dir, run_dir = Path(out_dir), Path(run_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -1009,7 +1089,9 @@ def train(
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
 
     eval_env = make_version(cfg.env_id, **cfg.env_kwargs)
-    episodes = evaluation_episodes(cfg.evaluation)
+    # the regimes the training rig has (an identified rig may lack one): the others are scored
+    eval_regimes = eval_env.unwrapped.settings.sampler.regimes_present()
+    episodes = evaluation_episodes(cfg.evaluation, eval_regimes)
     base = None
     callbacks: list[Any] = []
     if cfg.residual is not None:
@@ -1027,13 +1109,14 @@ def train(
             callbacks.append(burn_in)
 
     def save(path: Path) -> None:
-        if cfg.residual is None:
-            model.save(str(path))
-            return
-        from drill_env.agents.learning.residual import saved_as_correction
+        with atomic_path(path, suffix=".zip") as tmp:  # never a half-written policy, never via a link
+            if cfg.residual is None:
+                model.save(str(tmp))
+                return
+            from drill_env.agents.learning.residual import saved_as_correction
 
-        with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
-            model.save(str(path))
+            with saved_as_correction(model, cfg.algo):  # SB3's load of it alone raises, naming load_policy
+                model.save(str(tmp))
 
     def current_policy() -> Any:
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
@@ -1044,13 +1127,24 @@ def train(
         return ResidualPolicy(policy, base, cfg.residual.scale, observe_base=cfg.residual.observe_base)
 
     rows: list[dict[str, Any]] = []
-    best = {"return": -math.inf, "step": 0}
-    t_start = time.perf_counter()
+    best: dict[str, Any] = {"return": -math.inf, "step": 0, "margin": -math.inf, "target": None}
     eval_time = [0.0]
+    check = None
+    if cfg.evaluation.target_check:
+        from drill_env.agents.evaluation.target_check import TargetCheck
+
+        check = TargetCheck(ENV_IDS[cfg.env_id], ENV_VERSIONS[cfg.env_id])
+    # the references first, and the modules of the results imported: inside the wall-time
+    # budget, nothing but the last evaluation and writing the files after it
+    refs = _reference_returns(cfg, episodes)
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import pandas  # noqa: F401
 
     def run_eval(step: int) -> None:
         t0 = time.perf_counter()
-        rets = evaluate_on_episodes(eval_env, current_policy(), episodes)
+        policy = current_policy()
+        rets = evaluate_on_episodes(eval_env, policy, episodes)
+        target = check(policy) if check is not None else None
         eval_time[0] += time.perf_counter() - t0
         k = cfg.evaluation.episodes_per_regime
         row = {
@@ -1059,19 +1153,44 @@ def train(
             "mean_return": float(np.mean(rets)),
             "std_return": float(np.std(rets)),
         }
-        for j, regime in enumerate(REGIMES):
-            row[f"return_{regime}"] = float(np.mean(rets[j * k : (j + 1) * k]))
+        for regime in REGIMES:  # NaN for a regime the rig does not have
+            j = eval_regimes.index(regime) if regime in eval_regimes else -1
+            row[f"return_{regime}"] = float(np.mean(rets[j * k : (j + 1) * k])) if j >= 0 else math.nan
+        if target is not None:
+            row.update(target_met=target.met, target_margin=target.margin)
+            row.update({f"suppression_{r}": v for r, v in target.suppression.items()})
+            row.update({f"rms_error_{r}": v for r, v in target.rms_error.items()})
         rows.append(row)
         model.logger.record("eval/mean_return", row["mean_return"])
-        for regime in REGIMES:
+        for regime in eval_regimes:
             model.logger.record(f"eval/return_{regime}", row[f"return_{regime}"])
+        if target is not None:
+            model.logger.record("eval/target_margin", target.margin)
         model.logger.dump(step)
-        if row["mean_return"] > best["return"]:
+        # the kept policy: the best by the target check's margin when there is one, else by return
+        better = target.margin > best["margin"] if target is not None else row["mean_return"] > best["return"]
+        if better:
             best.update({"return": row["mean_return"], "step": step})
+            if target is not None:
+                best.update({"margin": target.margin, "target": target.to_dict()})
             save(out_dir / "policy.zip")
-            strip_machine_info(out_dir / "policy.zip")
+            finish_policy_file(out_dir / "policy.zip", cfg)
+        # what the last evaluation cost, saving included: the reserve of the wall-time budget
+        budget["eval_s"] = max(budget["eval_s"], time.perf_counter() - t0)
         if on_eval is not None:
             on_eval(step, row["mean_return"])
+        if target is not None and target.met and cfg.evaluation.stop_at_target:
+            if stopped_by[0] == "total_timesteps":  # not the last evaluation after another limit
+                stopped_by[0] = "target"
+
+    # wall-time budget: stop while the last evaluation and the longest update seen still fit
+    budget = {"eval_s": 0.0, "update_s": 0.0, "rollout_end": None}
+
+    def out_of_time() -> bool:
+        if max_wall_time_s is None:
+            return False
+        reserve = budget["eval_s"] + budget["update_s"] + _FINISH_RESERVE_S
+        return time.perf_counter() - t_start + reserve >= max_wall_time_s
 
     class _Eval(BaseCallback):
         def __init__(self):
@@ -1081,13 +1200,23 @@ def train(
         def _on_training_start(self) -> None:
             run_eval(0)
 
-        def _on_step(self) -> bool:
+        def _on_rollout_start(self) -> None:
+            if budget["rollout_end"] is not None:  # the update between two rollouts
+                budget["update_s"] = max(budget["update_s"], time.perf_counter() - budget["rollout_end"])
+
+        def _on_rollout_end(self) -> None:
+            budget["rollout_end"] = time.perf_counter()
+
+        def _on_step(self) -> bool:  # every step of the rigs, inside a rollout
+            if stopped_by[0] != "total_timesteps":
+                return False
+            if out_of_time():
+                stopped_by[0] = "max_wall_time"
+                return False  # SB3 ends learn() here, mid-rollout; the last evaluation follows
             if self.num_timesteps >= self.next_eval:
                 run_eval(self.num_timesteps)
                 self.next_eval += cfg.evaluation.every_steps
-            if max_wall_time_s is not None and time.perf_counter() - t_start >= max_wall_time_s:
-                stopped_by[0] = "max_wall_time"
-                return False  # SB3 ends learn(); the last evaluation follows
+                return stopped_by[0] == "total_timesteps"
             return True
 
     stopped_by = ["total_timesteps"]
@@ -1103,20 +1232,19 @@ def train(
     )
     if not rows or rows[-1]["timesteps"] != model.num_timesteps:
         run_eval(model.num_timesteps)
-    wall = time.perf_counter() - t_start
     save(run_dir / "final_policy.zip")
+    finish_policy_file(run_dir / "final_policy.zip", cfg)
     venv.close()
 
     import pandas as pd
 
     curve = pd.DataFrame(rows)
-    curve.to_csv(out_dir / "eval.csv", index=False, float_format="%.6g")
+    atomic_write_text(out_dir / "eval.csv", curve.to_csv(index=False, float_format="%.6g"))
     progress_csv = run_dir / "progress.csv"
     if progress_csv.is_file() and progress_csv.stat().st_size > 0:
         prog = pd.read_csv(progress_csv)
         keep = [c for c in prog.columns if c.startswith(("time/", "rollout/", "train/"))]
-        prog[keep].to_csv(out_dir / "progress.csv", index=False, float_format="%.6g")
-    refs = _reference_returns(cfg, episodes)
+        atomic_write_text(out_dir / "progress.csv", prog[keep].to_csv(index=False, float_format="%.6g"))
     conv = plateau(curve["mean_return"].to_numpy(), **vars(cfg.convergence))
     summary = {
         "algo": cfg.algo,
@@ -1124,8 +1252,9 @@ def train(
         "seed": seed,
         "total_timesteps": int(model.num_timesteps),
         "env_steps": int(model.num_timesteps),
-        "wall_time_s": round(wall, 1),
+        "wall_time_s": None,  # below, when everything but the card is written
         "max_wall_time_s": max_wall_time_s,
+        "overrun_s": None,
         "stopped_by": stopped_by[0],
         "evaluation_wall_time_s": round(eval_time[0], 1),
         "warm_start": warm,
@@ -1133,6 +1262,8 @@ def train(
         "final_eval_return": rows[-1]["mean_return"],
         "best_eval_return": best["return"],
         "best_at_timesteps": best["step"],
+        "kept_by": "target_check" if check is not None else "mean_return",
+        "best_target_check": best["target"],
         "policy": "policy.zip (the evaluation-best policy)",
         "converged": conv["converged"],
         "convergence": conv,
@@ -1146,27 +1277,28 @@ def train(
             "gymnasium": gym.__version__,
         },
     }
-    (out_dir / "training_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    with open(out_dir / "config.yaml", "w") as f:
-        yaml.safe_dump(cfg.to_dict(), f, sort_keys=False)
+    atomic_write_text(out_dir / "config.yaml", yaml.safe_dump(cfg.to_dict(), sort_keys=False))
     plot_learning_curve(out_dir, summary)
     eval_env.close()
+    wall = time.perf_counter() - t_start
+    summary["wall_time_s"] = round(wall, 1)
+    if max_wall_time_s is not None:
+        summary["overrun_s"] = round(wall - max_wall_time_s, 1)
+    atomic_write_json(out_dir / "training_summary.json", summary)
     return summary
 
 
 def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None = None) -> Path:
     """``learning_curve.png`` from ``eval.csv`` (and ``progress.csv``) in ``out_dir``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import pandas as pd
+
+    from drill_env._figures import subplots
 
     out_dir = Path(out_dir)
     if summary is None:
         summary = json.loads((out_dir / "training_summary.json").read_text())
     curve = pd.read_csv(out_dir / "eval.csv")
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = subplots(1, 2, figsize=(11, 4))
     ax = axes[0]
     ax.plot(curve["timesteps"], curve["mean_return"], "k.-", label="all regimes")
     for regime in REGIMES:
@@ -1204,6 +1336,5 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     ax.set_title("training episodes")
     fig.tight_layout()
     path = out_dir / "learning_curve.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path

@@ -50,12 +50,12 @@ def ids_table() -> str:
 
 
 def render_frame(path: Path) -> None:
-    """One ``rgb_array`` frame of ``DrillString-v1``: 5 s open loop at 2 V (stick-slip)."""
+    """One ``rgb_array`` frame of ``DrillString-v3``: 5 s open loop at 2 V (stick-slip)."""
     import gymnasium
     import matplotlib.pyplot as plt
     import numpy as np
 
-    env = gymnasium.make("DrillString-v1", render_mode="rgb_array")
+    env = gymnasium.make("DrillString-v3", render_mode="rgb_array")
     obs, _ = env.reset(seed=0, options={"nominal_voltage": 2.0})
     for _ in range(100):
         obs, *_ = env.step(np.array([obs[7]], dtype=np.float32))  # the nominal voltage / 5 V
@@ -71,7 +71,7 @@ def write_env_page(app) -> None:  # noqa: ANN001 (Sphinx application)
     if not frame.is_file():
         render_frame(frame)
     body = [
-        "![DrillString-v1 rendered (rgb_array): the two disks and the string, with the speeds of the"
+        "![DrillString-v3 rendered (rgb_array): the two disks and the string, with the speeds of the"
         " last seconds; 5 s open loop at 2 V](../_generated/env_frame.png)",
         "",
         "| | |",

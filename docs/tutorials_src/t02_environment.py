@@ -2,11 +2,12 @@
 The Gymnasium environment: a random and a trained policy
 ========================================================
 
-``import drill_env`` registers ``DrillString-v1`` (the braked rig of the paper's
-experiments). Each episode starts on the open-loop behaviour at an operating point the
-analysis predicts; the policy then drives the amplifier voltage. Here a random policy and
-the committed PPO policy cloned from the LQI (``results/agents/ppo_lqi_clone/``, trained on
-``DrillString-v1``) run the same episode.
+``import drill_env`` registers ``DrillString-v3`` (the braked rig of the paper's
+experiments; earlier versions are listed in the environment's version history). Each
+episode starts on the open-loop behaviour at an operating point the analysis predicts; the
+policy then corrects the amplifier voltage around the operator's set point. Here a random
+policy and the committed PPO policy trained from scratch on ``DrillString-v3``
+(``results/agents/ppo/``) run the same episode.
 """
 
 # %%
@@ -19,7 +20,7 @@ import numpy as np
 from drill_env.agents.learning.rl import load_policy
 from drill_env.agents.registry import policy_path
 
-env = gym.make("DrillString-v1", max_episode_steps=600)  # 30 s at 0.05 s per step
+env = gym.make("DrillString-v3", max_episode_steps=600)  # 30 s at 0.05 s per step
 obs, info = env.reset(seed=0, options={"nominal_voltage": 1.0})
 print(f"observation {obs.shape}, regime {info['regime']}, target {info['target_speed']:.3f} rad/s")
 
@@ -49,7 +50,7 @@ t_rand, x3_rand, ret_rand = episode(lambda obs: rng.uniform(-1, 1, size=1).astyp
 # The committed PPO policy, loaded as the benchmark loads it. ``load_policy`` returns an
 # object with the same ``predict``; policies outside ``results/agents/`` load with a
 # warning, since a policy file is code (see the how-to on policy files).
-ppo = load_policy(policy_path("ppo_lqi_clone", "brake"))
+ppo = load_policy(policy_path("ppo", "brake"))
 t_ppo, x3_ppo, ret_ppo = episode(lambda obs: ppo.predict(obs, deterministic=True)[0])
 print(f"return: random policy {ret_rand:.1f}, PPO {ret_ppo:.1f}")
 
@@ -58,7 +59,7 @@ print(f"return: random policy {ret_rand:.1f}, PPO {ret_ppo:.1f}")
 # its target speed within a few seconds.
 fig, ax = plt.subplots(figsize=(7, 3.2))
 ax.plot(t_rand, x3_rand, color="tab:gray", label="random policy")
-ax.plot(t_ppo, x3_ppo, color="tab:green", label="PPO (results/agents/ppo_lqi_clone)")
+ax.plot(t_ppo, x3_ppo, color="tab:green", label="PPO (results/agents/ppo)")
 ax.axhline(info["target_speed"], color="k", ls="--", lw=1, label="target speed")
 ax.set_xlabel("time since the controller was switched on [s]")
 ax.set_ylabel("lower-disk speed [rad/s]")

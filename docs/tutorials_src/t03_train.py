@@ -5,9 +5,10 @@ Train an agent from scratch in seconds
 Train PPO on ``DrillString-v3`` (the action is the correction added to the nominal
 voltage, the reward scores the speed error in rad/s) with the shipped recipe
 ``configs/agents/ppo.yaml``: no warm start, no classical controller anywhere in training. The
-committed ``results/agents/ppo`` trains for 2 M steps (about a minute of training on one
-core); here the run is cut to 1 000 000 steps (about 30 s), which is enough to suppress the
-Hopf cycle, and the policy then runs one benchmark episode.
+committed ``results/agents/ppo`` trains for 2 M steps; here the run is cut to 1 000 000
+steps, which is enough to suppress the Hopf cycle, and the policy then runs one benchmark
+episode. The training's own wall time is printed below (``wall_time_s``, measured while this
+page was built: the figure depends on the machine and on what else it runs).
 """
 
 # %%

@@ -234,7 +234,9 @@ class BifurcationDiagram:
         }
 
     def save_json(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n")
+        from drill_env.outputs import atomic_write_text
+
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n")
 
     def plot(self, kind: str = "fig8", ax=None, **kwargs):
         """Figures in the style of the paper: ``"fig6"``, ``"fig8"``, ``"period"``, ``"fig9"``."""

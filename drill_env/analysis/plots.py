@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from drill_env.outputs import save_figure
 from drill_env.params import IDENTIFIED_SPEED_RAD_S, RIG_VOLTAGE_LIMIT
 
 __all__ = [
@@ -251,8 +252,10 @@ def place_labels(ax, labels: Sequence[Label]) -> list:
     everything else is drawn and the axis limits and layout are final."""
     if not labels:
         return []
+    from drill_env._figures import renderer as figure_renderer
+
     fig = ax.figure
-    renderer = fig.canvas.get_renderer()
+    renderer = figure_renderer(fig)
     pts, rad = _obstacles(ax)
     box = ax.get_window_extent(renderer)
     placed: list = []
@@ -437,12 +440,13 @@ def _finish(
 
 def plot_equilibria(diagram: BifurcationDiagram, ax=None):
     """Fig. 6: the equilibrium branches, twist x1 (a) and lower-disk speed x3 (b) against u."""
-    import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
+
+    from drill_env._figures import user_subplots
 
     own = ax is None
     if own:
-        _, ax = plt.subplots(1, 2, figsize=(12, 5.2))
+        _, ax = user_subplots(1, 2, figsize=(12, 5.2))
     ax_a, ax_b = ax
     labels_a: list[Label] = []
     labels_b: list[Label] = []
@@ -547,12 +551,13 @@ def plot_bifurcation(
     ``limits``: the amplifier limit and the identified speed range where the diagram
     reaches them; ``alpha``: opacity of the curves (below other data drawn on them). Returns the axes; the legend handles are in ``ax.diagram_handles``.
     """
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
+
+    from drill_env._figures import user_subplots
 
     own = ax is None
     if own:
-        _, ax = plt.subplots(figsize=(11, 5.5))
+        _, ax = user_subplots(figsize=(11, 5.5))
     runs = _check_runs(check)
     labels, eq_styles, cyc_styles, y_top = _draw_x3(ax, diagram, runs, lw, alpha)
     handles = _style_handles(eq_styles, cyc_styles, False)
@@ -683,12 +688,13 @@ def _points_legend(diagram: BifurcationDiagram, names: str = "ABCDEF") -> str:
 
 def plot_period(diagram: BifurcationDiagram, ax=None):
     """Period of the periodic orbits against u, with the linear period at the Hopf points."""
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
+
+    from drill_env._figures import user_subplots
 
     own = ax is None
     if own:
-        _, ax = plt.subplots(figsize=(11, 4.5))
+        _, ax = user_subplots(figsize=(11, 4.5))
     labels: list[Label] = []
     styles: set[bool] = set()
     for seg in diagram.periodic_segments:
@@ -730,10 +736,10 @@ def plot_period(diagram: BifurcationDiagram, ax=None):
 
 def plot_limit_cycles(cycles: Sequence[LimitCycle], axes=None, labels: Sequence[str] | None = None):
     """Projections of orbits on the planes x3 = 0 (x1, x2), x2 = 0 (x1, x3) and x1 = 0 (x2, x3)."""
-    import matplotlib.pyplot as plt
+    from drill_env._figures import user_subplots
 
     if axes is None:
-        _, axes = plt.subplots(1, 3, figsize=(13, 4))
+        _, axes = user_subplots(1, 3, figsize=(13, 4))
     pairs = (("x1", "x2"), ("x1", "x3"), ("x2", "x3"))
     units = {"x1": "x1 = twist [rad]", "x2": "x2 = upper speed [rad/s]", "x3": "x3 = lower speed [rad/s]"}
     for i, c in enumerate(cycles):
@@ -767,10 +773,10 @@ def plot_fig9(diagram: BifurcationDiagram, ax=None, voltages: Sequence[float] = 
             kind = "stick-slip" if c.stick_slip else "no stick-slip"
             labels.append(f"u = {u:g} V, {kind}, {'stable' if c.stable else 'unstable'}")
     if not cycles:
-        import matplotlib.pyplot as plt
+        from drill_env._figures import user_subplots
 
         if ax is None:
-            _, ax = plt.subplots(1, 3, figsize=(13, 4))
+            _, ax = user_subplots(1, 3, figsize=(13, 4))
         ax[1].set_title(f"no limit cycle at u = {', '.join(f'{v:g}' for v in voltages)} V")
         return ax
     axes = plot_limit_cycles(cycles, axes=ax, labels=labels)
@@ -785,10 +791,7 @@ def save_figures(diagram: BifurcationDiagram, out_dir, check: BruteForceCheck | 
     """Write the four figures as PNG files into ``out_dir``; returns their paths."""
     from pathlib import Path
 
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    from drill_env._figures import offscreen
 
     out = Path(out_dir)
     paths = []
@@ -798,11 +801,11 @@ def save_figures(diagram: BifurcationDiagram, out_dir, check: BruteForceCheck | 
         ("period.png", "period", {}),
         ("fig9_limit_cycles.png", "fig9", {}),
     ):
-        ax = diagram.plot(kind, **kw)
+        with offscreen():
+            ax = diagram.plot(kind, **kw)
         fig = (ax[0] if isinstance(ax, np.ndarray | list | tuple) else ax).figure
         if kind == "fig9":  # the others lay themselves out before placing their labels
             fig.tight_layout()
-        fig.savefig(out / name, dpi=130)
-        plt.close(fig)
+        save_figure(fig, out / name, dpi=130)
         paths.append(out / name)
     return paths

@@ -140,9 +140,17 @@ class RigComparison:
         }
 
     def save(self, path: str | Path) -> None:
+        from drill_env.outputs import atomic_write_text
+
         path = Path(path)
-        path.write_text(self.to_markdown())
-        path.with_suffix(".json").write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        text = self.to_markdown()
+        record = json.dumps(self.to_dict(), indent=1) + "\n"
+        atomic_write_text(path, text)
+        try:
+            atomic_write_text(path.with_suffix(".json"), record)
+        except BaseException:  # never the report without its record
+            path.unlink(missing_ok=True)
+            raise
 
 
 def _mean_speed(cycle: LimitCycle) -> float:

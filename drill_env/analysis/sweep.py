@@ -132,7 +132,9 @@ class BruteForceCheck:
         }
 
     def save_json(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n")
+        from drill_env.outputs import atomic_write_text
+
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n")
 
     def plot(self, diagram: BifurcationDiagram, ax=None):
         """The diagram's Fig. 8 with the steady max/min of x3 of every run as open markers."""

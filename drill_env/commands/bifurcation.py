@@ -52,7 +52,12 @@ def register(app: typer.Typer) -> None:
 
         from drill_env.analysis import bifurcation_diagram, brute_force_check
         from drill_env.analysis.plots import save_figures
-        from drill_env.outputs import OutputFolderError, atomic_write_text, check_output_folder, output_lock
+        from drill_env.outputs import (
+            OutputFolderError,
+            atomic_write_text,
+            check_command_folder,
+            command_folder,
+        )
         from drill_env.params import resolve_params, validity_warnings
 
         params = resolve_params(preset)
@@ -60,7 +65,7 @@ def register(app: typer.Typer) -> None:
             _fail(
                 f"the analysis covers the paper's model only; the preset switches on {list(params.effects.active)}"
             )
-        check_output_folder(out, "--out")
+        check_command_folder(out, "bifurcation", "--out", own=BIFURCATION_FILES)
         console = Console(stderr=True)
         notes = validity_warnings(params.name, voltages=(umin, umax))
         for note in notes:
@@ -69,7 +74,8 @@ def register(app: typer.Typer) -> None:
             )
         held = ExitStack()
         try:
-            held.enter_context(output_lock(out, "bifurcation"))  # OUT is this run's alone until it ends
+            # OUT is this run's alone until it ends
+            held.enter_context(command_folder(out, "bifurcation", "--out", own=BIFURCATION_FILES))
         except OutputFolderError as exc:
             _fail(str(exc))
         with held:
@@ -177,6 +183,10 @@ def register(app: typer.Typer) -> None:
         typer.echo(text)
         if out is not None:
             typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
+
+
+# what `drill-env bifurcation` writes (a folder of these from before folders had markers is its own)
+BIFURCATION_FILES = ("bifurcation.json", "brute_force_check.json", "*.png")
 
 
 def _max_speed(record: dict[str, Any]) -> float:

@@ -259,7 +259,7 @@ def discrepancy(
             "align the files by their time stamps)"
         )
     from drill_env.discrepancy.workflow import run_discrepancy
-    from drill_env.outputs import check_output_folder
+    from drill_env.outputs import check_command_folder, command_folder
     from drill_env.recordings.dataset import DatasetError
 
     nominal = None
@@ -274,14 +274,17 @@ def discrepancy(
                 f"--params {params}: switches on {list(nominal.effects.active)}; the nominal model of the "
                 "discrepancy workflow has no effects (effects are what it looks for)"
             )
-    check_output_folder(out, "--out")
+    check_command_folder(out, "discrepancy", "--out", own=DISCREPANCY_FILES)
     if data_dir.exists() and (
         out.resolve() == data_dir.resolve() or data_dir.resolve() in out.resolve().parents
     ):
         _fail(f"--out {out}: lies in the dataset folder {data_dir}; keep the analysis apart from the data")
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout else None
     try:
-        with _stage_progress() as progress:
+        with (
+            command_folder(out, "discrepancy", "--out", own=DISCREPANCY_FILES),
+            _stage_progress() as progress,
+        ):
             res = run_discrepancy(
                 data_dir,
                 out,
@@ -336,7 +339,7 @@ def discrepancy_study(
     import os
 
     from drill_env.discrepancy.study import MAX_SEEDS, paper_case, run_study
-    from drill_env.outputs import OutputFolderError, output_lock
+    from drill_env.outputs import OutputFolderError, check_command_folder, command_folder
 
     # every argument is checked before anything is written: OUT may hold committed results
     for name, value in (("--seeds", seeds), ("--sweep-seeds", sweep_seeds)):
@@ -354,10 +357,19 @@ def discrepancy_study(
         _fail(f"--backend: {backend!r} is not a backend; allowed: process, ray")
     if ray_address is not None and backend != "ray":
         _fail("--ray-address: only with --backend ray")
+    if ray_address:  # an address nothing answers at: said within seconds, not after minutes
+        from drill_env.ray_cluster import check_ray_address
+
+        try:
+            check_ray_address(ray_address)
+        except ValueError as exc:
+            _fail(f"--{str(exc).replace('_', '-', 1)}")
     if paper_case_only and skip_paper_case:
         _fail("--paper-case-only and --skip-paper-case together leave nothing to do; give at most one")
     if out is not None and out.exists() and not out.is_dir():
         _fail(f"--out {out} exists and is not a folder")
+    if out is not None:
+        check_command_folder(out, "discrepancy-study", "--out", own=STUDY_FILES)
     if out is None:  # never the committed results unless named
         from drill_env.outputs import fresh_run_folder
 
@@ -366,7 +378,8 @@ def discrepancy_study(
         except OutputFolderError as exc:
             _fail(str(exc))
     try:
-        with output_lock(out, "discrepancy-study"):  # for the whole command, both parts
+        # for the whole command, both parts
+        with command_folder(out, "discrepancy-study", "--out", own=STUDY_FILES):
             if not paper_case_only:
                 import time
 
@@ -437,6 +450,29 @@ def discrepancy_study(
                 )
     except OutputFolderError as exc:
         _fail(str(exc))
+
+
+# what `drill-env discrepancy` and `discrepancy-study` write (a folder of these from before
+# folders had markers is the command's own)
+DISCREPANCY_FILES = (
+    "report.md",
+    "result.json",
+    "model.yaml",
+    "model_rejected.yaml",
+    "candidates.png",
+    "equation_error.png",
+    "spectra.png",
+    "residual_spectra.png",
+    "trajectories.png",
+    "bifurcation.png",
+)
+STUDY_FILES = (
+    "study.json",
+    "confusion.md",
+    "confusion.png",
+    "detection.png",
+    "study_rows.partial.jsonl",
+)
 
 
 def register(app: typer.Typer) -> None:

@@ -65,7 +65,7 @@ def identify(
     from drill_env.identify.identification import identify as run_identify
     from drill_env.identify.identification import parse_known
     from drill_env.identify.report import write_outputs
-    from drill_env.outputs import check_output_folder, output_lock
+    from drill_env.outputs import check_command_folder, command_folder
     from drill_env.params import available_presets
     from drill_env.recordings.dataset import load_dataset
 
@@ -90,12 +90,12 @@ def identify(
         known_values = parse_known(known)
     except ValueError as exc:
         _fail(f"--{exc}")
-    check_output_folder(out, "--out")
+    check_command_folder(out, "identify", "--out", own=IDENTIFY_FILES)
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout is not None else None
     dataset = load_dataset(data_dir)
     from drill_env.commands.discrepancy import _stage_progress
 
-    with output_lock(out, "identify"):
+    with command_folder(out, "identify", "--out", own=IDENTIFY_FILES):
         try:
             with _stage_progress() as progress:
                 if no_effects:
@@ -153,6 +153,17 @@ def identify(
             err=True,
         )
         raise typer.Exit(code=1)
+
+
+# what `drill-env identify` writes (a folder of these from before folders had markers is its own)
+IDENTIFY_FILES = (
+    "rig.yaml",
+    "identification.json",
+    "report.md",
+    "friction.png",
+    "heldout.png",
+    "bifurcation.png",
+)
 
 
 def register(app: typer.Typer) -> None:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drill_env.outputs import save_figure
+
 __all__ = ["write_report", "plot_spectra", "parameter_table"]
 
 
@@ -41,11 +43,32 @@ def plot_spectra(ax, comp_nominal, comp_after=None, title=""):
     ax.set_title(title, fontsize=9)
 
 
-def _figures(res, out: Path) -> list[tuple[str, str]]:
-    import matplotlib
+def _decade_ticks(axis, limits: tuple[float, float]) -> None:  # noqa: ANN001
+    """Ticks of a symmetric-log axis (linear within +-1) at 0 and at whole decades from 10 on,
+    every other decade where there are more than six: 10^0 would sit on 0's label."""
+    lo, hi = limits
+    top = max(abs(lo), abs(hi), 10.0)
+    decades = list(range(1, int(np.floor(np.log10(top))) + 1))
+    if len(decades) > 6:
+        decades = decades[::2]
+    ticks = (
+        [0.0]
+        + [10.0**k for k in decades if 10.0**k <= hi]
+        + [-(10.0**k) for k in decades if -(10.0**k) >= lo]
+    )
+    axis.set_ticks(sorted(ticks))
+    axis.set_ticklabels(
+        [
+            ("0" if t == 0 else f"${'-' if t < 0 else ''}10^{{{int(round(np.log10(abs(t))))}}}$")
+            for t in sorted(ticks)
+        ]
+    )
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def _figures(res, out: Path) -> list[tuple[str, str]]:
+    from matplotlib.lines import Line2D
+
+    from drill_env._figures import subplots
 
     figs = []
     d = res.decision
@@ -55,7 +78,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     # candidate gains
     from matplotlib.patches import Patch
 
-    fig, ax = plt.subplots(figsize=(7, 3.2))
+    fig, ax = subplots(figsize=(7, 3.2))
     names = [s.name for s in d.scores]
     # A candidate can make the held-out fit worse (gain <= 0): a symmetric-log axis draws
     # those as bars to the left of zero instead of stubs at an arbitrary floor.
@@ -65,26 +88,26 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     ax.scatter([s.threshold for s in d.scores], names, marker="|", s=200, color="k", zorder=3)
     ax.axvline(0.0, color="k", lw=0.6)
     ax.set_xscale("symlog", linthresh=1.0)
+    _decade_ticks(ax.xaxis, ax.get_xlim())
     ax.set_xlabel("held-out gain: drop of the sum of squares [noise units] (< 0: worse)")
     ax.set_title("Candidate effects on the held-out runs", fontsize=9)
     ax.legend(
         handles=[
             Patch(color="tab:green", label="significant"),
             Patch(color="tab:gray", label="not significant"),
-            plt.Line2D([], [], color="k", marker="|", ls="", ms=12, label="significance threshold"),
+            Line2D([], [], color="k", marker="|", ls="", ms=12, label="significance threshold"),
         ],
         loc="upper left",
         bbox_to_anchor=(1.01, 1.0),
         fontsize=7,
     )
     fig.tight_layout()
-    fig.savefig(out / "candidates.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "candidates.png", dpi=110)
     figs.append(("candidates.png", "Held-out gain of each candidate against its significance threshold."))
 
     # equation error per run
     eqs = res.equations
-    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(9, 5), sharex=True)
     for disk, ax in zip(("upper", "lower"), axes, strict=False):
         for i, eq in enumerate(eqs):
             w = getattr(eq, disk)
@@ -96,18 +119,19 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         ax.axhline(-3, color="k", lw=0.5, ls=":")
         ax.set_ylabel(f"{disk} disk: residual torque\n/ its noise floor [-]", fontsize=8)
         ax.set_yscale("symlog", linthresh=3)
+        # decades only: +-3 (the dotted lines) and 30 sit too close to their neighbours on
+        # this axis for their labels to stay apart at the size the figure is drawn
         lim = max(10.0, float(np.max(np.abs(ax.get_ylim()))))
-        ticks = [t for t in (1000, 100, 30, 10, 3) if t <= lim]
+        ticks = [t for t in (1000, 100, 10) if t <= lim]
         ax.set_yticks([-t for t in ticks] + [0] + ticks[::-1])
-        ax.set_yticklabels([f"{-t:g}" for t in ticks] + ["0"] + [f"{t:g}" for t in ticks[::-1]], fontsize=7)
+        ax.set_yticklabels([f"{-t:g}" for t in ticks] + ["0"] + [f"{t:g}" for t in ticks[::-1]], fontsize=8)
     axes[0].legend(loc="upper right", fontsize=7)
     axes[0].set_title("Nominal equation error per window (each run's windows in time order)", fontsize=9)
     axes[1].set_xticks(np.arange(len(eqs)) + 0.45)
     axes[1].set_xticklabels([eq.run.label.replace(" (", "\n(") for eq in eqs], fontsize=6)
     axes[1].set_xlabel("run (windows from the start to the end of each recording)")
     fig.tight_layout()
-    fig.savefig(out / "equation_error.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "equation_error.png", dpi=110)
     figs.append(
         (
             "equation_error.png",
@@ -119,13 +143,12 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     if held:
         # spectra of the held-out runs
         k = len(held)
-        fig, axes = plt.subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
+        fig, axes = subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
         for ax, name in zip(axes[0], held, strict=False):
             plot_spectra(ax, res.nominal[name], res.after.get(name), runs[name].label)
         axes[0][0].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "spectra.png", dpi=110)
-        plt.close(fig)
+        save_figure(fig, out / "spectra.png", dpi=110)
         figs.append(
             (
                 "spectra.png",
@@ -134,7 +157,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             )
         )
         # residual spectra of the short-horizon prediction
-        fig, axes = plt.subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
+        fig, axes = subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
         for ax, name in zip(axes[0], held, strict=False):
             c = res.nominal[name]
             band = (c.freqs > 0) & (c.freqs <= 10.0)
@@ -151,8 +174,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             )
         axes[0][0].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "residual_spectra.png", dpi=110)
-        plt.close(fig)
+        save_figure(fig, out / "residual_spectra.png", dpi=110)
         figs.append(
             (
                 "residual_spectra.png",
@@ -161,7 +183,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             )
         )
         # trajectories
-        fig, axes = plt.subplots(k, 1, figsize=(9, 2.4 * k), squeeze=False)
+        fig, axes = subplots(k, 1, figsize=(9, 2.4 * k), squeeze=False)
         for ax, name in zip(axes[:, 0], held, strict=False):
             c = res.nominal[name]
             sel = c.t <= min(c.t[-1], 40.0)
@@ -181,8 +203,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         axes[-1, 0].set_xlabel("time since start of recording [s]")
         axes[0, 0].legend(fontsize=7, loc="upper right")
         fig.tight_layout()
-        fig.savefig(out / "trajectories.png", dpi=110)
-        plt.close(fig)
+        save_figure(fig, out / "trajectories.png", dpi=110)
         figs.append(
             (
                 "trajectories.png",
@@ -194,7 +215,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     # bifurcation points
     const = [n for n, c in res.nominal.items() if c.features_measured is not None]
     if const:
-        fig, ax = plt.subplots(figsize=(6, 4))
+        fig, ax = subplots(figsize=(6, 4))
         for n in const:
             c = res.nominal[n]
             v = c.voltage
@@ -213,8 +234,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         ax.set_ylabel("lower speed min / mean / max [rad/s]")
         ax.legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "bifurcation.png", dpi=110)
-        plt.close(fig)
+        save_figure(fig, out / "bifurcation.png", dpi=110)
         figs.append(
             (
                 "bifurcation.png",

@@ -44,7 +44,14 @@ from pathlib import Path
 import numpy as np
 
 from drill_env.discrepancy.workflow import RESULT_EFFECTS, analyse
-from drill_env.outputs import atomic_file, atomic_write_text, output_lock
+from drill_env.outputs import (
+    ResumeError,
+    atomic_file,
+    atomic_write_text,
+    keep_on_error,
+    open_append,
+    output_lock,
+)
 from drill_env.recordings.dataset import MeasuredDataset
 from drill_env.recordings.synth import HIDDEN_EFFECTS, SynthConfig, make_dataset
 
@@ -442,30 +449,51 @@ def code_fingerprint() -> str:
 
 
 def _resumed_rows(path: Path, header: dict, jobs: list[_Job]) -> dict[int, dict]:
-    """The rows of ``path`` (a partial file) for ``jobs``, after checking its header."""
-    lines = path.read_text().splitlines()
+    """The rows of ``path`` (a partial file) for ``jobs``, after checking its header.
+
+    A file that cannot be resumed from (empty, not a study's, another design's or another
+    drill-env's) raises :class:`~drill_env.outputs.ResumeError` naming it and ``--fresh``."""
+    choice = "run the same command with --fresh to discard it and start afresh, or choose another --out"
+    if path.is_symlink():
+        raise ResumeError(
+            f"resume: {path} is a symbolic link; partial files are never read or written "
+            f"through links: {choice}"
+        )
     try:
-        found = json.loads(lines[0]) if lines else None
-    except json.JSONDecodeError:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ResumeError(f"resume: cannot read {path}: {exc.strerror or exc}; {choice}") from None
+    lines = data.splitlines()
+    if not lines:
+        raise ResumeError(f"resume: {path} is empty (a run stopped before it wrote anything); {choice}")
+    try:
+        found = json.loads(lines[0])
+    except ValueError:  # not JSON, not UTF-8
         found = None
-    if not isinstance(found, dict):
-        raise ValueError(f"resume: {path} has no header line; run with --fresh to start afresh")
+    if not isinstance(found, dict) or not {"design", "code"} <= set(found):
+        raise ResumeError(
+            f"resume: {path} does not start with a study's header line (not a partial file of "
+            f"`drill-env discrepancy-study`, or damaged); {choice}"
+        )
     for key in ("design", "code"):
         if found.get(key) != header[key]:
             what = "code (drill-env changed since)" if key == "code" else f"design {found.get(key)}"
-            raise ValueError(
-                f"resume: the rows in {path} were made by other {what}, not this study's; run with "
-                "--fresh to start afresh"
+            raise ResumeError(
+                f"resume: the rows in {path} were made by other {what}, not this study's; {choice}"
             )
     rows: dict[int, dict] = {}
     for line in lines[1:]:
         try:
             entry = json.loads(line)
-        except json.JSONDecodeError:
+        except ValueError:
             continue  # a line cut short by the interruption: that dataset runs again
+        if not isinstance(entry, dict):
+            continue
         i = entry.get("index")
         if isinstance(i, int) and 0 <= i < len(jobs):
             row = entry.get("row", {})
+            if not isinstance(row, dict):
+                continue
             fields = _job_fields(jobs[i])
             if all(row.get(k) == v for k, v in fields.items()):
                 rows[i] = row
@@ -504,15 +532,19 @@ def _run_study(
     partial = out / PARTIAL_ROWS
     done = _resumed_rows(partial, header, jobs) if resume and partial.is_file() else {}
     out.mkdir(parents=True, exist_ok=True)
-    with partial.open("w") as f:  # what is kept, then each new row as it lands
+    # the header and the rows kept, replaced whole (a kill leaves the former file or this one,
+    # never an empty one), then each new row appended and flushed as it lands
+    with atomic_file(partial, "w") as f:
         f.write(json.dumps(header) + "\n")
+        for i, row in sorted(done.items()):
+            f.write(json.dumps({"index": i, "row": row}, default=float) + "\n")
+    keep_on_error(partial)  # the rows finished so far outlive a full disk: the same command resumes
+    with open_append(partial) as f:
 
         def keep(i: int, row: dict) -> None:
             f.write(json.dumps({"index": i, "row": row}, default=float) + "\n")
             f.flush()
 
-        for i, row in sorted(done.items()):
-            keep(i, row)
         if progress and done:
             progress(len(done), len(jobs))
         rows = _run_jobs(jobs, base, bootstrap, workers, progress, backend, ray_address, done, keep)
@@ -728,16 +760,13 @@ def _write_markdown(
 
 
 def _plot(out: Path, rows, summary) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from drill_env._figures import subplots
 
     # accuracy per truth (rows) and condition (columns)
     labels = [t.label for t in truths()]
     conds = list(summary["per_condition"])
     acc = np.array([[summary["per_condition"][c]["by_truth"][lab] for c in conds] for lab in labels])
-    fig, ax = plt.subplots(figsize=(8.5, 0.42 * len(labels) + 1.8))
+    fig, ax = subplots(figsize=(8.5, 0.42 * len(labels) + 1.8))
     im = ax.imshow(acc, vmin=0.0, vmax=1.0, cmap="RdYlGn", aspect="auto")
     for i in range(acc.shape[0]):
         for j in range(acc.shape[1]):
@@ -756,9 +785,8 @@ def _plot(out: Path, rows, summary) -> None:
     fig.tight_layout()
     with atomic_file(out / "confusion.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
-    plt.close(fig)
 
-    fig, axes = plt.subplots(1, 2, figsize=(11.5, 4.3))
+    fig, axes = subplots(1, 2, figsize=(11.5, 4.3))
     markers = ("o", "s", "^", "v", "D", "P")
     dashes = ("-", "--", "-.", ":")
     ax = axes[0]
@@ -811,7 +839,6 @@ def _plot(out: Path, rows, summary) -> None:
     fig.tight_layout()
     with atomic_file(out / "detection.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
-    plt.close(fig)
 
 
 PAPER_CASE = SynthConfig(
@@ -855,12 +882,9 @@ def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
     write_synthetic(syn, data_dir, out / "answer.json", preset=PAPER_CASE.preset)
     held = [r.name for r in syn.runs if r.is_constant_voltage and r.voltage in (0.2, 0.5)]
     res = run_discrepancy(data_dir, out / "analysis", heldout=held)
-    import matplotlib
+    from drill_env._figures import subplots
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, axes = subplots(1, 2, figsize=(10, 3.8))
     for ax, name in zip(axes, held, strict=False):
         run = next(r for r in syn.runs if r.name == name)
         plot_spectra(ax, res.nominal[name], res.after.get(name), f"{run.voltage:g} V (held out)")
@@ -873,7 +897,6 @@ def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
     fig.tight_layout()
     with atomic_file(out / "spectra_0.2_0.5V.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
-    plt.close(fig)
     truth = syn.answer["model_effects"]
     found = res.decision.winner.parameters if res.decision.winner else {}
     at_truth = syn.answer["parameters_at_nominal_string_stiffness"]

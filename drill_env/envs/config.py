@@ -394,7 +394,15 @@ class EnvSettings:
         design_params: RigParams | str | Path | None = None,
         action_range: float | None = None,
         tracking_cost: str = "relative_squared",
+        scenario: Any = None,
     ):
+        from drill_env.envs.scenarios import get_scenario
+
+        # a scenario of the suite (drill_env.envs.scenarios): its start and sensor fields replace
+        # those given; its set points and friction changes run in the episode
+        self.scenario = None if scenario is None else get_scenario(scenario)
+        if self.scenario is not None:
+            start = self.scenario.start
         if params_overrides is not None and not isinstance(params_overrides, Mapping):
             raise ValueError(
                 f"params_overrides: expected a dict of parameter values, got {params_overrides!r}"
@@ -406,6 +414,8 @@ class EnvSettings:
             nominal_params(self.params) if design_params is None else resolve_params(design_params)
         )
         self.sensors = SensorConfig.from_any(sensors)
+        if self.scenario is not None and self.scenario.sensors:
+            self.sensors = dataclasses.replace(self.sensors, **self.scenario.sensors)
         ts = self.sensors.sample_period
         self.control_dt = _number("control_dt", control_dt, 0.0, 60.0, lo_incl=False)
         n_sub = int(round(self.control_dt / ts))
@@ -479,6 +489,7 @@ class EnvSettings:
         settle_time = max(SETTLE_TIME, (self.sensors.delay_samples + 50) * ts)
         self.settle_periods = max(1, int(math.ceil(settle_time / self.control_dt - 1e-9)))
         self.ecfg = self._env_vector()
+        self.schedule = self._scenario_schedule()
         self._p_nominal = self.params.as_array()
         self._scfg_nominal = self.sensors.as_array()
 
@@ -527,6 +538,19 @@ class EnvSettings:
             e[C.EC_SCALE : C.EC_SCALE + self.n_obs] = observation_layout(self.observation_version)["scales"]
         return e
 
+    def _scenario_schedule(self) -> Any:
+        """The scenario's set points on the design model, for a scenario that changes something
+        during the episode (None otherwise)."""
+        if self.scenario is None or not self.scenario.time_varying:
+            return None
+        from drill_env.envs.scenarios import ScenarioSchedule
+
+        voltages = self.scenario.set_point_voltages(self.design_params.name)
+        points = [self.sampler.point_from_voltage(v) for v in voltages]
+        return ScenarioSchedule(
+            self.scenario, points, self.ecfg[C.EC_SCALE + C.OB_TARGET], self.ecfg[C.EC_SCALE + C.OB_UNOM]
+        )
+
     @property
     def sensor_state_size(self) -> int:
         from drill_env.sensors import state_size
@@ -538,7 +562,7 @@ class EnvSettings:
         """Validate ``reset(options=...)``: at most one of target_speed / nominal_voltage /
         regime, and optionally start."""
         if options is None:
-            return {}
+            options = {}
         if not isinstance(options, Mapping):
             raise ValueError(f"options: expected a dict, got {type(options).__name__}")
         allowed = {"target_speed", "nominal_voltage", "regime", "start"}
@@ -572,6 +596,10 @@ class EnvSettings:
             if options["start"] not in START_STATES:
                 raise ValueError(f"start: {options['start']!r} is not one of {sorted(START_STATES)}")
             out["start"] = options["start"]
+        if self.scenario is not None and "point" not in out and "regime" not in out:
+            # the scenario's first set point unless the options choose one
+            v0 = self.scenario.set_point_voltages(self.design_params.name)[0]
+            out["point"] = s.point_from_voltage(v0)
         return out
 
     def draw_episode(self, rng: np.random.Generator, opts: Mapping[str, Any]) -> EpisodeSetup:

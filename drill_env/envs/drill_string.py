@@ -41,7 +41,7 @@ class DrillStringEnv(gym.Env):
 
     The torsional drill-string rig of Mihajlovic et al. (2004): a DC motor drives an
     upper disk, a soft steel string carries the torque down to a lower disk (the bit),
-    whose friction (a brake in ``DrillString-v0``) has a Stribeck "hump" that makes the
+    whose friction (a brake in ``DrillString-v3``) has a Stribeck "hump" that makes the
     slip equilibrium lose stability: torsional limit cycles and stick-slip. The task is
     to keep the lower disk turning at a target speed without stick-slip or torsional
     oscillation, using only the motor voltage and what the rig measures.
@@ -85,8 +85,8 @@ class DrillStringEnv(gym.Env):
 
     ## Observation Space
 
-    ``Box(low, high, (8,), float32)`` in v0, ``(13,)`` in v1 (``DrillString-v1``, or
-    ``observation_version=1``): only what a controller on the rig has. Each entry
+    ``Box(low, high, (13,), float32)`` (``observation_version=1``; 8 entries in v0, see the
+    Version History): only what a controller on the rig has. Each entry
     is divided by its scale (``normalize_observation=True``, the default) so that typical
     values are of order one; with ``normalize_observation=False`` the entries are in the
     units given. The bounds (before scaling) are the amplifier's +-5 V for the voltages
@@ -191,7 +191,7 @@ class DrillStringEnv(gym.Env):
     ## Arguments
 
     ```python
-    env = gymnasium.make("DrillString-v1", control_dt=0.05, sensors={"counts_per_rev": 4096})
+    env = gymnasium.make("DrillString-v3", control_dt=0.05, sensors={"counts_per_rev": 4096})
     ```
 
     * ``params``: preset name (``"brake"``, ``"no_brake"``), YAML path or ``RigParams``.
@@ -234,6 +234,13 @@ class DrillStringEnv(gym.Env):
       cycle there, a correlation a policy observing the angles (v1) can learn and the rig
       does not have; training with ``"random"`` removes it. On the nominal model the angle
       changes nothing else (friction depends on it only with position-dependent effects).
+
+    * ``scenario``: None (default) or a name of the scenario suite
+      (:data:`drill_env.envs.scenarios.SCENARIO_NAMES`, e.g. ``"start_up"``,
+      ``"set_point_steps"``, ``"friction_drift"``): it sets ``start`` and fields of ``sensors``,
+      makes its first set point the default operating point, and changes the set point and the
+      plant's lower friction during the episode (:mod:`drill_env.envs.scenarios`); step infos
+      then carry ``scenario``, ``target_speed``, ``nominal_voltage`` and ``friction_scale``.
 
     ``reset(seed=...)`` takes None or an integer >= 0 (NumPy integers included).
     ``reset(options=...)`` may fix the operating point with ``target_speed`` [rad/s],
@@ -293,6 +300,7 @@ class DrillStringEnv(gym.Env):
         design_params: RigParams | str | Path | None = None,
         action_range: float | None = None,
         tracking_cost: str = "relative_squared",
+        scenario: str | None = None,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -318,6 +326,7 @@ class DrillStringEnv(gym.Env):
             design_params=design_params,
             action_range=action_range,
             tracking_cost=tracking_cost,
+            scenario=scenario,
         )
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / s.control_dt)))
@@ -346,6 +355,9 @@ class DrillStringEnv(gym.Env):
         self._ts = s.sensors.sample_period
         self._history: deque | None = None
         self._renderer = None
+        self._schedule = s.schedule  # the scenario's changes during an episode (None: none)
+        self._points: list[Any] = []
+        self._p_base = self._p.copy()
 
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -407,11 +419,18 @@ class DrillStringEnv(gym.Env):
         u = float(self._ep[C.EP_U])  # the request within the amplifier's limit (the core applies it)
         clipped = u != u_req
         self._samples_valid = True
+        t = float(self._ep[C.EP_TICK] - self._ep[C.EP_TICK0]) * self._ts
+        if self._schedule is not None:
+            # the scenario's set point and friction from now on (the observation shows the set point)
+            self._schedule.apply(
+                t, self._points, self._p_base, self._p, self._ep, self._obs,
+                C.OB_TARGET, C.OB_UNOM, C.EP_TARGET, C.EP_UNOM,
+            )  # fmt: skip
         info = {
             "true_state": out[C.O_TRUE : C.O_TRUE + C.N_TRUE].copy(),
             "upper_stuck": bool(out[C.O_UPPER_STUCK]),
             "lower_stuck": bool(out[C.O_LOWER_STUCK]),
-            "time": float(self._ep[C.EP_TICK] - self._ep[C.EP_TICK0]) * self._ts,
+            "time": t,
             "voltage": u,
             "voltage_requested": u_req,
             "voltage_clipped": clipped,
@@ -420,6 +439,8 @@ class DrillStringEnv(gym.Env):
         }
         if self._v1:
             info["integral_clipped"] = bool(out[C.O_INT_CLIPPED])
+        if self.settings.scenario is not None:
+            self._scenario_info(info, t)
         truncated = False
         if status != 0:
             truncated = True
@@ -493,8 +514,22 @@ class DrillStringEnv(gym.Env):
         }
 
     # -- internals -------------------------------------------------------------------------------
+    def _scenario_info(self, info: dict[str, Any], t: float) -> None:
+        # the set point and friction factor in force for the next control period
+        scenario = self.settings.scenario
+        assert scenario is not None  # called only for a scenario
+        info["scenario"] = scenario.name
+        info["target_speed"] = float(self._ep[C.EP_TARGET])
+        info["nominal_voltage"] = float(self._ep[C.EP_UNOM])
+        info["friction_scale"] = scenario.friction_factor(t)
+
     def _reset_rig(self, setup: EpisodeSetup) -> int:
         self._p = setup.params.copy()
+        if self._schedule is not None:
+            # the warm-up runs with the friction of the switch-on
+            self._p_base = setup.params.copy()
+            self._points = self._schedule.episode_points(setup.point)
+            self._schedule.scale_friction(0.0, self._p_base, self._p)
         self._scfg = setup.sensors.copy()
         self._rng[:] = setup.rng
         pt = setup.point
@@ -535,6 +570,9 @@ class DrillStringEnv(gym.Env):
         }
         if self._v1:
             info["integral_clipped"] = bool(out[C.O_INT_CLIPPED])
+        if self.settings.scenario is not None:
+            info["scenario"] = self.settings.scenario.name
+            info["friction_scale"] = self.settings.scenario.friction_factor(0.0)
         return info
 
     def _physical_obs(self) -> np.ndarray:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -42,6 +43,7 @@ __all__ = [
     "OperatingPoint",
     "OperatingPointSampler",
     "OperatingRegimes",
+    "RegimeAbsentWarning",
     "TaskConfig",
     "critical_friction_slope",
     "equilibrium_speed",
@@ -53,6 +55,13 @@ __all__ = [
 ]
 
 VOLTAGE_LIMIT = RIG_VOLTAGE_LIMIT  # [V] the amplifier input range of the rig is [-5, 5] V (Sec. 2.1)
+
+
+class RegimeAbsentWarning(UserWarning):
+    """A regime the task asks for does not occur on the design model (e.g. an identified rig
+    whose equilibrium is unstable at every voltage): its episodes are drawn from the others."""
+
+    one_line = True  # the command line shows it as one line (drill_env.cli)
 
 
 @dataclass(frozen=True)
@@ -155,14 +164,31 @@ class OperatingPointSampler:
                 else self.uc1
             )
             regimes = self.regimes
+            missing = []
             for name in config.regimes:
                 pool = [(max(lo, u_floor), hi) for lo, hi in regimes.intervals_of(name) if hi > u_floor]
-                if not pool:
-                    raise ValueError(
-                        f"regimes: {name!r} does not occur between {u_floor:.4g} V and {self.u_max:g} V for "
-                        f"these parameters; regimes found: {regimes.describe()}"
-                    )
-                self._pools[name] = pool
+                if pool:
+                    self._pools[name] = pool
+                else:
+                    missing.append(name)
+            if not self._pools:
+                raise ValueError(
+                    f"regimes: {', '.join(map(repr, missing))} "
+                    f"{'does' if len(missing) == 1 else 'do'} not occur between {u_floor:.4g} V and "
+                    f"{self.u_max:g} V for these parameters; regimes found: "
+                    + "; ".join(f"{n} {lo:.4g}-{hi:.4g} V" for n, lo, hi in regimes.intervals)
+                )
+            if missing:
+                # a rig without one of the regimes (e.g. no stable equilibrium anywhere): the
+                # episodes draw from the regimes it has, and the user is told which are absent
+                warnings.warn(
+                    f"regimes: {', '.join(missing)} {'does' if len(missing) == 1 else 'do'} not occur between "
+                    f"{u_floor:.4g} V and {self.u_max:g} V on this rig ({self.params.name}); episodes draw "
+                    f"from {', '.join(self._pools)}",
+                    RegimeAbsentWarning,
+                    stacklevel=2,
+                )
+        self.available_regimes: tuple[str, ...] = tuple(self._pools)
 
     @property
     def regimes(self) -> OperatingRegimes:
@@ -188,9 +214,8 @@ class OperatingPointSampler:
         u = min(max(nominal_voltage(self.params, w), math.nextafter(self.uc1, math.inf)), self.u_max)
         return OperatingPoint(self.regimes.regime_of(u), u, w)
 
-    def point_in_regime(self, regime: str, rng: np.random.Generator) -> OperatingPoint:
-        if regime not in REGIMES:
-            raise ValueError(f"regime: {regime!r} is not one of {REGIMES}")
+    def _pool(self, regime: str) -> list[tuple[float, float]]:
+        """The voltage intervals of ``regime`` above the task's speed floor (maybe none)."""
         pool = self._pools.get(regime)
         if pool is None:
             u_floor = (
@@ -199,9 +224,24 @@ class OperatingPointSampler:
                 else self.uc1
             )
             pool = [(max(lo, u_floor), hi) for lo, hi in self.regimes.intervals_of(regime) if hi > u_floor]
-            if not pool:
-                raise ValueError(f"regime: {regime!r} does not occur for these parameters")
-            self._pools[regime] = pool
+            if pool:
+                self._pools[regime] = pool
+        return pool
+
+    def regimes_present(self) -> tuple[str, ...]:
+        """The regimes of :data:`REGIMES` that occur on this model above the speed floor (an
+        identified rig may lack one: no stable equilibrium anywhere, or no cycle)."""
+        return tuple(r for r in REGIMES if self._pool(r))
+
+    def point_in_regime(self, regime: str, rng: np.random.Generator) -> OperatingPoint:
+        if regime not in REGIMES:
+            raise ValueError(f"regime: {regime!r} is not one of {REGIMES}")
+        pool = self._pool(regime)
+        if not pool:
+            raise ValueError(
+                f"regime: {regime!r} does not occur for these parameters; regimes found: "
+                + ", ".join(self.regimes_present())
+            )
         total = sum(hi - lo for lo, hi in pool)
         x = float(rng.uniform(0.0, total))
         for lo, hi in pool:
@@ -219,5 +259,6 @@ class OperatingPointSampler:
             return self.point_from_voltage(rng.uniform(*cfg.voltage_range))
         if cfg.target_speed_range is not None:
             return self.point_from_speed(rng.uniform(*cfg.target_speed_range))
-        regime = cfg.regimes[int(rng.integers(len(cfg.regimes)))]
+        names = self.available_regimes
+        regime = names[int(rng.integers(len(names)))]
         return self.point_in_regime(regime, rng)

@@ -87,6 +87,12 @@ class DrillStringVectorEnv(VectorEnv):
                 "DrillStringEnv or use gymnasium.make_vec(..., vectorization_mode='sync')"
             )
         self.settings = s = EnvSettings(**kwargs)
+        if s.schedule is not None:
+            raise ValueError(
+                f"scenario: {s.schedule.scenario.name!r} changes the set point or friction during the episode, "
+                "which the native vector env does not do; use gymnasium.make_vec(..., "
+                "vectorization_mode='sync') or a scenario without changes"
+            )
         self.num_envs = n = int(num_envs)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.autoreset_mode = mode

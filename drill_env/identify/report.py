@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from drill_env.identify.identification import Identification
-from drill_env.outputs import atomic_write_text
+from drill_env.outputs import atomic_write_text, save_figure
 from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
 
 __all__ = ["identification_json", "write_outputs", "UNITS"]
@@ -232,14 +232,10 @@ def _sample_params(res: Identification, n: int = 200, seed: int = 0) -> list[Rig
 
 def _friction_figure(res: Identification, p: RigParams, path: Path) -> None:
     """The identified friction curves (``p``: the identified rig, ``res.params``)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from drill_env._figures import subplots
     from drill_env.friction import lower_friction_curve, upper_slip_friction
 
-    fig, (ax_u, ax_l) = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, (ax_u, ax_l) = subplots(1, 2, figsize=(12, 4.8))
     top_l = max(res.max_lower_speed, 1.0)
     w_l = np.linspace(0.0, top_l, 300)
     w_up = max([abs(s.mean_upper_speed) for s in res.states] + [1.0])
@@ -289,20 +285,16 @@ def _friction_figure(res: Identification, p: RigParams, path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> bool:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from drill_env._figures import subplots
 
     comps = [c for c in res.heldout.values() if c.t is not None]
     if not comps:
         return False
-    fig, axes = plt.subplots(len(comps), 1, figsize=(11, 2.6 * len(comps)), squeeze=False)
+    fig, axes = subplots(len(comps), 1, figsize=(11, 2.6 * len(comps)), squeeze=False)
     for ax, c in zip(axes[:, 0], comps, strict=True):
         t = c.t - c.t[0]
         k = t <= window_s
@@ -319,8 +311,7 @@ def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> 
     axes[-1, 0].set_xlabel("time since the start of the recording [s]")
     axes[0, 0].legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return True
 
 
@@ -328,12 +319,9 @@ def _bifurcation_figure(
     res: Identification, params: RigParams, path: Path, progress=None
 ) -> dict[str, Any] | None:
     """The bifurcation diagram of ``params`` (the identified rig, ``res.params``) with the data."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
+    from drill_env._figures import subplots
     from drill_env.analysis import bifurcation_diagram
     from drill_env.analysis.plots import plot_bifurcation
 
@@ -344,7 +332,7 @@ def _bifurcation_figure(
         diagram = bifurcation_diagram(params, u_max=u_max, u_min=0.0)
     except Exception as exc:  # noqa: BLE001 (the report says why the figure is missing)
         return {"error": f"{type(exc).__name__}: {exc}"}
-    fig, ax = plt.subplots(figsize=(11, 5.5))
+    fig, ax = subplots(figsize=(11, 5.5))
     plot_bifurcation(diagram, ax=ax, legend=False, alpha=0.8)
     ax.set_title(
         f"bifurcation diagram of the identified model ({res.structure}) with the data's steady states"
@@ -362,8 +350,7 @@ def _bifurcation_figure(
         ]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return {
         "u_max": u_max,
         "points": {k: v.u for k, v in diagram.points.items()},

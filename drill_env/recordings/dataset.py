@@ -221,6 +221,19 @@ def _read_text(path: Path, what: str, max_bytes: int) -> bytes:
     return raw[3:] if raw.startswith(b"\xef\xbb\xbf") else raw
 
 
+class _DuplicateKey(Exception):
+    """A JSON object with a key twice (json keeps the last value silently)."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKey(key)
+        out[key] = value
+    return out
+
+
 def _load_meta(folder: Path) -> dict[str, Any]:
     from drill_env.params import available_presets
 
@@ -231,7 +244,15 @@ def _load_meta(folder: Path) -> dict[str, Any]:
         )
     raw = _read_text(path, "dataset.json", MAX_META_BYTES)
     try:
-        meta = json.loads(raw.decode("utf-8"))
+        meta = json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys)
+    except _DuplicateKey as exc:
+        key = exc.args[0]
+        text = raw.decode("utf-8")
+        found = [m.start() for m in re.finditer(re.escape(json.dumps(key)) + r"\s*:", text)]
+        where = f" (line {text.count(chr(10), 0, found[1]) + 1})" if len(found) > 1 else ""
+        raise DatasetError(
+            f"{path}: the key {key!r} appears twice{where}; which value holds is never guessed: keep one"
+        ) from None
     except json.JSONDecodeError as exc:
         raise DatasetError(
             f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}"

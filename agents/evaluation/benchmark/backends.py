@@ -10,7 +10,13 @@ from pathlib import Path
 from typing import Any
 
 from drill_env.agents.evaluation.benchmark.grid import BenchmarkConfig, Job
-from drill_env.agents.evaluation.benchmark.report import REPORT_FIGURES, write_report
+from drill_env.agents.evaluation.benchmark.provenance import (
+    PROVENANCE_FILE,
+    code_identity,
+    session_record,
+    write_provenance,
+)
+from drill_env.agents.evaluation.benchmark.report import RANKING_FILE, REPORT_FIGURES, write_report
 from drill_env.agents.evaluation.benchmark.runs import _run_chunk, _worker_init, run_job
 from drill_env.agents.evaluation.benchmark.store import (
     _done_keys,
@@ -65,13 +71,14 @@ def _run_benchmark(
     report: bool,
 ) -> Path:
     csv_path = out / "benchmark.csv"
+    code = code_identity()  # the code as the session starts (files may change while it runs)
     cfg_path = out / "benchmark_config.json"
     record = cfg.settings_record()
     if fresh:  # the results and the report made from them (no stale figure of a plant left)
         report = [out / "summary.md"] + [
             f for pattern in REPORT_FIGURES for f in (out.glob(pattern) if out.is_dir() else [])
         ]
-        for p in (csv_path, cfg_path, *report):
+        for p in (csv_path, cfg_path, out / PROVENANCE_FILE, out / RANKING_FILE, *report):
             if p.is_file():
                 p.unlink()
     old = check_resumable(cfg, out)
@@ -90,6 +97,7 @@ def _run_benchmark(
         )
     full_record = dict(
         record,
+        **_design_regimes_record(cfg),
         presets=list(cfg.presets),
         controllers=list(cfg.controllers),
         voltages={p: list(v) for p, v in cfg.voltages.items()},
@@ -138,6 +146,13 @@ def _run_benchmark(
                 _run_ray(todo, cfg, workers, ray_address, finish)
     finally:
         writer.close()
+        rows_before = total - len(todo)  # an interrupted session is recorded with the rows it wrote
+        write_provenance(
+            out,
+            session_record(
+                cfg, rows_run=n_done - rows_before, rows_before=rows_before, backend=backend, code=code
+            ),
+        )
     missing = {j.key for j in all_jobs} - _rewrite_sorted(csv_path, cfg)
     if missing:  # only if something bypassed the lock
         raise RuntimeError(
@@ -147,6 +162,18 @@ def _run_benchmark(
     if report:
         write_report(csv_path, out)
     return csv_path
+
+
+def _design_regimes_record(cfg: BenchmarkConfig) -> dict[str, str]:
+    """The design model's regimes in one line (for the report), when there is a design model."""
+    if cfg.design_params is None:
+        return {}
+    from drill_env.agents.evaluation.benchmark.grid import describe_regimes, design_regimes
+
+    try:
+        return {"design_regimes": describe_regimes(design_regimes(cfg.design_model()))}
+    except (ValueError, RuntimeError) as exc:
+        return {"design_regimes": f"not found ({exc})"}
 
 
 def _policies_used(cfg: BenchmarkConfig) -> dict[str, str]:
@@ -180,10 +207,9 @@ def _policy_starts(cfg: BenchmarkConfig) -> dict[str, str]:
     """How each learned controller's policy per preset started (from scratch, clone of X,
     residual on X, ...; :func:`drill_env.agents.learning.cards.policy_start`), read from the
     ``config.yaml`` beside it; a policy without one is left out."""
-    import yaml
-
     from drill_env.agents.learning.cards import policy_start
     from drill_env.agents.registry import LEARNED, policy_path
+    from drill_env.yamlio import load_yaml
 
     out = {}
     for c in cfg.controllers:
@@ -195,7 +221,7 @@ def _policy_starts(cfg: BenchmarkConfig) -> dict[str, str]:
             except ValueError:
                 continue
             if config.is_file():
-                out[f"{c}/{p}"] = policy_start(yaml.safe_load(config.read_text()) or {})
+                out[f"{c}/{p}"] = policy_start(load_yaml(config, what="policy config") or {})
     return out
 
 

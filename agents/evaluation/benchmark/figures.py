@@ -14,6 +14,7 @@ from drill_env.agents.evaluation.episodes import EpisodeSettings
 from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.evaluation.robustness import REGIMES, ordered_controllers
 from drill_env.agents.registry import CONTROLLERS, controller_style
+from drill_env.outputs import save_figure
 
 Y_FLOOR = -2.0  # suppression below this is drawn at the floor with its value written
 # Each controller's marker in every figure, from the registry (drill_env.agents.registry.STYLES).
@@ -23,9 +24,6 @@ _MARKERS = {c: controller_style(c).marker for c in CONTROLLERS}
 def _figures(df, preset: str, out: Path, plant: str = NOMINAL) -> list[Path]:
     """The bifurcation figure (nominal plant only: the analysis is of the nominal model) and
     the suppression figure of one preset and plant."""
-    import matplotlib
-
-    matplotlib.use("Agg")
 
     if df.empty:
         return []
@@ -40,21 +38,19 @@ def bifurcation_figure(df, preset: str, out: Path) -> Path:
     bifurcation diagram (faded) and, at its exact voltage, every run's steady min and max of
     x3 joined by a bar. Runs beyond the common scale end in a triangle at the panel's edge;
     their range is written under the panel's title."""
-    import matplotlib.pyplot as plt
 
     fig = draw_bifurcation_figure(df, preset)
     p = out / f"bifurcation_{preset}.png"
-    fig.savefig(p, dpi=100)
-    plt.close(fig)
+    save_figure(fig, p, dpi=100)
     return p
 
 
 def draw_bifurcation_figure(df, preset: str, diagram=None):
     """The figure of :func:`bifurcation_figure` (``diagram``: the nominal model's to 5 V,
     computed if not given); returns the matplotlib figure."""
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
+    from drill_env._figures import subplots
     from drill_env.analysis import bifurcation_diagram
     from drill_env.analysis.plots import plot_bifurcation
 
@@ -66,9 +62,7 @@ def draw_bifurcation_figure(df, preset: str, diagram=None):
     y_lo = -0.08 * y_hi
     ncol = 4
     nrow = -(-len(ctrls) // ncol)
-    fig, axes = plt.subplots(
-        nrow, ncol, figsize=(17, 3.9 * nrow + 0.6), sharex=True, sharey=True, squeeze=False
-    )
+    fig, axes = subplots(nrow, ncol, figsize=(17, 3.9 * nrow + 0.6), sharex=True, sharey=True, squeeze=False)
     flat = [a for row in axes for a in row]
     handles: list = []
     for ax, c in zip(flat, ctrls, strict=False):
@@ -221,16 +215,75 @@ def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False) -> Non
     ax.grid(alpha=0.3)
 
 
+SHORTFALL_FLOOR = 1e-4  # [-] a mean shortfall 1 - suppression below this is drawn at it
+SHORTFALL_ABOVE = 0.01  # [-] the shortfall panel draws the means of suppression above this
+
+
+def _draw_shortfall(ax, df, preset: str, ctrls) -> bool:
+    """The shortfall 1 - suppression (mean over seeds) against voltage on a log scale, where the
+    controllers that all read 0.99-1.00 on the linear scale are told apart (0.99 -> 1e-2,
+    0.999 -> 1e-3); a mean suppression of at most :data:`SHORTFALL_ABOVE` (as open loop or
+    worse) is left to the panel above,
+    a shortfall below :data:`SHORTFALL_FLOOR` drawn at it. Returns whether anything was drawn."""
+    cyc = df[df["open_loop_amplitude"] > 0]
+    for name, lo, hi in _regime_spans(preset):
+        if name in _REGIME_SHADES:
+            ax.axvspan(lo, hi, color=_REGIME_SHADES[name], alpha=0.15, lw=0, zorder=0)
+    drawn = False
+    for c in ctrls:
+        r = cyc[cyc["controller"] == c]
+        if r.empty:
+            continue
+        g = r.groupby("voltage")["suppression"].mean()
+        short = 1.0 - g
+        keep = short < 1.0 - SHORTFALL_ABOVE
+        if not keep.any():
+            continue
+        v = np.asarray(short.index[keep], dtype=float)
+        y = np.maximum(short[keep].to_numpy(), SHORTFALL_FLOOR)
+        style = controller_style(c)
+        ax.plot(
+            v,
+            y,
+            style.marker + "-",
+            color=style.colour,
+            mfc="none",
+            ms=6,
+            lw=1,
+            label=c,
+        )
+        drawn = True
+    ax.set_yscale("log")
+    ax.set_ylim(SHORTFALL_FLOOR * 0.7, 1.0)
+    ax.set_xlim(0.0, 5.1)
+    from drill_env.analysis.plots import AMPLIFIER_LIMIT_V
+
+    ax.axvline(AMPLIFIER_LIMIT_V, color="tab:purple", lw=1.0, ls="-.", zorder=1)
+    ax.grid(alpha=0.3, which="both")
+    return drawn
+
+
 def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls) -> list[Path]:
-    import matplotlib.pyplot as plt
+    """``suppression_<preset>[_<plant>].png``: the suppression against voltage (mean, seed
+    range) above and the shortfall 1 - suppression on a log scale below, where the leading
+    controllers are told apart."""
     from matplotlib.lines import Line2D
 
-    fig, ax = plt.subplots(figsize=(12.5, 5.2))
+    from drill_env._figures import subplots
+
+    fig, (ax, ax_log) = subplots(2, 1, figsize=(12.5, 8.6), sharex=True)
     _draw_suppression(ax, df, preset, ctrls)
-    ax.set_xlabel("nominal voltage u [V]")
+    _draw_shortfall(ax_log, df, preset, ctrls)
+    ax_log.set_xlabel("nominal voltage u [V]")
     ax.set_ylabel("suppression = 1 - amplitude / open-loop amplitude [-]")
+    ax_log.set_ylabel("shortfall 1 - suppression [-]\n(mean over seeds, log scale)")
     on = "" if plant == NOMINAL else f" on plant {plant} (reference: the open-loop run on it)"
     ax.set_title(f"{preset}{on}: suppression of the open-loop cycle", fontsize=10)
+    ax_log.set_title(
+        f"the same means as shortfall: 0.99 -> 1e-2, 0.999 -> 1e-3 (below {SHORTFALL_FLOOR:g} drawn at it; "
+        f"means at or below {SHORTFALL_ABOVE:g} only above)",
+        fontsize=9,
+    )
     handles, _ = ax.get_legend_handles_labels()
     handles = [Line2D([], [], ls="none", label="mean over seeds, bar: min-max:"), *handles]
     handles += [
@@ -253,24 +306,22 @@ def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls) -> list[P
     ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     p = out / (f"suppression_{preset}.png" if plant == NOMINAL else f"suppression_{preset}_{plant}.png")
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    save_figure(fig, p, dpi=110)
     return [p]
 
 
 def _plants_figure(df, preset: str, out: Path, plants: Sequence[str]) -> Path:
     """``suppression_<preset>_plants.png``: the suppression figure of every plant other than
     the nominal one as small multiples (one panel per plant, shared axes)."""
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
+
+    from drill_env._figures import subplots
 
     ok = df[(df["preset"] == preset) & (df["error"] == "")]
     ctrls = ordered_controllers(ok["controller"])
     ncol = 4
     nrow = -(-(len(plants) + 1) // ncol)  # one slot for the legend
-    fig, axes = plt.subplots(
-        nrow, ncol, figsize=(16, 2.6 * nrow + 1.0), sharex=True, sharey=True, squeeze=False
-    )
+    fig, axes = subplots(nrow, ncol, figsize=(16, 2.6 * nrow + 1.0), sharex=True, sharey=True, squeeze=False)
     flat = [a for row in axes for a in row]
     for k, plant in enumerate(plants):
         ax = flat[k]
@@ -303,8 +354,7 @@ def _plants_figure(df, preset: str, out: Path, plants: Sequence[str]) -> Path:
         handles=handles, loc="upper left", bbox_to_anchor=(0.05, 0.95), fontsize=8, frameon=False, ncol=3
     )
     p = out / f"suppression_{preset}_plants.png"
-    fig.savefig(p, dpi=100)
-    plt.close(fig)
+    save_figure(fig, p, dpi=100)
     return p
 
 
@@ -326,12 +376,9 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     nominal-trained counterpart's (right: above 0, the robust policy's guarantee across the
     plants is the better one at that voltage). None where no controller has a suppression
     (the open loop alone, or no cycle on any plant)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
+    from drill_env._figures import subplots
     from drill_env.agents.evaluation.robustness import robust_pairs, worst_by_voltage
 
     worst = worst_by_voltage(df, preset)
@@ -342,7 +389,7 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     volts = [v for w in worst.values() for v in w]
     pad = 0.05 * (max(volts) - min(volts)) + 0.05
     xlim = (min(volts) - pad, max(volts) + pad)
-    fig, axes = plt.subplots(1, 2 if pairs else 1, figsize=(15 if pairs else 9, 5.4), squeeze=False)
+    fig, axes = subplots(1, 2 if pairs else 1, figsize=(15 if pairs else 9, 5.4), squeeze=False)
     ax = axes[0][0]
     for name, lo, hi in _regime_spans(preset):
         if name in _REGIME_SHADES:
@@ -417,6 +464,5 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     legend_rows = -(-(len(worst) + 2) // 6) if pairs else -(-n_legend // ncol)
     fig.tight_layout(rect=(0, (0.15 + 0.22 * legend_rows) / fig.get_figheight(), 1, 1))
     p = out / f"worst_case_{preset}.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    save_figure(fig, p, dpi=110)
     return p

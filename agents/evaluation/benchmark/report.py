@@ -9,7 +9,15 @@ from pathlib import Path
 from typing import Any
 
 from drill_env.agents.evaluation.benchmark.figures import _figures, _plants_figure, worst_case_figure
-from drill_env.agents.evaluation.benchmark.runs import OPEN_LOOP_FLOOR
+from drill_env.agents.evaluation.benchmark.ranking import (
+    RANKING_FILE as RANKING_FILE,
+)
+from drill_env.agents.evaluation.benchmark.ranking import (
+    benchmark_rankings,
+    ranking_summary_lines,
+    write_rankings,
+)
+from drill_env.agents.evaluation.benchmark.runs import NOT_MADE, OPEN_LOOP_FLOOR
 from drill_env.agents.evaluation.benchmark.store import load_results
 from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED, STALL_SPEED_ERROR, STALL_STUCK_FRACTION
 from drill_env.agents.evaluation.plants import NOMINAL
@@ -28,6 +36,8 @@ REGIME_TITLES = REGIMES  # regime -> the title of its table
 SEPARATE_PLANT_FIGURES = 3
 # the figures write_report makes (removed with the results by ``fresh``)
 REPORT_FIGURES = (
+    "ranking.md",
+    "ranking_*.png",
     "bifurcation_*.png",
     "suppression_*.png",
     "robustness_*.png",
@@ -84,11 +94,13 @@ def summary_tables(
     plants: Mapping[str, Mapping[str, Any]] | None = None,
     starts: Mapping[str, str] | None = None,
     design: str | None = None,
+    design_regimes: str | None = None,
 ) -> str:
     """The markdown of ``summary.md`` from the results DataFrame; ``notes``: the policy each
     learned controller ran per preset (``"<controller>/<preset>"`` -> ``"path on ENV-ID"``),
     ``starts``: how each started (same keys); ``design``: the design model's file when the
-    controllers were built on one other than the preset's."""
+    controllers were built on one other than the preset's, ``design_regimes`` its regimes in
+    one line (:func:`~drill_env.agents.evaluation.benchmark.grid.describe_regimes`)."""
     lines = [
         "# Controller benchmark",
         "",
@@ -122,6 +134,8 @@ def summary_tables(
             f"Design model: `{design}` (every controller built on it; target speeds and regimes are its own).",
             "",
         ]
+        if design_regimes:
+            lines += [f"Regimes of the design model (its own analysis): {design_regimes}.", ""]
     ok = df[df["error"] == ""]
     failed = df[df["error"] != ""]
     only_nominal = set(df["plant"]) <= {NOMINAL}
@@ -211,13 +225,17 @@ def summary_tables(
                     cells.append(_num(s.mean(), 2) if len(s) else "-")
                 lines.append(f"| {c} | " + " | ".join(cells) + " |")
             lines.append("")
-    if not failed.empty:
-        lines.append("## runs that failed")
+    not_made = failed["error"].astype(str).str.startswith(NOT_MADE)
+    for title, rows in (("runs not made", failed[not_made]), ("runs that failed", failed[~not_made])):
+        if rows.empty:
+            continue
+        lines.append(f"## {title}")
         lines.append("")
-        for r in failed.to_dict("records"):
+        for r in rows.to_dict("records"):
             on = "" if r["plant"] == NOMINAL else f" (plant {r['plant']})"
+            error = r["error"][len(NOT_MADE) :] if r["error"].startswith(NOT_MADE) else r["error"]
             lines.append(
-                f"- {r['controller']} {r['preset']}{on} {r['voltage']:g} V seed {int(r['seed'])}: {r['error']}"
+                f"- {r['controller']} {r['preset']}{on} {r['voltage']:g} V seed {int(r['seed'])}: {error}"
             )
         lines.append("")
     return "\n".join(lines)
@@ -228,7 +246,7 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
     df = load_results(csv_path)
     out = Path(out_dir)
     notes = starts = None
-    design = None
+    design = regimes = None
     plants: dict[str, dict[str, Any]] = {}
     cfg_path = Path(csv_path).parent / "benchmark_config.json"
     if cfg_path.is_file():
@@ -237,8 +255,13 @@ def write_report(csv_path: str | Path, out_dir: str | Path) -> list[Path]:
         starts = rec.get("policy_starts")
         plants = {p["name"]: p for p in rec.get("plant_notes", [])}
         design = (rec.get("design_model") or {}).get("source")
+        regimes = rec.get("design_regimes")
     paths = [out / "summary.md"]
-    atomic_write_text(paths[0], summary_tables(df, notes, plants, starts, design) + "\n")
+    rankings = benchmark_rankings(df)
+    summary = summary_tables(df, notes, plants, starts, design, regimes)
+    summary += "\n" + "\n".join(ranking_summary_lines(rankings))
+    atomic_write_text(paths[0], summary + "\n")
+    paths += write_rankings(rankings, out)
     for preset in [p for p in PRESETS if p in set(df["preset"])]:
         names = _plants_in(df[df["preset"] == preset])
         others = [q for q in names if q != NOMINAL]

@@ -17,14 +17,42 @@ from drill_env.agents.evaluation.benchmark.store import COLUMNS
 # the analysis predicts on the grid is 1.2 rad/s)
 OPEN_LOOP_FLOOR = 0.1
 
+NOT_MADE = "not made: "  # the start of the error of a run that cannot be made on the design model
+
 _ENVS: dict[tuple[str, str], Any] = {}
+
+
+class RunNotMade(ValueError):
+    """A run of the grid that the design model has no operating point for (it does not turn
+    at that voltage): recorded as a row whose error starts with :data:`NOT_MADE`."""
+
+
+def check_operating_point(job: Job, cfg: BenchmarkConfig) -> None:
+    """RunNotMade if the design model of ``cfg`` (the preset's by default) does not turn at
+    ``job.voltage`` (at or below its stick boundary uc1)."""
+    from drill_env.params import load_params
+
+    model = cfg.design_model() or load_params(job.preset)
+    if not job.voltage > model.uc1:
+        raise RunNotMade(
+            f"the design model sticks up to uc1 = {model.uc1:.4g} V, so {job.voltage:g} V is no "
+            "operating point (no slip equilibrium, no target speed)"
+        )
+
+
 _CONTROLLERS: dict[tuple[Any, ...], Any] = {}
 
 
 def _worker_init() -> None:
+    import warnings
+
     import torch
 
+    from drill_env.envs.task import RegimeAbsentWarning
+
     torch.set_num_threads(1)
+    # the benchmark names the design model's regimes once, before the runs
+    warnings.filterwarnings("ignore", category=RegimeAbsentWarning)
 
 
 def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
@@ -39,8 +67,15 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     try:
+        check_operating_point(job, cfg)
         # cached per process, keyed by everything they are built from
-        version = observation_version(job.controller, job.preset, cfg.agents_dir)
+        spec = cfg.spec_of(job.controller)
+        if spec is None:
+            version = observation_version(job.controller, job.preset, cfg.agents_dir)
+        else:
+            from drill_env.agents.evaluation.controller_spec import spec_observation_version
+
+            version = spec_observation_version(spec, job.preset, cfg.agents_dir)
         episode_key = json.dumps(cfg.episode.to_dict(), sort_keys=True, default=str)
         design = cfg.design_model()
 
@@ -70,11 +105,23 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
             cfg.agents_dir,
             cfg.gains_file,
             cfg.design_params,
+            spec,
         )
         ctrl = _CONTROLLERS.get(ctrl_key)
-        if ctrl is None:
+        if ctrl is None and spec is not None:
+            from drill_env.agents.evaluation.controller_spec import resolve_controller
+
+            ctrl = _CONTROLLERS[ctrl_key] = resolve_controller(
+                spec, design_env, job.preset, agents_dir=cfg.agents_dir, trust_policies=cfg.trust_policies
+            )
+        elif ctrl is None:
             ctrl = _CONTROLLERS[ctrl_key] = build_controller(
-                job.controller, design_env, job.preset, agents_dir=cfg.agents_dir, gains_file=cfg.gains_file
+                job.controller,
+                design_env,
+                job.preset,
+                agents_dir=cfg.agents_dir,
+                gains_file=cfg.gains_file,
+                trusted=cfg.trust_policies,
             )
         plant = cfg.plant(job.plant)
         reference, regime = (
@@ -94,14 +141,29 @@ def run_job(job: Job, cfg: BenchmarkConfig) -> dict[str, Any]:
         row["plant"] = job.plant
         row["error"] = ""
     except Exception as exc:  # recorded, the benchmark goes on
+        if not isinstance(exc, RunNotMade):
+            _drop_envs()  # an env an error left mid-episode is not reused by the next run
         row = {c: math.nan for c in COLUMNS}
         row.update(
             controller=job.controller, preset=job.preset, plant=job.plant, voltage=job.voltage, seed=job.seed
         )
         row.update(regime="", plant_open_loop_regime="", stalled=False)
         row.update(sim_status=-1, wall_time=time.perf_counter() - t0)
-        row["error"] = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+        text = str(exc) if isinstance(exc, RunNotMade) else f"{type(exc).__name__}: {exc}"
+        row["error"] = (NOT_MADE if isinstance(exc, RunNotMade) else "") + text.replace("\n", " ")[:300]
     return row
+
+
+def _drop_envs() -> None:
+    """Close and forget this process's cached environments (Gymnasium's wrappers, e.g. its
+    passive checker, keep state from a reset that raised: one failed run made every later run
+    on the same env fail with a TypeError)."""
+    for env in _ENVS.values():
+        try:
+            env.close()
+        except Exception:  # closing a broken env must not hide the run's own error
+            pass
+    _ENVS.clear()
 
 
 _OPEN_LOOP: dict[tuple[Any, ...], tuple[float, str]] = {}

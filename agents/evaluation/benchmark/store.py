@@ -20,7 +20,7 @@ from drill_env.agents.evaluation.benchmark.grid import BenchmarkConfig
 from drill_env.agents.evaluation.episodes import IDENTIFIED_SPEED, METRIC_COLUMNS
 from drill_env.agents.evaluation.plants import NOMINAL
 from drill_env.agents.registry import CONTROLLERS
-from drill_env.outputs import atomic_file, open_append, refuse_links
+from drill_env.outputs import atomic_file, keep_on_error, open_append, refuse_link, refuse_links
 from drill_env.params import PRESETS
 
 COLUMNS = METRIC_COLUMNS[:2] + ("plant",) + METRIC_COLUMNS[2:] + ("error",)
@@ -99,6 +99,13 @@ def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any]
             f"out: {out} holds a benchmark designed on another model; use another directory or "
             "--fresh to start over"
         )
+    own = old.get("custom_controllers") or {}
+    for label, spec in (record.get("custom_controllers") or {}).items():
+        if label in own and own[label] != spec:
+            raise ValueError(
+                f"--controller {spec!r}: {out} holds rows of {label!r} made by {own[label]!r}; give this one "
+                "another label (LABEL=SPEC), use another directory or --fresh to start over"
+            )
     before = {q["name"]: q for q in old.get("plants", [])}
     for q in json.loads(json.dumps(record.get("plants", []))):
         if q["name"] in before and before[q["name"]] != q:
@@ -172,6 +179,7 @@ def _drop_partial_row(csv_path: Path) -> None:
     if not data or data.endswith(b"\n"):
         return
     keep = data.rfind(b"\n") + 1
+    refuse_link(csv_path)
     warnings.warn(
         f"{csv_path}: the last row is incomplete (an interrupted run); it is dropped and run again",
         RuntimeWarning,
@@ -232,11 +240,12 @@ class _Writer:
                     w.writeheader()
                     for row in df.to_dict("records"):
                         w.writerow({c: _fmt(row[c]) for c in COLUMNS})
+        if new:  # the header first, whole: a kill never leaves an empty or headless file
+            with atomic_file(path, "w", newline="") as f:
+                csv.DictWriter(f, fieldnames=list(COLUMNS)).writeheader()
+        keep_on_error(path)  # the runs finished so far outlive a full disk: the same command resumes
         self.f = open_append(path, newline="")  # never through a link out of the folder
         self.w = csv.DictWriter(self.f, fieldnames=list(COLUMNS))
-        if new:
-            self.w.writeheader()
-            self.f.flush()
 
     def write(self, row: Mapping[str, Any]) -> None:
         self.w.writerow({c: _fmt(row.get(c)) for c in COLUMNS})

@@ -1,0 +1,193 @@
+"""The short table each results page opens with, computed from the committed files.
+
+Before the sources are read, this writes ``_generated/results/headline_<page>.md``: one
+small Markdown table per results page, read from the CSV and JSON files under ``results/``
+(never typed by hand), so that a page starts with a figure and these few numbers and a
+regenerated result shows on the next build. A result file that is missing or lacks a column
+stops the build with the file's name (the build treats warnings as errors).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+CYCLES = (("limit_cycle", "Hopf"), ("stick_slip", "stick-slip"))
+PRESETS = (("brake", "with brake"), ("no_brake", "without brake"))
+
+
+def _suppression(values) -> str:  # noqa: ANN001
+    """``mean (worst)`` to three places, with no "-0.000"."""
+
+    def fmt(x: float) -> str:
+        text = f"{x:.3f}"
+        return "0.000" if text == "-0.000" else text
+
+    return f"{fmt(values.mean())} ({fmt(values.min())})" if len(values) else "-"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _suppression_by_controller(df, source: str, worst_over: str) -> str:  # noqa: ANN001
+    """Mean (worst) suppression of each controller in each preset's cycle regimes."""
+    df = df[df["error"].isna()] if "error" in df else df
+    controllers = list(dict.fromkeys(df["controller"]))
+    cols = [
+        (p, r) for p, _ in PRESETS for r, _ in CYCLES if ((df["preset"] == p) & (df["regime"] == r)).any()
+    ]
+    header = ["controller"] + [f"{dict(PRESETS)[p]}: {dict(CYCLES)[r]}" for p, r in cols]
+    rows = []
+    for c in controllers:
+        row = [f"`{c}`"]
+        for p, r in cols:
+            s = df[(df["controller"] == c) & (df["preset"] == p) & (df["regime"] == r)]["suppression"]
+            row.append(_suppression(s))
+        rows.append(row)
+    note = (
+        f"*Suppression of the cycle the analysis predicts: mean over {worst_over} (worst run in "
+        f"brackets); 1 removes it, 0 is open loop ({source}).*\n\n"
+    )
+    return note + _table(header, rows)
+
+
+def _csv(results: Path, *folders: str):  # noqa: ANN202
+    import pandas as pd
+
+    return pd.concat([pd.read_csv(results / f / "benchmark.csv") for f in folders], ignore_index=True)
+
+
+def benchmark(results: Path) -> str:
+    return _suppression_by_controller(
+        _csv(results, "benchmark"), "`benchmark/benchmark.csv`", "the runs of the grid"
+    )
+
+
+def plant_family(results: Path) -> str:
+    return _suppression_by_controller(
+        _csv(results, "plant_family"), "`plant_family/benchmark.csv`", "the runs on all plants of the family"
+    )
+
+
+def robust_rl(results: Path) -> str:
+    return _suppression_by_controller(
+        _csv(results, "robust_rl/brake", "robust_rl/no_brake"),
+        "`robust_rl/brake/`, `robust_rl/no_brake/`",
+        "the runs on all plants of the family",
+    )
+
+
+def discrepancy(results: Path) -> str:
+    s = json.loads((results / "discrepancy" / "study.json").read_text(encoding="utf-8"))["summary"]
+    rows = [
+        ["datasets", f"{s['n_datasets']}"],
+        ["right verdict", f"{100 * s['accuracy']:.1f} %"],
+        ["false discoveries (an effect named that is not there)", f"{s['false_discoveries']}"],
+        ["false alarms (no effect, yet one named)", f"{s['false_alarms']} of {s['datasets_without_effect']}"],
+        ["both effects named, where two are hidden", f"{100 * s['two_effects_both_named']:.1f} %"],
+        ["parameters inside their 95 % intervals", f"{100 * s['coverage_per_parameter']:.1f} %"],
+        ["datasets that failed", f"{s['errors']}"],
+    ]
+    return "*The hidden-effect study (`discrepancy/study.json`).*\n\n" + _table(["", "study"], rows)
+
+
+def sim_to_real(results: Path) -> str:
+    import pandas as pd
+
+    df = pd.read_csv(results / "sim_to_real" / "results.csv")
+    df = df[df["regime"].isin([r for r, _ in CYCLES])]
+    rows = []
+    for c in dict.fromkeys(df["controller"]):
+        row = [f"`{c}`"]
+        for design in ("nominal", "corrected"):
+            s = df[(df["controller"] == c) & (df["design"].isin([design, "-"]))]["suppression"]
+            row.append(_suppression(s))
+        rows.append(row)
+    note = "*Suppression on the truth plant, mean over its cycle runs (worst in brackets), designed on the nominal and on the corrected model (`sim_to_real/results.csv`).*\n\n"
+    return note + _table(
+        ["controller", "designed on the nominal model", "designed on the corrected model"], rows
+    )
+
+
+def training(results: Path) -> str:
+    t = json.loads((results / "training" / "time_to_policy.json").read_text(encoding="utf-8"))
+    rows = []
+    for s in t["summary"]:
+        times = [x for x in s.get("time_to_target_s", []) if x is not None]
+        median = s.get("median_time_to_target_s")
+        rows.append(
+            [
+                f"{s['algo']}",
+                dict(PRESETS).get(s["preset"], s["preset"]),
+                f"{s['reached']} of {len(s['seeds'])}",
+                f"{median:.0f} s" if median is not None else "-",
+                f"{max(times):.0f} s" if times else "-",
+            ]
+        )
+    note = "*From scratch: seeds that reached the target and the training time to it (`training/time_to_policy.json`).*\n\n"
+    return note + _table(["learner", "rig", "seeds that reached it", "median time", "worst time"], rows)
+
+
+def leaderboard(results: Path) -> str:
+    """Per committed ranking: the leader, its mean suppression and interval, and how many pairs
+    of the controllers at 0.99 or more the paired intervals resolve."""
+    rows = []
+    for folder in ("benchmark", "plant_family"):
+        rec = json.loads((results / folder / "ranking.json").read_text(encoding="utf-8"))
+        for rk in rec["rankings"]:
+            lead = rk["scores"][0]
+            score = {r["controller"]: r["score"] for r in rk["scores"]}
+            top = [q for q in rk["pairs"] if min(score[q["a"]], score[q["b"]]) >= 0.99]
+            rows.append(
+                [
+                    f"`{folder}` {rk['key']}",
+                    lead["controller"],
+                    f"{lead['score']:.4f} [{lead['low']:.4f}, {lead['high']:.4f}]",
+                    str(sum(v >= 0.99 for v in score.values())),
+                    f"{sum(q['resolved'] for q in top)} of {len(top)}",
+                ]
+            )
+    note = "*From `benchmark/ranking.json` and `plant_family/ranking.json` (95 % paired BCa intervals).*\n\n"
+    header = [
+        "ranking",
+        "leader",
+        "its suppression [interval]",
+        "controllers at 0.99+",
+        "their pairs resolved",
+    ]
+    return note + _table(header, rows)
+
+
+HEADLINES: dict[str, Callable[[Path], str]] = {
+    "leaderboard": leaderboard,
+    "benchmark": benchmark,
+    "plant_family": plant_family,
+    "robust_rl": robust_rl,
+    "discrepancy": discrepancy,
+    "sim_to_real": sim_to_real,
+    "training": training,
+}
+
+
+def write_headlines(app) -> None:  # noqa: ANN001 (Sphinx application)
+    src = Path(app.srcdir)
+    results = src.parent / "results"
+    out = src / "_generated" / "results"
+    out.mkdir(parents=True, exist_ok=True)
+    for page, make in HEADLINES.items():
+        try:
+            text = make(results)
+        except (OSError, KeyError, ValueError) as exc:
+            raise RuntimeError(f"the headline table of docs/results/{page}.md: {exc!r}") from exc
+        path = out / f"headline_{page}.md"
+        if not path.is_file() or path.read_text(encoding="utf-8") != text:
+            path.write_text(text, encoding="utf-8")
+
+
+def setup(app):  # noqa: ANN001, ANN201
+    app.connect("builder-inited", write_headlines)
+    return {"parallel_read_safe": True, "parallel_write_safe": True}

@@ -1,0 +1,507 @@
+"""The output rule, probe by probe: nothing is written where it was not asked.
+
+Each test runs a command as a user runs it (the CLI) or calls the library writer it goes
+through, then looks at the file system: planted links are refused and their targets left
+alone, a folder holding another command's outputs or a dataset is refused, an unusable
+partial file is one line naming ``--fresh``, a write error (a full disk, simulated) names the
+path and leaves no lock, temporary or 0-byte file behind.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import socket
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from drill_env.cli import app
+from drill_env.outputs import (
+    LOCK_NAME,
+    MARKER_NAME,
+    OutputFolderError,
+    OutputWriteError,
+    atomic_path,
+    atomic_write_json,
+    atomic_write_text,
+    check_output_file,
+    command_folder,
+    output_lock,
+    save_figure,
+)
+
+
+@pytest.fixture
+def runner() -> CliRunner:
+    return CliRunner()
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    """A small recorded-like dataset (two constant-voltage runs) written as `synth` writes one."""
+    from drill_env.recordings.synth import SynthConfig, make_dataset, write_synthetic
+
+    root = tmp_path_factory.mktemp("data")
+    cfg = SynthConfig(voltages=(1.0, 3.0), random_runs=0, duration_s=10.0, pre_roll_s=2.0)
+    res = make_dataset("none", seed=3, config=cfg)
+    write_synthetic(res, root / "data", root / "answer.json", preset="brake")
+    return root / "data"
+
+
+def _tree(folder: Path) -> dict[str, str]:
+    """Every entry under ``folder`` (links not followed) with its content's digest."""
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        rel = p.relative_to(folder).as_posix()
+        if p.is_symlink():
+            out[rel] = "link -> " + os.readlink(p)
+        elif p.is_file():
+            out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
+        else:
+            out[rel] = "folder"
+    return out
+
+
+def _victim(tmp_path: Path) -> Path:
+    victim = tmp_path / "elsewhere" / "victim.txt"
+    victim.parent.mkdir()
+    victim.write_text("the user's own file\n")
+    return victim
+
+
+def _one_error_line(res) -> str:
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1, res.stderr
+    return lines[0]
+
+
+# -- planted links ---------------------------------------------------------------------------------
+
+
+def test_identify_refuses_a_planted_link_and_leaves_its_target(tmp_path, runner, dataset):
+    victim = _victim(tmp_path)
+    out = tmp_path / "o2"
+    out.mkdir()
+    (out / "friction.png").symlink_to(victim)
+    res = runner.invoke(app, ["identify", str(dataset), "--out", str(out), "--no-bifurcation"])
+    line = _one_error_line(res)
+    assert "friction.png" in line and "symbolic link" in line
+    assert victim.read_text() == "the user's own file\n"
+    assert _tree(out) == {"friction.png": f"link -> {victim}"}  # nothing added, nothing replaced
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["train", "--algo", "ppo", "--config", "ppo", "--out", "{out}", "--run-dir", "{out}/../logs"],
+        ["benchmark", "--out", "{out}", "--controllers", "open_loop", "--quick"],
+        ["bifurcation", "--out", "{out}"],
+        ["discrepancy", "{data}", "--out", "{out}"],
+        ["discrepancy-study", "--out", "{out}", "--fresh", "--skip-paper-case"],
+        ["sim-to-real", "--quick", "--out", "{out}"],
+    ],
+    ids=lambda c: c[0],
+)
+def test_every_command_refuses_a_link_in_its_output_folder(tmp_path, runner, dataset, command):
+    victim = _victim(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    names = {
+        "train": "policy.zip",
+        "benchmark": "summary.md",
+        "bifurcation": "bifurcation.json",
+        "discrepancy": "model.yaml",
+        "discrepancy-study": "study_rows.partial.jsonl",
+        "sim-to-real": "truth.yaml",
+    }
+    (out / names[command[0]]).symlink_to(victim)
+    args = [a.format(out=out, data=dataset) for a in command]
+    line = _one_error_line(runner.invoke(app, args))
+    assert "symbolic link" in line and names[command[0]] in line
+    assert victim.read_text() == "the user's own file\n"
+    assert _tree(out) == {names[command[0]]: f"link -> {victim}"}
+
+
+def test_train_refuses_a_link_in_its_logs_folder(tmp_path, runner):
+    victim = _victim(tmp_path)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "final_policy.zip").symlink_to(victim)
+    args = [
+        "train",
+        "--algo",
+        "ppo",
+        "--config",
+        "ppo",
+        "--out",
+        str(tmp_path / "ppo"),
+        "--run-dir",
+        str(logs),
+    ]
+    line = _one_error_line(runner.invoke(app, args))
+    assert "--run-dir" in line and "final_policy.zip" in line
+    assert victim.read_text() == "the user's own file\n"
+    assert not (tmp_path / "ppo").exists()  # nothing created before the inputs were checked
+
+
+@pytest.mark.parametrize("command", ["simulate", "rig-comparison"])
+def test_a_link_as_the_output_file_is_refused(tmp_path, runner, command):
+    victim = _victim(tmp_path)
+    link = tmp_path / ("run.csv" if command == "simulate" else "rc.md")
+    link.symlink_to(victim)
+    args = [command, "--out", str(link)] + (["--duration", "1"] if command == "simulate" else [])
+    line = _one_error_line(runner.invoke(app, args))
+    assert "symbolic link" in line
+    assert victim.read_text() == "the user's own file\n"
+
+
+def _write_figure(path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(2, 2))
+    fig.add_subplot().plot([0, 1], [0, 1])
+    save_figure(fig, path, dpi=50)
+
+
+def _write_policy_like(path: Path) -> None:
+    with atomic_path(path, suffix=".zip") as tmp:
+        tmp.write_bytes(b"PK")
+
+
+@pytest.mark.parametrize(
+    "write",
+    [
+        _write_figure,
+        lambda p: atomic_write_text(p, "text"),
+        lambda p: atomic_write_json(p, {"a": 1}),
+        _write_policy_like,
+        lambda p: __import__("drill_env.params", fromlist=["x"]).resolve_params("brake").to_yaml(p),
+        lambda p: check_output_file(p),
+    ],
+    ids=["figure", "text", "json", "zip", "rig-yaml", "checked-file"],
+)
+def test_no_writer_follows_a_link(tmp_path, write):
+    victim = _victim(tmp_path)
+    link = tmp_path / "out.png"
+    link.symlink_to(victim)
+    with pytest.raises(OutputFolderError, match="symbolic link"):
+        write(link)
+    assert victim.read_text() == "the user's own file\n"
+    assert link.is_symlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "out.png"]  # no temporary left
+
+
+def test_the_writers_write_whole_files(tmp_path):
+    _write_figure(tmp_path / "f.png")
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    _write_figure(tmp_path / "f.svg")
+    assert b"<svg" in (tmp_path / "f.svg").read_bytes()[:400]
+    atomic_write_json(tmp_path / "a.json", {"k": [1, 2]})
+    assert json.loads((tmp_path / "a.json").read_text()) == {"k": [1, 2]}
+    _write_policy_like(tmp_path / "p.zip")
+    assert (tmp_path / "p.zip").read_bytes() == b"PK"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "f.png", "f.svg", "p.zip"]
+
+
+# -- one command's outputs per folder --------------------------------------------------------------
+
+
+def test_sim_to_real_data_refuses_an_existing_dataset(tmp_path, runner, dataset):
+    data = tmp_path / "mixdata"
+    data.mkdir()
+    for p in dataset.iterdir():
+        (data / p.name).write_bytes(p.read_bytes())
+    (data / "notes.txt").write_text("x\n")
+    before = _tree(data)
+    res = runner.invoke(app, ["sim-to-real", "--quick", "--data", str(data), "--out", str(tmp_path / "s2r")])
+    line = _one_error_line(res)
+    assert "--data" in line and "not empty" in line
+    assert _tree(data) == before  # no run replaced, none added
+    assert not (tmp_path / "s2r").exists()
+
+
+def test_a_folder_of_another_command_or_a_dataset_is_refused(tmp_path, runner, dataset):
+    ident = tmp_path / "shared"
+    ident.mkdir()
+    (ident / MARKER_NAME).write_text(json.dumps({"command": "identify"}))
+    (ident / "report.md").write_text("identify's report\n")
+    res = runner.invoke(app, ["discrepancy", str(dataset), "--out", str(ident)])
+    line = _one_error_line(res)
+    assert "`drill-env identify`" in line
+    assert (ident / "report.md").read_text() == "identify's report\n"
+    # a discrepancy output from before folders had markers: its files tell
+    legacy = tmp_path / "legacy"
+    legacy.mkdir()
+    (legacy / "report.md").write_text("discrepancy's report\n")
+    (legacy / "result.json").write_text("{}\n")
+    line = _one_error_line(runner.invoke(app, ["identify", str(dataset), "--out", str(legacy)]))
+    assert "result.json" in line
+    assert (legacy / "report.md").read_text() == "discrepancy's report\n"
+    # a dataset is never an output folder
+    before = _tree(dataset)
+    line = _one_error_line(runner.invoke(app, ["bifurcation", "--out", str(dataset)]))
+    assert "holds a dataset" in line
+    assert _tree(dataset) == before
+
+
+def test_a_refused_run_leaves_no_output_folder(tmp_path, runner):
+    empty = tmp_path / "not_a_dataset"
+    empty.mkdir()
+    for command in (["identify", str(empty)], ["discrepancy", str(empty)]):
+        out = tmp_path / f"out_{command[0]}"
+        res = runner.invoke(app, [*command, "--out", str(out)])
+        assert res.exit_code == 2, res.output
+        assert not out.exists(), sorted(p.name for p in out.iterdir())
+
+
+def test_command_folder_marks_its_folder_and_removes_it_when_left_empty(tmp_path):
+    with command_folder(tmp_path / "a" / "b", "identify") as folder:
+        assert json.loads((folder / MARKER_NAME).read_text())["command"] == "identify"
+        atomic_write_text(folder / "report.md", "r")
+    assert sorted(p.name for p in folder.iterdir()) == [MARKER_NAME, "report.md"]
+    with command_folder(folder, "identify"):  # its own folder again: accepted
+        pass
+    with pytest.raises(OutputFolderError, match="`drill-env identify`"):
+        with command_folder(folder, "discrepancy"):
+            pass
+    with pytest.raises(ValueError, match="refused inside"):
+        with command_folder(tmp_path / "c" / "d", "identify"):
+            raise ValueError("refused inside")
+    assert not (tmp_path / "c").exists()
+
+
+# -- faults leave nothing that misleads ------------------------------------------------------------
+
+
+def _full_disk(monkeypatch) -> None:
+    """Every file write of the output layer fails as on a full disk (at its flush to disk)."""
+    import drill_env.outputs as outputs
+
+    def fsync(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(outputs.os, "fsync", fsync)
+
+
+def test_a_full_disk_removes_what_the_run_created(tmp_path, monkeypatch):
+    old = tmp_path / "old"
+    with command_folder(old, "identify"):
+        atomic_write_text(old / "report.md", "the earlier report\n")
+    with command_folder(old, "identify"):  # a second run: its report cannot be written
+        _full_disk(monkeypatch)
+        with pytest.raises(OutputWriteError, match=r"cannot write .*report\.md: No space left on device"):
+            atomic_write_text(old / "report.md", "the new report\n")
+        monkeypatch.undo()
+    assert (old / "report.md").read_text() == "the earlier report\n"  # replaced whole or not at all
+    assert sorted(p.name for p in old.iterdir()) == [MARKER_NAME, "report.md"]  # no lock, no temporary
+    new = tmp_path / "new"
+    with pytest.raises(OutputWriteError, match="figure.png"):
+        with command_folder(new, "identify"):
+            atomic_write_text(new / "rig.yaml", "a: 1\n")
+            _full_disk(monkeypatch)
+            _write_figure(new / "figure.png")
+    monkeypatch.undo()
+    assert not new.exists()  # rig.yaml, the marker, the lock and the folder: all gone
+    _full_disk(monkeypatch)
+    with pytest.raises(OutputWriteError, match=LOCK_NAME):
+        with command_folder(tmp_path / "fresh", "identify"):
+            pass
+    assert not (tmp_path / "fresh").exists()
+
+
+def test_a_full_disk_in_a_command_names_the_path_and_leaves_no_file(tmp_path, runner, monkeypatch):
+    _full_disk(monkeypatch)
+    out = tmp_path / "sim" / "run.csv"
+    res = runner.invoke(app, ["simulate", "--duration", "2", "--out", str(out)])
+    line = _one_error_line(res)
+    assert str(out) in line and "No space left on device" in line
+    assert list(tmp_path.rglob("*")) in ([], [tmp_path / "sim"])
+    assert not out.exists()
+
+
+def test_a_real_write_error_is_named_and_leaves_no_temporary(tmp_path):
+    """A genuine write error of the OS: a file-size limit (RLIMIT_FSIZE) below the file's size."""
+    resource = pytest.importorskip("resource")
+    script = textwrap.dedent(
+        f"""
+        import resource, signal
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+        from drill_env.outputs import atomic_write_bytes, OutputWriteError
+        try:
+            atomic_write_bytes({str(tmp_path / "big.bin")!r}, b"x" * 100_000)
+        except OutputWriteError as exc:
+            print("ERR", exc)
+        """
+    )
+    assert resource  # used by the child
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.stdout.startswith("ERR cannot write"), proc.stdout + proc.stderr
+    assert "big.bin" in proc.stdout
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_lock_that_cannot_be_written_is_not_left_behind(tmp_path, monkeypatch):
+    import drill_env.outputs as outputs
+
+    def write_all(fd, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(outputs, "_write_all", write_all)
+    with pytest.raises(OutputWriteError, match=rf"{LOCK_NAME}: No space left on device"):
+        with output_lock(tmp_path / "out", "benchmark"):
+            pass
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("content", [b"", b"\x00\x00garbage"])
+def test_an_empty_or_unreadable_lock_of_a_dead_run_is_taken_over(tmp_path, content):
+    (tmp_path / LOCK_NAME).write_bytes(content)  # a full disk's 0-byte lock, or a damaged one
+    with pytest.warns(RuntimeWarning, match="taking over the lock"):
+        with output_lock(tmp_path, "next run"):
+            holder = json.loads((tmp_path / LOCK_NAME).read_text())
+            assert holder["pid"] == os.getpid()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_empty_lock_held_by_a_live_run_is_not_taken_over(tmp_path):
+    """A run that holds the kernel lock (another process) keeps its folder, empty file or not."""
+    import fcntl
+
+    lock = tmp_path / LOCK_NAME
+    lock.write_bytes(b"")
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import fcntl, sys, time; f = open(sys.argv[1], 'rb'); fcntl.flock(f, fcntl.LOCK_EX); "
+            "print('held', flush=True); time.sleep(60)",
+            str(lock),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        from drill_env.outputs import OutputFolderBusy
+
+        with pytest.raises(OutputFolderBusy, match="unknown run"):
+            with output_lock(tmp_path, "second"):
+                pass
+        assert lock.exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    assert fcntl  # POSIX only
+
+
+# -- resume that cannot crash ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"",
+        b"garbage, not JSON\n",
+        b"\xff\xfe\x00binary\n",
+        b'["a", "list"]\n',
+        b'{"design": {"seeds": 99}, "code": "0123456789abcdef"}\n{"index": 0, "row": {}}\n',
+    ],
+    ids=["empty", "garbage", "binary", "foreign", "other-grid"],
+)
+def test_discrepancy_study_refuses_an_unusable_partial_file_in_one_line(tmp_path, runner, content):
+    out = tmp_path / "study"
+    out.mkdir()
+    partial = out / "study_rows.partial.jsonl"
+    partial.write_bytes(content)
+    args = ["discrepancy-study", "--out", str(out), "--seeds", "1", "--sweep-seeds", "1"]
+    line = _one_error_line(runner.invoke(app, [*args, "--workers", "1", "--skip-paper-case"]))
+    assert str(partial) in line and "--fresh" in line
+    assert partial.read_bytes() == content  # kept for the user to decide
+    assert not (out / LOCK_NAME).exists()
+
+
+def test_the_partial_file_starts_with_its_header_before_the_first_row(tmp_path, monkeypatch):
+    """A study killed before its first dataset lands leaves a file the same command resumes."""
+    import drill_env.discrepancy.study as study
+
+    seen = {}
+
+    def stop(jobs, *args, **kwargs):
+        seen["text"] = (tmp_path / study.PARTIAL_ROWS).read_text()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study, "_run_jobs", stop)
+    with pytest.raises(KeyboardInterrupt):
+        study.run_study(tmp_path, seeds=1, sweep_seeds=1, workers=1)
+    header = json.loads(seen["text"].splitlines()[0])
+    assert set(header) == {"design", "code"}
+    monkeypatch.setattr(study, "_run_jobs", stop)
+    with pytest.raises(KeyboardInterrupt):  # resumes from it: no error about the file
+        study.run_study(tmp_path, seeds=1, sweep_seeds=1, workers=1, resume=True)
+
+
+# -- an unreachable Ray address --------------------------------------------------------------------
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("command", ["discrepancy-study", "benchmark"])
+def test_a_ray_address_nothing_answers_at_is_refused(tmp_path, runner, command):
+    address = f"127.0.0.1:{_closed_port()}"
+    args = [command, "--out", str(tmp_path / "o"), "--backend", "ray", "--ray-address", address]
+    if command == "benchmark":
+        args += ["--quick", "--controllers", "open_loop"]
+    line = _one_error_line(runner.invoke(app, args))
+    assert "--ray-address" in line and address in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_ray_address_that_does_not_answer_is_named_with_the_wait(monkeypatch):
+    import drill_env.ray_cluster as rc
+
+    waited = []
+
+    def silent(address, timeout):
+        waited.append(timeout)
+        raise TimeoutError("timed out")
+
+    monkeypatch.setattr(socket, "create_connection", silent)
+    with pytest.raises(
+        ValueError, match=r"nothing answers at ray://10\.0\.0\.9:6379 \(no answer within 10 s\)"
+    ):
+        rc.check_ray_address("ray://10.0.0.9:6379")
+    assert waited == [rc.CONNECT_TIMEOUT_S] and rc.CONNECT_TIMEOUT_S <= 30
+
+
+# -- a duplicate key ----------------------------------------------------------------------------------
+
+
+def test_a_duplicate_key_in_dataset_json_is_refused_with_the_key(tmp_path, runner, dataset):
+    data = tmp_path / "dup"
+    data.mkdir()
+    for p in dataset.iterdir():
+        (data / p.name).write_bytes(p.read_bytes())
+    meta = (data / "dataset.json").read_text()
+    # a braked recording that would be read as no_brake: json keeps the last value silently
+    assert '"preset": "brake"' in meta
+    (data / "dataset.json").write_text(
+        meta.replace('"preset": "brake"', '"preset": "brake",\n  "preset": "no_brake"')
+    )
+    out = tmp_path / "id"
+    line = _one_error_line(runner.invoke(app, ["identify", str(data), "--out", str(out)]))
+    assert "'preset' appears twice (line" in line and "dataset.json" in line
+    assert not out.exists()

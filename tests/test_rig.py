@@ -1,0 +1,409 @@
+"""Running a controller on a rig: the observer against the environment, the emulated rig against
+the simulator, the loop and its supervisor (in process, lockstep with the emulated rig), and
+the command line end to end against `drill-env emulate-rig` on loopback."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import drill_env
+from drill_env.recordings.dataset import load_dataset
+from drill_env.rig.emulator import EmulatedRig, LockstepRig, emulated_plant
+from drill_env.rig.loop import RunSettings, run_loop, write_outputs
+from drill_env.rig.observer import Observer
+from drill_env.rig.supervisor import Supervisor, SupervisorLimits, Trip
+
+ROOT = Path(__file__).resolve().parents[1]
+TESTS = Path(__file__).resolve().parent
+CLI = [sys.executable, "-m", "drill_env"]
+
+
+# -- observer: the environment's own observation from the counts ---------------------------------
+
+
+@pytest.mark.parametrize("env_id", ["DrillString-v0", "DrillString-v3"])
+def test_observer_gives_the_environments_observation_bit_for_bit(env_id):
+    env = gym.make(env_id, start="rest", sensors={"counts_per_rev": 1024})
+    obs, info = env.reset(seed=3, options={"nominal_voltage": 1.6})
+    base = env.unwrapped
+    ob = Observer(base.settings, 1024, 1000.0)
+    ob.set_point(info["target_speed"], info["nominal_voltage"])
+    rng = np.random.default_rng(5)
+    res = 2 * np.pi / 1024
+    for k in range(40):
+        obs, _, _, _, step = env.step(
+            env.action_space.sample() * 0 + rng.uniform(-1, 1, 1).astype(np.float32)
+        )
+        s = base.last_step_samples()
+        cu = np.floor(s["upper_angle"] / res).astype(np.int64)
+        cl = np.floor(s["lower_angle"] / res).astype(np.int64)
+        first = int(round(s["t"][0] * 1000))
+        if k == 0:
+            ob.start_episode()
+        got = ob.update(first, cu, cl, step["voltage"])
+        np.testing.assert_array_equal(got, obs, err_msg=f"step {k}")
+    env.close()
+
+
+# -- the emulated rig: the exact simulator, its encoders -------------------------------------------
+
+
+def test_emulated_rig_follows_the_simulator_and_its_encoders():
+    params, sensors = emulated_plant("no_brake", None)
+    rig = EmulatedRig(params, sensors)
+    rig.apply(1.2)
+    counts, truth = zip(*(rig.advance(m) for m in (1, 7, 992, 1000)), strict=True)
+    counts, truth = np.concatenate(counts), np.concatenate(truth)
+    ref = drill_env.simulate("no_brake", 1.2, 2.0, dt=0.001)
+    np.testing.assert_allclose(truth[:, 2], ref.x3[1:], atol=1e-6)
+    np.testing.assert_allclose(truth[:, 4], ref.theta_l[1:], atol=1e-7)
+    expect = np.floor(ref.theta_l[1:] * 2000 / (2 * np.pi))
+    assert np.mean(counts[:, 1] == expect) > 0.999  # an angle on a count's edge may round either way
+    assert rig.apply(7.0) == 5.0  # the amplifier's range
+
+
+def test_emulated_rig_refuses_what_the_wire_cannot_carry(tmp_path):
+    plant = tmp_path / "plant.yaml"
+    plant.write_text(
+        (ROOT / "configs" / "rig" / "brake.yaml").read_text() + "sensors:\n  speed_noise_std: 0.1\n"
+    )
+    params, sensors = emulated_plant("brake", plant)
+    with pytest.raises(ValueError, match="speed_noise_std"):
+        EmulatedRig(params, sensors)
+
+
+def test_plant_files_delay_reaches_the_counts(tmp_path):
+    plant = tmp_path / "plant.yaml"
+    plant.write_text((ROOT / "configs" / "rig" / "brake.yaml").read_text() + "actuator_delay: 0.01\n")
+    params, sensors = emulated_plant("brake", plant)
+    assert sensors.delay_samples == 10
+    late, prompt = EmulatedRig(params, sensors), EmulatedRig(*emulated_plant("brake", None))
+    for r in (late, prompt):
+        r.apply(3.0)
+    cl_late = late.advance(500)[0][:, 1]
+    cl_prompt = prompt.advance(500)[0][:, 1]
+    np.testing.assert_array_equal(cl_late[10:], cl_prompt[:-10])
+
+
+# -- the supervisor ------------------------------------------------------------------------------
+
+
+def test_supervisor_clamps_and_slew_limits():
+    sup = Supervisor(SupervisorLimits(voltage_limit=4.0, slew_limit=20.0), control_dt=0.05)
+    assert sup.apply(3.0, 0.0) == pytest.approx(1.0)  # 20 V/s * 50 ms
+    assert sup.apply(3.0, 0.05) == pytest.approx(2.0)
+    assert sup.apply(9.0, 0.1) == pytest.approx(3.0)
+    assert sup.apply(9.0, 0.15) == pytest.approx(4.0)  # clamped at 4 V
+    assert (sup.clamped, sup.slewed) == (2, 3)
+    with pytest.raises(Trip, match="speed"):
+        sup.check_speed(-13.0, 1.0)
+    with pytest.raises(Trip, match="nan"):
+        sup.apply(float("nan"), 1.0)
+
+
+@pytest.mark.parametrize(
+    "field, value, words",
+    [
+        ("voltage_limit", 6.0, r"--voltage-limit: 6.0 is outside the allowed range \(0, 5\] V"),
+        ("slew_limit", 0.0, "--slew-limit"),
+        ("speed_limit", 1000.0, r"--speed-limit: 1000.0 is outside the allowed range \(0, 100\] rad/s"),
+        ("watchdog_periods", 0, "--watchdog-periods"),
+    ],
+)
+def test_supervisor_limits_outside_the_rigs_range(field, value, words):
+    with pytest.raises(ValueError, match=words):
+        SupervisorLimits(**{field: value})
+
+
+# -- the loop, lockstep with the emulated rig (no wire, no wall clock) ----------------------------
+
+
+def _lockstep(controller: str, voltage: float, warmup: float, duration: float, window: float = 5.0, **kw):
+    from drill_env.agents.evaluation.rig_runs import resolve_controller
+
+    rig = LockstepRig(EmulatedRig(*emulated_plant("brake", None)), **kw)
+    info = rig.hello()
+    env, ctrl, name = resolve_controller(controller, "brake", info.counts_per_rev, info.sample_rate_hz)
+    if isinstance(controller, str) and ":" in controller:
+        pass
+    res = run_loop(rig, info, env, ctrl, name, RunSettings("brake", voltage, duration, warmup, window))
+    return rig, res
+
+
+def test_loop_runs_a_controller_and_records_a_dataset(tmp_path):
+    from drill_env.agents.evaluation.rig_runs import measured_metrics
+
+    rig, res = _lockstep("lqi", 2.0, warmup=6.0, duration=6.0)
+    assert res.trip is None and rig.stopped and rig.writes[-1] == 0.0
+    assert len(res.log) == 240 and sum(r["phase"] == "control" for r in res.log) == 120
+    u = np.array([r["u_applied"] for r in res.log])
+    assert np.all(np.abs(u) <= 5.0) and np.all(np.abs(np.diff(u)) <= 100.0 * 0.05 + 1e-12)
+    result = write_outputs(res, tmp_path, record=None, run_name="lqi_2V", measured=measured_metrics(res))
+    ds = load_dataset(tmp_path / "recording")
+    run = ds.runs[0]
+    assert ds.preset == "brake" and ds.encoder_counts_per_rev == 2000 and run.t.size == 12000
+    # the recording is the rig's: its angles are the emulated encoders' counts
+    r = 2 * np.pi / 2000
+    lower_true = np.concatenate([tr[:, 4] for _, _, tr in rig.truth])
+    np.testing.assert_allclose(run.theta_l, np.floor(lower_true / r) * r, atol=1e-9)
+    assert result["completed"] and (tmp_path / "report.md").is_file() and (tmp_path / "run.png").is_file()
+    log = np.genfromtxt(tmp_path / "controller_log.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    assert len(log) == 240
+
+
+def test_a_raising_controller_trips_the_supervisor_at_0_volt():
+    sys.path.insert(0, str(TESTS))
+    try:
+        rig, res = _lockstep("rig_controllers:Raising", 2.0, warmup=1.0, duration=5.0)
+    finally:
+        sys.path.remove(str(TESTS))
+    assert res.trip_kind == "controller" and "sensor value out of range" in res.trip
+    assert rig.stopped and rig.writes[-1] == 0.0 and rig.rig.voltage == 0.0
+    assert sum(r["phase"] == "control" for r in res.log) == 3
+
+
+def test_a_rig_that_stops_answering_trips_the_watchdog_and_keeps_the_recording(tmp_path):
+    from drill_env.agents.evaluation.rig_runs import measured_metrics
+
+    rig, res = _lockstep("lqi", 2.0, warmup=8.0, duration=20.0, fail_after=260)
+    assert res.trip_kind == "watchdog" and res.trip.startswith(
+        "watchdog: no encoder reading for 3 control periods"
+    )
+    assert rig.writes[-1] == 0.0 and rig.stopped
+    write_outputs(res, tmp_path, record=tmp_path / "data", run_name="cut", measured=measured_metrics(res))
+    assert load_dataset(tmp_path / "data").runs[0].t.size == 260 * 50
+
+
+# -- the command line on loopback -------------------------------------------------------------------
+
+
+class Emulator:
+    """`drill-env emulate-rig` in a process of its own, on a free port."""
+
+    def __init__(self, tmp_path: Path, *args: str, time_scale: float = 5.0):
+        self.truth = tmp_path / "truth.csv"
+        self.proc = subprocess.Popen(
+            [
+                *CLI,
+                "emulate-rig",
+                "--port",
+                "0",
+                "--time-scale",
+                str(time_scale),
+                "--truth",
+                str(self.truth),
+                *args,
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        line = self.proc.stdout.readline()
+        assert "listening on udp" in line, (
+            line,
+            self.proc.stderr.read() if self.proc.poll() is not None else "",
+        )
+        self.address = line.split()[-1]
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            self.proc.wait(30)
+
+    def truth_voltages(self) -> np.ndarray:
+        self.stop()
+        data = np.genfromtxt(self.truth, delimiter=",", names=True)
+        return np.atleast_1d(data["u"])
+
+
+def run_cli(*args: str, timeout: float = 300, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=timeout, env=env)
+
+
+@pytest.fixture
+def emulator(tmp_path):
+    emu = Emulator(tmp_path)
+    yield emu
+    emu.stop()
+
+
+def test_run_controller_on_the_emulated_rig(emulator, tmp_path):
+    out = tmp_path / "run"
+    p = run_cli(
+        "run-controller", "lqi", "--rig", emulator.address, "--voltage", "2", "--warmup", "3",
+        "--duration", "4", "--window", "2", "--out", str(out),
+    )  # fmt: skip
+    result = json.loads((out / "result.json").read_text())
+    assert p.returncode == 0, (p.stderr, result["trip"])
+    assert result["completed"] and result["rig"]["time_scale"] == 5.0
+    assert result["timing"]["periods"] == 140 and result["timing"]["readings_lost"] == 0
+    ds = load_dataset(out / "recording")
+    assert ds.runs[0].duration == pytest.approx(7.0, abs=0.002)
+    u = emulator.truth_voltages()
+    assert u[-1] == 0.0  # 0 V at the end
+
+
+def test_killing_the_emulator_trips_the_watchdog(tmp_path):
+    emu = Emulator(tmp_path, time_scale=5.0)
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [*CLI, "run-controller", "lqi", "--rig", emu.address, "--voltage", "2", "--warmup", "5",
+         "--duration", "60", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        # kill it once 12 s of rig time are recorded (the truth log runs with the rig)
+        if emu.truth.is_file() and emu.truth.stat().st_size > 12_000 * 60:
+            break
+        time.sleep(0.2)
+    emu.proc.kill()
+    emu.proc.wait(30)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1
+    lines = [line for line in err.splitlines() if line.startswith("error:")]
+    assert lines == [lines[0]] and lines[0].startswith(
+        "error: watchdog: no encoder reading for 3 control periods"
+    )
+    result = json.loads((out / "result.json").read_text())
+    assert result["ended_by"] == "watchdog" and not result["stopped_ok"]
+    events = (out / "events.csv").read_text()
+    assert "0 V written, rig stopped" in events
+    assert load_dataset(out / "recording").runs[0].duration >= 10.0
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--voltage-limit", "6"], "error: --voltage-limit: 6.0 is outside the allowed range (0, 5] V"),
+        (["--speed-limit", "2"], "error: --speed-limit: 2 rad/s is below the set point's target speed"),
+        (["--voltage", "7"], "error: --voltage: 7.0; allowed: (0, 5] V"),
+    ],
+)
+def test_bad_limits_are_one_line_and_exit_2(emulator, tmp_path, args, words):
+    base = [
+        "run-controller",
+        "lqi",
+        "--rig",
+        emulator.address,
+        "--voltage",
+        "2",
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    p = run_cli(*base, *args)
+    assert (
+        p.returncode == 2 and p.stderr.strip().startswith(words) and len(p.stderr.strip().splitlines()) == 1
+    )
+    assert np.all(emulator.truth_voltages() == 0.0)  # the motor never ran
+
+
+def test_an_address_that_does_not_answer(tmp_path):
+    import socket
+
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))  # bound and silent: no ICMP answer either
+    port = s.getsockname()[1]
+    try:
+        p = run_cli(
+            "run-controller", "lqi", "--rig", f"127.0.0.1:{port}", "--voltage", "2", "--out",
+            str(tmp_path / "o"), "--connect-timeout", "0.2",
+        )  # fmt: skip
+    finally:
+        s.close()
+    assert p.returncode == 2
+    assert p.stderr.strip() == (
+        f"error: --rig 127.0.0.1:{port}: no answer to HELLO within 0.2 s (3 tries); is the I/O box or "
+        "`drill-env emulate-rig` running there?"
+    )
+
+
+def test_a_controller_that_cannot_hold_the_rate(emulator, tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(TESTS)}
+    p = run_cli(
+        "run-controller", "rig_controllers:Slow", "--rig", emulator.address, "--voltage", "2",
+        "--out", str(tmp_path / "o"), env=env,
+    )  # fmt: skip
+    assert p.returncode == 2, p.stderr
+    err = [line for line in p.stderr.splitlines() if line.startswith("error")]
+    assert len(err) == 1 and "cannot hold the rate" in err[0] and "Slow takes" in err[0]
+    assert np.all(emulator.truth_voltages() == 0.0)
+
+
+@pytest.mark.slow
+def test_an_overrunning_controller_trips_the_watchdog(emulator, tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(TESTS)}
+    p = run_cli(
+        "run-controller", "rig_controllers:Overrunning", "--rig", emulator.address, "--voltage", "2",
+        "--warmup", "1", "--duration", "10", "--out", str(tmp_path / "o"), env=env,
+    )  # fmt: skip
+    assert p.returncode == 1
+    assert "error: watchdog: the controller call took" in p.stderr
+    assert emulator.truth_voltages()[-1] == 0.0
+
+
+# -- the same suppression as the benchmark's episode ---------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("controller", ["lqi", "ppo"])
+@pytest.mark.parametrize("voltage", [1.0, 2.0])  # the braked rig's Hopf cycle and its stick-slip
+def test_the_loop_reaches_the_benchmarks_suppression(controller, voltage):
+    """Lockstep with the emulated rig, the loop runs the benchmark's episode (90 s after a warm-up
+    of 62 s): the true state's suppression within 0.01 of evaluate()'s, the measured one (the
+    encoder's counts per period) within 0.03."""
+    from drill_env.agents.evaluation.episodes import EpisodeSettings, evaluate
+    from drill_env.agents.evaluation.rig_runs import measured_metrics
+
+    rig, res = _lockstep(controller, voltage, warmup=62.0, duration=90.0, window=20.0)
+    assert res.trip is None
+    t = np.concatenate([f + np.arange(tr.shape[0]) for f, _, tr in rig.truth]) / 1000.0
+    x = np.concatenate([tr for _, _, tr in rig.truth])
+    from drill_env.agents.evaluation.rig_runs import _score
+
+    w = t > t[-1] - 20.0 + 1e-9
+    truth = _score(t[w], x[w, 2], x[w, 5] != 0, "brake", voltage, res.target_speed)
+    from drill_env.agents.evaluation.rig_runs import resolve_controller
+
+    env, ctrl, name = resolve_controller(controller, "brake", 2000, 1000.0)
+    bench = evaluate(ctrl, "brake", voltage, 0, EpisodeSettings(), name=name, env=env)
+    assert abs(truth["suppression"] - bench.suppression) <= 0.01
+    assert abs(measured_metrics(res)["suppression"] - bench.suppression) <= 0.03
+    assert abs(truth["rms_error"] - bench.rms_error) <= 0.01
+
+
+@pytest.mark.slow
+def test_on_the_wire_lqi_reaches_the_benchmarks_suppression(tmp_path):
+    """The same through the emulator on loopback at twice the wall clock (the commands arrive
+    a few ms late there, as on a rig)."""
+    from drill_env.agents.evaluation.episodes import EpisodeSettings, evaluate
+    from drill_env.agents.evaluation.rig_runs import resolve_controller, truth_metrics
+
+    emu = Emulator(tmp_path, time_scale=2.0)
+    out = tmp_path / "run"
+    try:
+        p = run_cli(
+            "run-controller", "lqi", "--rig", emu.address, "--voltage", "2", "--warmup", "62", "--out", str(out),
+            timeout=900,
+        )  # fmt: skip
+    finally:
+        emu.stop()
+    assert p.returncode == 0, p.stderr
+    result = json.loads((out / "result.json").read_text())
+    log = np.genfromtxt(out / "controller_log.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    t_end = float(log["t"][-1])
+    truth = truth_metrics(emu.truth, t_end - 20.0, t_end, "brake", 2.0, result["target_speed"])
+    env, ctrl, name = resolve_controller("lqi", "brake", 2000, 1000.0)
+    bench = evaluate(ctrl, "brake", 2.0, 0, EpisodeSettings(), name=name, env=env)
+    assert abs(truth["suppression"] - bench.suppression) <= 0.02
+    assert abs(result["measured"]["suppression"] - bench.suppression) <= 0.03
