@@ -248,13 +248,16 @@ def test_the_refusals_advice_identifies_the_rig():
     marked identified."""
     rig = draw_rig("brake", 37, low=0.35, high=3.0)
     u = rig.uc1
-    first = (round(1.3 * u, 3), round(1.6 * u, 3), round(min(2.5 * u, 5.0), 3))
+    first = (round(1.1 * u, 3), round(1.2 * u, 3), round(1.3 * u, 3))  # slip equilibria
     plan = ExperimentPlan("settled", first, 0, (0.0, 5.0), (0.5, 2.0), 40.0, 60.0, (250.0, 1000.0))
     known = {"string_stiffness": rig.string_stiffness}
     res = make_dataset(
         "none", seed=37, config=synth_config(plan, "brake", angle_noise_std=0.0), truth_overrides=_truth(rig)
     )
     refused = identify(_dataset(res.runs, "brake", 2000), known=known, simulate_heldout=False)
+    for n in ("motor_constant", "upper_inertia", "lower_inertia", "upper_static_pos", "upper_viscous_pos"):
+        p = refused.parameters[n]  # a value far off is never marked identified
+        assert not p.identified or p.value == pytest.approx(getattr(rig, n), rel=0.25), (n, p)
     assert refused.params is None
     for p in refused.not_identifiable:
         assert not p.identified and p.needs
