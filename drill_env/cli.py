@@ -265,7 +265,33 @@ _register_commands()
 
 
 def main() -> None:  # entry point
-    app()
+    """Run the command; a Ctrl-C at any moment ends it with exit code 130, also one that
+    arrived where Python cannot raise it (a finaliser, a cleanup: "Exception ignored")."""
+    import signal
+    import sys
+
+    seen: list[int] = []
+
+    def on_sigint(signum: int, frame: object) -> None:
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    try:
+        signal.signal(signal.SIGINT, on_sigint)
+    except ValueError:  # not the main thread: leave Python's handler
+        pass
+    try:
+        app()
+    except SystemExit as exc:
+        if seen and exc.code in (0, None):
+            typer.secho(
+                "interrupted (Ctrl-C): the command was stopped while it finished; every file written is "
+                "complete (each is replaced whole)",
+                fg=typer.colors.YELLOW,
+                err=True,
+            )
+            sys.exit(INTERRUPTED_EXIT)
+        raise
 
 
 if __name__ == "__main__":

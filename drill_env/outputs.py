@@ -67,6 +67,7 @@ __all__ = [
     "clear_folder",
     "refuse_links",
     "open_append",
+    "open_new",
 ]
 
 LOCK_NAME = ".drill-env.lock"
@@ -247,6 +248,22 @@ def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
         raise
     open_kwargs.setdefault("encoding", "utf-8")
     return os.fdopen(fd, "a", **open_kwargs)
+
+
+def open_new(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
+    """Open ``path`` for writing text from its start (a log written as it runs), never through
+    a symbolic link (``O_NOFOLLOW``)."""
+    flags = os.O_WRONLY | os.O_TRUNC | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(path, flags, 0o666)
+    except OSError:
+        if Path(path).is_symlink():
+            raise OutputFolderError(
+                f"{path}: is a symbolic link; output files are never written through links"
+            ) from None
+        raise
+    open_kwargs.setdefault("encoding", "utf-8")
+    return os.fdopen(fd, "w", **open_kwargs)
 
 
 # -- one writer per folder -------------------------------------------------------------------------

@@ -177,3 +177,77 @@ def test_the_learning_curve_evaluates_the_regimes_the_rig_has():
     some = evaluation_episodes(cfg, ("stick_slip",))
     assert [o["regime"] for _, o in every] == ["equilibrium"] * 2 + ["limit_cycle"] * 2 + ["stick_slip"] * 2
     assert some == every[4:]  # a regime's seeds do not depend on the others
+
+
+def test_sim_to_real_on_a_rig_takes_its_voltages_from_the_rigs_analysis(tmp_path):
+    from drill_env.agents.evaluation.sim_to_real import SimToRealConfig, for_rig, quick_config
+
+    for name in ("brake_sticky", "brake_all_stick_slip"):
+        rig = identified_rig(name)
+        path = write_rig(name, tmp_path)
+        cfg = for_rig(quick_config(), path)
+        cycles = [(lo, hi) for r, lo, hi in design_regimes(rig) if r in ("limit_cycle", "stick_slip")]
+        assert cfg.params_file == str(path) and cfg.nominal_model() == load_params(path)
+        assert all(any(lo <= v <= hi for lo, hi in cycles) for v in cfg.voltages)
+        assert cfg.timeseries_voltage == cfg.voltages[0]
+        assert len(cfg.synth.voltages) == 3 and all(v > rig.uc1 for v in cfg.synth.voltages)
+        full = for_rig(SimToRealConfig(), path)
+        assert len(full.voltages) == 5 and all(v > rig.uc1 for v in full.voltages)
+    # a voltage the rig's model does not turn at is refused, naming its range
+    with pytest.raises(ValueError, match=r"voltages: 0.4 V is outside the allowed range \(0.5371"):
+        for_rig(
+            quick_config(voltages=(0.4,)),
+            write_rig("brake_sticky", tmp_path),
+            voltages=False,
+        )
+
+
+def test_sim_to_real_params_that_are_not_a_rig_file_is_one_line(tmp_path):
+    bad = tmp_path / "rig.yaml"
+    bad.write_text("motor_constant: -1\n")
+    for arg in (str(bad), str(tmp_path / "none.yaml")):
+        res = CliRunner().invoke(
+            app, ["sim-to-real", "--quick", "--params", arg, "--out", str(tmp_path / "o")]
+        )
+        assert res.exit_code == 2, res.output
+        lines = [x for x in res.output.strip().splitlines() if x.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error: --params"), res.output
+
+
+@pytest.mark.slow  # a minute or two: recording, discrepancy, two tunings, the closed loops
+def test_sim_to_real_quick_on_a_rig_that_sticks_above_its_default_voltages(tmp_path):
+    rig = write_rig("brake_sticky", tmp_path)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        app,
+        ["sim-to-real", "--quick", "--params", str(rig), "--controllers", "lqi", "--out", str(out)],
+    )
+    assert res.exit_code == 0, res.output
+    rows = pd.read_csv(out / "results.csv")
+    uc1 = identified_rig("brake_sticky").uc1
+    assert (rows["voltage"] > uc1).all() and set(rows["design"]) == {"-", "nominal", "corrected"}
+    assert np.isfinite(rows["amplitude"]).all()
+    result = yaml.safe_load((out / "discrepancy" / "result.json").read_text())
+    assert result["effect"] == "position_friction_lower"  # the hidden effect, against the rig's model
+    # the recalibration is relative to the rig's model: the truth's +3 % / +5 % errors
+    for name, rel in (("motor_constant", 0.03), ("lower_inertia", 0.05)):
+        got = result["recalibrated"][name]["value"] / getattr(identified_rig("brake_sticky"), name) - 1.0
+        assert abs(got - rel) < 0.01, (name, got)
+    assert (out / "gains_nominal.yaml").is_file()
+
+
+@pytest.mark.slow  # half a minute: the continuation to 1.5 V
+def test_bifurcation_of_a_rig_file_with_an_effect_section_analyses_its_base_model(tmp_path):
+    rig = identified_rig("brake_sticky").replace(lower_position_amp_1=0.1)
+    path = tmp_path / "rig.yaml"
+    path.write_text("# written by `drill-env identify`\n" + yaml.safe_dump(rig.to_dict(), sort_keys=False))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        app, ["bifurcation", "--preset", str(path), "--out", str(out), "--umax", "1.5", "--no-check"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "the effects ['lower_position_amp_1'] of rig.yaml are left out" in res.output
+    record = yaml.safe_load((out / "bifurcation.json").read_text())
+    assert any("left out" in w for w in record["validity_warnings"])
+    a = record["points"]["A"]["u"] if isinstance(record["points"]["A"], dict) else record["points"]["A"]
+    assert math.isclose(float(a), rig.uc1, rel_tol=1e-6)

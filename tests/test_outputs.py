@@ -262,7 +262,11 @@ def test_concurrent_benchmarks_the_second_fails_and_the_first_is_complete(tmp_pa
     assert not errors, errors
     df = load_results(tmp_path / "benchmark.csv")
     assert list(df["controller"]) == ["open_loop", "pi_upper"] and (df["error"] == "").all()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["benchmark.csv", "benchmark_config.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "benchmark.csv",
+        "benchmark_config.json",
+        "provenance.json",
+    ]
 
 
 @pytest.mark.parametrize(

@@ -505,3 +505,73 @@ def test_a_duplicate_key_in_dataset_json_is_refused_with_the_key(tmp_path, runne
     line = _one_error_line(runner.invoke(app, ["identify", str(data), "--out", str(out)]))
     assert "'preset' appears twice (line" in line and "dataset.json" in line
     assert not out.exists()
+
+
+# -- Ctrl-C at any moment ---------------------------------------------------------------------------
+
+
+def test_a_ctrl_c_that_python_swallows_still_exits_130():
+    """A Ctrl-C that lands in a finaliser is printed as "Exception ignored" and the run goes on:
+    the command still ends with exit code 130, never 0."""
+    script = textwrap.dedent(
+        """
+        import signal, sys
+        import drill_env.cli as cli
+
+        class Finaliser:
+            def __del__(self):
+                signal.raise_signal(signal.SIGINT)  # Ctrl-C while an object is cleaned up
+                sum(range(1000))
+
+        def command():
+            Finaliser()
+            print("finished", flush=True)
+            sys.exit(0)
+
+        cli.app = command
+        cli.main()
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.stdout.strip() == "finished"
+    assert "Exception ignored" in proc.stderr  # Python swallowed it ...
+    assert proc.returncode == 130, proc.stderr  # ... the command did not
+    assert "interrupted (Ctrl-C)" in proc.stderr
+
+
+# -- the committed results stay regenerable --------------------------------------------------------
+
+
+def test_every_committed_results_folder_is_accepted_by_the_command_that_writes_it():
+    """results/README.md's commands write into folders made before folders had markers: each is
+    accepted by its own command (and refused by another one)."""
+    import re
+
+    from drill_env.agents.commands.benchmark import BENCHMARK_FILES
+    from drill_env.agents.commands.train import TRAIN_FILES
+    from drill_env.agents.evaluation.sim_to_real import SIM_TO_REAL_FILES
+    from drill_env.commands.bifurcation import BIFURCATION_FILES
+    from drill_env.commands.discrepancy import STUDY_FILES
+    from drill_env.commands.identify import IDENTIFY_FILES
+    from drill_env.outputs import check_command_folder
+
+    root = Path(__file__).resolve().parents[1]
+    own = {
+        "benchmark": BENCHMARK_FILES,
+        "bifurcation": BIFURCATION_FILES,
+        "discrepancy-study": STUDY_FILES,
+        "train": TRAIN_FILES,
+        "sim-to-real": SIM_TO_REAL_FILES,
+    }
+    text = (root / "results" / "README.md").read_text()
+    found = set(re.findall(r"drill-env ([a-z-]+) [^`\n]*?--out (results/[^\s`]+)", text))
+    checked = 0
+    for command, folder in sorted(found):
+        if command not in own or not (root / folder).is_dir():
+            continue
+        check_command_folder(root / folder, command, own=own[command])
+        checked += 1
+        if command != "bifurcation":
+            with pytest.raises(OutputFolderError):
+                check_command_folder(root / folder, "identify", own=IDENTIFY_FILES)
+    assert checked >= 10

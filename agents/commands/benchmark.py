@@ -31,7 +31,15 @@ def _floats(text: str | None, name: str) -> tuple[float, ...] | None:
 
 
 # what `drill-env benchmark` writes (a folder of these from before folders had markers is its own)
-BENCHMARK_FILES = ("benchmark.csv", "benchmark_config.json", "summary.md", "*.png")
+BENCHMARK_FILES = (
+    "benchmark.csv",
+    "benchmark_config.json",
+    "summary.md",
+    "provenance.json",
+    "ranking.json",
+    "ranking.md",
+    "*.png",
+)
 
 
 def resumed_count(out: Path) -> int:
@@ -139,7 +147,8 @@ def register(app: typer.Typer) -> None:
             None,
             "--timeseries/--no-timeseries",
             help="Also write timeseries_<preset>_<plant>_<group>.png: one run per controller at "
-            f"{TIMESERIES_VOLTAGE:g} V on every plant of the benchmark, one figure per plant and "
+            f"{TIMESERIES_VOLTAGE:g} V (with --design-params: the grid's voltage nearest to it where the "
+            "design model turns) on every plant of the benchmark, one figure per plant and "
             "controller group (classical, learned). Default: with --quick.",
         ),
     ) -> None:
@@ -447,18 +456,28 @@ def register(app: typer.Typer) -> None:
         if timeseries if timeseries is not None else quick:
             from drill_env.agents.evaluation.timeseries import timeseries_figures
 
+            design = cfg.design_model()
             for p in cfg.presets:
+                ts_voltage = TIMESERIES_VOLTAGE
+                if design is not None and not ts_voltage > design.uc1:
+                    # the design model does not turn there: the grid's voltage nearest to it
+                    ts_voltage = min(cfg.voltages[p], key=lambda v: abs(v - TIMESERIES_VOLTAGE))
+                    if not ts_voltage > design.uc1:
+                        typer.echo(
+                            f"no time-series figures of {p}: the design model turns at no grid voltage"
+                        )
+                        continue
                 try:
                     made = timeseries_figures(
                         cfg.controllers,
                         p,
-                        TIMESERIES_VOLTAGE,
+                        ts_voltage,
                         cfg.plants,
                         out,
                         episode=cfg.episode,
                         agents_dir=cfg.agents_dir,
                         gains_file=cfg.gains_file,
-                        design_params=cfg.design_model(),
+                        design_params=design,
                         trusted=cfg.trust_policies,
                         progress=lambda path: typer.echo(f"wrote {path}", err=True),
                     )

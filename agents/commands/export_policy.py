@@ -36,9 +36,10 @@ def register(app: typer.Typer) -> None:
         policy exports its correction (policy.json says how its classical base combines with it)."""
         if format != "onnx":
             _fail(f"--format: {format!r}; allowed: onnx")
-        from drill_env.outputs import check_output_folder
+        from drill_env.outputs import check_command_folder, command_folder
 
-        check_output_folder(out, "--out")
+        own = ("policy.onnx", "policy.npz", "policy.json")  # a folder of these from before markers
+        check_command_folder(out, "export-policy", "--out", own=own)
         from drill_env.agents.registry import LEARNED
 
         try:
@@ -59,7 +60,8 @@ def register(app: typer.Typer) -> None:
                 policy, preset, 2000, 1000.0, agents_dir=agents_dir, trusted=trust_policies
             )
             env = env  # the environment of the policy's version (its scales and action mapping)
-            paths = run_export(pol, env, out)
+            with command_folder(out, "export-policy", "--out", own=own):
+                paths = run_export(pol, env, out)
         except ValueError as exc:
             _fail(str(exc))
         for p in paths.values():

@@ -103,9 +103,11 @@ def register(app: typer.Typer) -> None:
         )
         if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
             _fail(f"--run-name: {name!r}; allowed: letters, digits, _ . -")
-        from drill_env.outputs import check_output_folder
+        from drill_env.outputs import check_command_folder, check_output_folder, command_folder
 
-        check_output_folder(out, "--out")
+        # a folder of these from before folders had markers is this command's own
+        own = ("controller_log.csv", "events.csv", "result.json", "report.md", "run.png", "timing.png")
+        check_command_folder(out, "run-controller", "--out", own=own)
         if record is not None:
             check_output_folder(record, "--record")
         from drill_env.params import available_presets
@@ -159,9 +161,10 @@ def register(app: typer.Typer) -> None:
         )
         res = run_loop(io, info, env, ctrl, label, run)
         io.close()
-        result = write_outputs(
-            res, out, record=record, run_name=name, measured=measured_metrics(res), figures=not no_figures
-        )
+        with command_folder(out, "run-controller", "--out", own=own):
+            result = write_outputs(
+                res, out, record=record, run_name=name, measured=measured_metrics(res), figures=not no_figures
+            )
         m = result["measured"]
         if "suppression" in m:
             typer.echo(

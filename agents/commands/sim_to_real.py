@@ -37,6 +37,14 @@ def sim_to_real(
         help="Comma-separated controllers compared before/after (default: "
         "torque_feedback,lqi,lqi_angle_ff,ppo_robust; also sac_robust).",
     ),
+    params: Path | None = typer.Option(
+        None,
+        "--params",
+        help="The lab's model of its rig (a rig YAML, e.g. identify's rig.yaml) instead of the "
+        "preset's: the before design is built and tuned on it, the discrepancy compares the data "
+        "with it, the built-in truth is it with the hidden effect; the recording and compared "
+        "voltages come from its own analysis (regimes with a cycle) unless --voltages is given.",
+    ),
     quick: bool = typer.Option(
         False, "--quick", help="A smoke run: short recordings and episodes, one seed, a coarse tuning."
     ),
@@ -83,6 +91,15 @@ def sim_to_real(
             without_measurement(read_plant_file(truth), "sim-to-real's closed loop")
         except (ParameterError, ValueError) as exc:
             _fail(f"--truth {truth}: {exc}")
+    if params is not None:
+        from drill_env.params import ParameterError, load_params
+
+        if params.suffix.lower() not in (".yaml", ".yml") or not params.is_file():
+            _fail(f"--params: {params} is not a rig YAML file (the preset format)")
+        try:
+            load_params(params)
+        except (ParameterError, ValueError) as exc:
+            _fail(f"--params {params}: {exc}")
     ctrl_list = None
     if controllers is not None:
         ctrl_list = tuple(c.strip() for c in controllers.split(",") if c.strip())
@@ -101,6 +118,10 @@ def sim_to_real(
             if volts:
                 extra["voltages"] = volts
             cfg = SimToRealConfig(magnitude=magnitude, seeds=tuple(range(seeds)), **extra)
+        if params is not None:
+            from drill_env.agents.evaluation.sim_to_real import for_rig
+
+            cfg = for_rig(cfg, params, voltages=volts is None)
     except ValueError as exc:
         msg = str(exc)  # the config's field names are the options' names
         _fail(f"--{msg}" if msg.startswith(("voltages:", "seeds:", "controllers:")) else msg)

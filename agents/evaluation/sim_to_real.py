@@ -113,10 +113,12 @@ class SimToRealConfig:
     # the user vouched for learned controllers' policies from outside results/agents/ (from
     # $DRILL_ENV_AGENTS_DIR): they load (their files are code); not part of the result
     trust_policies: bool = False
+    # the lab's model of its rig (a rig YAML, e.g. identify's rig.yaml): the nominal design, the
+    # discrepancy's reference and the base of the built-in truth; None: the preset's model
+    params_file: str | None = None
 
     def __post_init__(self) -> None:
         from drill_env.envs.task import VOLTAGE_LIMIT
-        from drill_env.params import load_params
         from drill_env.recordings.synth import HIDDEN_EFFECTS, IDENTIFIED, SynthConfig
 
         if not isinstance(self.synth, SynthConfig):
@@ -144,7 +146,13 @@ class SimToRealConfig:
             # a ParameterError naming the field
             without_measurement(read_plant_file(self.truth_file), "sim-to-real's closed loop")
             object.__setattr__(self, "truth_file", str(self.truth_file))
-        uc1 = load_params(self.synth.preset).uc1
+        if self.params_file is not None:
+            object.__setattr__(self, "params_file", str(self.params_file))
+            try:
+                self.nominal_model()
+            except ValueError as exc:
+                raise ValueError(f"params_file: {self.params_file}: {exc}") from None
+        uc1 = self.nominal_model().uc1
         if not self.voltages:
             raise ValueError("voltages: expected at least one voltage")
         for v in (*self.voltages, self.timeseries_voltage):
@@ -174,6 +182,12 @@ class SimToRealConfig:
     def preset(self) -> str:
         return self.synth.preset
 
+    def nominal_model(self):
+        """The model the *before* design is built on: ``params_file``'s, else the preset's."""
+        from drill_env.params import load_params
+
+        return load_params(self.params_file if self.params_file is not None else self.preset)
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "preset": self.preset,
@@ -190,6 +204,7 @@ class SimToRealConfig:
             "design_points": self.design_points,
             "tuning_grid": self.tuning_grid,
             "truth_file": self.truth_file,
+            "params_file": self.params_file,
         }
 
 
@@ -219,11 +234,19 @@ class SimToRealResult:
         return pd.DataFrame(self.rows, columns=list(COLUMNS))
 
 
-def _truth_overrides(preset: str, errors: Mapping[str, float]) -> dict[str, float]:
-    from drill_env.params import load_params
+def _truth_overrides(cfg: SimToRealConfig) -> dict[str, float]:
+    """The built-in truth's parameters: the nominal model's with ``cfg.parameter_errors``
+    (every parameter set when the nominal model is a rig file, not the preset)."""
+    from dataclasses import asdict
 
-    base = load_params(preset)
-    return {n: float(getattr(base, n)) * (1.0 + e) for n, e in errors.items()}
+    from drill_env.recordings.synth import IDENTIFIED
+
+    base = cfg.nominal_model()
+    names = IDENTIFIED if cfg.params_file is not None else tuple(cfg.parameter_errors)
+    out = {n: float(getattr(base, n)) * (1.0 + cfg.parameter_errors.get(n, 0.0)) for n in names}
+    if cfg.params_file is not None:  # an effect the rig's model already has stays in the truth
+        out.update({k: float(v) for k, v in asdict(base.effects).items() if v != 0.0})
+    return out
 
 
 def tuned_kinds(controllers: Sequence[str]) -> tuple[str, ...]:
@@ -328,7 +351,6 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     from drill_env.agents.registry import build_controller, observation_version
     from drill_env.discrepancy.workflow import run_discrepancy
     from drill_env.outputs import atomic_write_text
-    from drill_env.params import load_params
     from drill_env.recordings.synth import make_dataset, make_plant_dataset, write_synthetic
 
     preset = cfg.preset
@@ -365,7 +387,7 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
             seed=cfg.data_seed,
             magnitude=cfg.magnitude,
             config=cfg.synth,
-            truth_overrides=_truth_overrides(preset, cfg.parameter_errors),
+            truth_overrides=_truth_overrides(cfg),
         )
         truth = synth.truth.replace(
             name="truth", description="sim-to-real truth plant (drill-env sim-to-real)"
@@ -378,10 +400,13 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     # 2. the discrepancy workflow on the measurements alone
     t0 = time.perf_counter()
     say(f"[2/5] discrepancy workflow on {n_runs} runs")
-    disc = run_discrepancy(data, out / "discrepancy", seed=0)
+    nominal = cfg.nominal_model()
+    disc = run_discrepancy(
+        data, out / "discrepancy", seed=0, params=None if cfg.params_file is None else nominal
+    )
     result = json.loads((out / "discrepancy" / "result.json").read_text())
     model_file = out / "discrepancy" / "model.yaml"
-    corrected = load_params(preset)
+    corrected = nominal
     if model_file.is_file():
         from drill_env.plant_file import read_plant_file
 
@@ -412,9 +437,24 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     gains_file = out / "gains_corrected.yaml"
     atomic_write_text(gains_file, header + yaml.safe_dump(tuned, sort_keys=False, width=100))
     files.append(gains_file)
-    nominal_gains = load_gains()["presets"][preset]
+    if cfg.params_file is None:
+        nominal_gains = load_gains()["presets"][preset]
+        nominal_gains_file = str(gains_path())
+    else:  # the lab's model: its controllers are tuned on it as well (drill-env tune --params)
+        say("      tuning on the nominal model " + cfg.params_file)
+        own = _tuned_gains(nominal, cfg.params_file, cfg, control_dt, say)
+        nominal_gains = own["presets"][preset]
+        gains_nominal = out / "gains_nominal.yaml"
+        atomic_write_text(
+            gains_nominal,
+            f"# Gains of the classical controllers tuned on the nominal model {cfg.params_file},\n"
+            "# written by `drill-env sim-to-real --params` (as `drill-env tune --params`).\n"
+            + yaml.safe_dump(own, sort_keys=False, width=100),
+        )
+        files.append(gains_nominal)
+        nominal_gains_file = str(gains_nominal)
     design_of = {
-        "nominal": (load_params(preset), str(gains_path())),
+        "nominal": (nominal, nominal_gains_file),
         "corrected": (corrected, str(gains_file)),
     }
     gains = {
@@ -435,7 +475,7 @@ def _run(out: Path, cfg: SimToRealConfig, data: Path, say: Callable[[str], None]
     t0 = time.perf_counter()
     version = max(observation_version(c, preset) for c in cfg.controllers)
     overrides = plant.env_overrides() if plant is not None else None
-    design_model = {"nominal": None, "corrected": corrected}
+    design_model = {"nominal": None if cfg.params_file is None else nominal, "corrected": corrected}
     envs = {
         d: make_env(preset, cfg.episode, version, params=truth, overrides=overrides, design_params=m)
         for d, m in design_model.items()
@@ -668,10 +708,9 @@ def _fmt(x: float, digits: int = 3) -> str:
 
 def summary_markdown(res: SimToRealResult) -> str:
     """``summary.md``: what the discrepancy found, what changed in the design, before/after."""
-    from drill_env.params import load_params
 
     cfg = res.config
-    nominal = load_params(cfg.preset)
+    nominal = cfg.nominal_model()
     disc = res.discrepancy
     eff_fields = res.answer.get("model_effects", {})
     if cfg.truth_file:
@@ -684,8 +723,11 @@ def summary_markdown(res: SimToRealResult) -> str:
             + f"; actuator delay {1000 * float(res.answer.get('actuator_delay', 0.0)):g} ms. It was recorded like the rig: "
         )
     else:
+        base = (
+            f"The `{cfg.preset}` preset" if cfg.params_file is None else f"The rig model `{cfg.params_file}`"
+        )
         what = (
-            f"The `{cfg.preset}` preset with the hidden effect `{cfg.effect}` ("
+            f"{base} with the hidden effect `{cfg.effect}` ("
             + ", ".join(f"{k} = {v:.4g}" for k, v in eff_fields.items())
             + ") and the parameter errors "
             + ", ".join(f"{k} {v:+.0%}" for k, v in cfg.parameter_errors.items())
@@ -724,6 +766,14 @@ def summary_markdown(res: SimToRealResult) -> str:
             lines.append(f"| `{k}` | {v:.4g} | {'-' if tv is None else f'{tv:.4g}'} |")
         lines.append("")
     truth_vals = res.answer.get("parameters_at_nominal_string_stiffness", {})
+    if cfg.params_file is not None:  # the answer's scale is the preset's; the nominal here is the rig's
+        from drill_env.recordings.synth import IDENTIFIED
+
+        c = nominal.string_stiffness / res.truth.string_stiffness
+        truth_vals = {
+            n: float(getattr(res.truth, n)) * (1.0 if n.startswith("lower_hump_rate") else c)
+            for n in IDENTIFIED
+        }
     names = list(dict.fromkeys(list(disc.get("recalibrated", {})) + list(cfg.parameter_errors)))
     lines += [
         "Recalibrated parameters (the data fix torque ratios only; the string stiffness is kept "
@@ -985,6 +1035,41 @@ def parse_voltages(text: str) -> tuple[float, ...]:
     if not vs:
         raise ValueError(f"--voltages: expected at least one voltage, got {text!r}")
     return vs
+
+
+CYCLES = ("limit_cycle", "stick_slip")  # the regimes with a cycle to suppress
+
+
+def rig_voltages(model: Any, n: int) -> tuple[float, ...]:
+    """``n`` voltages [V] of the before/after comparison on ``model`` (a lab's rig file), from
+    its own analysis: in its regimes with a cycle (all its regimes if it has none)."""
+    from drill_env.agents.evaluation.benchmark.grid import design_grid
+
+    return design_grid(model, n, regimes=CYCLES)
+
+
+def recording_voltages(model: Any, n: int) -> tuple[float, ...]:
+    """``n`` constant voltages [V] to record on a rig whose model is ``model``: spread over
+    every regime of its own analysis (where it turns, above its stick boundary)."""
+    from drill_env.agents.evaluation.benchmark.grid import design_grid
+
+    return design_grid(model, n)
+
+
+def for_rig(cfg: SimToRealConfig, params_file: str | Path, *, voltages: bool = True) -> SimToRealConfig:
+    """``cfg`` on the lab's rig model ``params_file`` (the nominal design, the discrepancy's
+    reference, the built-in truth's base), with the recording voltages and (``voltages``) the
+    compared voltages chosen from the rig's own analysis."""
+    from drill_env.params import load_params
+
+    model = load_params(params_file)
+    synth = dataclasses.replace(
+        cfg.synth, voltages=recording_voltages(model, max(3, len(cfg.synth.voltages)))
+    )
+    volts = rig_voltages(model, len(cfg.voltages)) if voltages else cfg.voltages
+    return dataclasses.replace(
+        cfg, synth=synth, params_file=str(params_file), voltages=volts, timeseries_voltage=volts[0]
+    )
 
 
 def quick_config(

@@ -118,9 +118,11 @@ def tracking_limits(preset: str, seeds: tuple[int, ...] = CHECK_SEEDS) -> dict[s
     if key not in _LIMITS:
         from drill_env.agents.controllers.base import ControllerSpec
         from drill_env.agents.controllers.gains import classical_controller
-        from drill_env.agents.registry import observation_version
+        from drill_env.envs.config import OBSERVATION_VERSIONS
 
-        version = observation_version("lqi", preset)  # the env the benchmark runs it on
+        # the env the benchmark runs a classical controller on (registry.observation_version),
+        # read here without the registry, which imports the learners that import this module
+        version = max(OBSERVATION_VERSIONS)
         env = make_env(preset, EpisodeSettings(), version)
         lqi = classical_controller("lqi", ControllerSpec.from_env(env), preset)
         env.close()

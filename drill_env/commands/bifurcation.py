@@ -58,13 +58,12 @@ def register(app: typer.Typer) -> None:
             check_command_folder,
             command_folder,
         )
-        from drill_env.params import resolve_params, validity_warnings
+        from drill_env.params import ParameterError, resolve_params, validity_warnings
 
-        params = resolve_params(preset)
-        if params.effects.active:
-            _fail(
-                f"the analysis covers the paper's model only; the preset switches on {list(params.effects.active)}"
-            )
+        try:
+            params = resolve_params(preset)
+        except (ParameterError, ValueError) as exc:
+            _fail(f"--preset {preset}: {exc}")
         check_command_folder(out, "bifurcation", "--out", own=BIFURCATION_FILES)
         console = Console(stderr=True)
         notes = validity_warnings(params.name, voltages=(umin, umax))
@@ -72,6 +71,19 @@ def register(app: typer.Typer) -> None:
             console.print(
                 f"[yellow]warning: {note}; it is analysed there all the same[/yellow]", highlight=False
             )
+        if params.effects.active:
+            # a rig file with an effect section (identify, discrepancy): the analysis is that of
+            # its base model, as the env's regimes and the benchmark's design grid are
+            from drill_env.envs.equilibrium import nominal_params
+
+            note = (
+                f"the analysis covers the paper's model only: the effects {list(params.effects.active)} "
+                f"of {Path(preset).name} are left out (the env's regimes and the benchmark's grid on "
+                "this rig are those of the same base model)"
+            )
+            console.print(f"[yellow]warning: {note}[/yellow]", highlight=False, soft_wrap=True)
+            notes.append(note)
+            params = nominal_params(params)
         held = ExitStack()
         try:
             # OUT is this run's alone until it ends

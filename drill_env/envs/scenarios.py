@@ -21,7 +21,7 @@ sensing_delay      40 ms delay on both encoders (the top end of 10-40 ms of a fi
                    a stick-slip set point
 sensing_noise      encoder angle noise (2 mrad) and speed noise (0.2 rad/s) at 1 kHz, in the
                    Hopf band
-effort             a constant stick-slip set point; scored on suppression per energy used
+effort             a constant stick-slip set point; scored on tracking per energy used
 =================  ===========================================================================
 
 The voltages are the preset's (:data:`VOLTAGES`): the design model's regimes place them, so
@@ -43,14 +43,16 @@ The runner that scores controllers on the suite is
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from drill_env import _layout as L
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = [
     "FRICTION_SCALED",
@@ -264,13 +266,13 @@ class ScenarioSchedule:
     def __init__(self, scenario: Scenario, points: list[Any], target_scale: float, unom_scale: float):
         self.scenario = scenario
         self.points = points  # OperatingPoint per set point
-        self.change_times = np.asarray(scenario.change_times, dtype=float)
+        self.change_times = tuple(float(t) for t in scenario.change_times)
         self._target_scale = float(target_scale)
         self._unom_scale = float(unom_scale)
 
     def phase(self, t: float) -> int:
         """The set point in force at time ``t`` [s] (index into :attr:`points`)."""
-        return int(np.searchsorted(self.change_times, t + 1e-9, side="right"))
+        return bisect.bisect_right(self.change_times, t + 1e-9)
 
     def episode_points(self, first: Any) -> list[Any]:
         """The set points of an episode whose first one is ``first`` (reset options may choose

@@ -26,7 +26,7 @@ import socket
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import IO, Any
 
 import numba as nb
 import numpy as np
@@ -245,7 +245,9 @@ class _TruthLog:
     COLUMNS = "t,u,x1,x2,x3,theta_u,theta_l,lower_stuck\n"
 
     def __init__(self, path: Path, rate: float):
-        self.f: TextIO = path.open("w")
+        from drill_env.outputs import open_new
+
+        self.f: IO[Any] = open_new(path)  # never through a link
         self.f.write(self.COLUMNS)
         self.ts = 1.0 / rate
 

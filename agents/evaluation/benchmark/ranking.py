@@ -21,7 +21,7 @@ from drill_env.agents.evaluation.benchmark.statistics import (
     ranking_lines,
 )
 from drill_env.agents.registry import controller_style
-from drill_env.outputs import atomic_write_text
+from drill_env.outputs import atomic_write_text, save_figure
 
 __all__ = [
     "N_RESAMPLES",
@@ -132,7 +132,7 @@ def write_rankings(rankings: Sequence[tuple[str, str, PairedStatistics]], out: P
         "",
     ]
     for key, title, st in rankings:
-        lines += ranking_lines(st, title=title)
+        lines += ranking_lines(st, title=title, level=2)
         lines += [f"![ranking {key}](ranking_{key}.png)", ""]
         paths.append(ranking_figure(st, title, out / f"ranking_{key}.png"))
     atomic_write_text(paths[1], "\n".join(lines) + "\n")
@@ -227,5 +227,5 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
             fontsize=8,
         )
     fig.tight_layout(rect=(0, 0.04 if left_out else 0, 1, 1))
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path
