@@ -11,8 +11,7 @@
    to ``--work`` (a temporary folder by default), not under OUT.
 3. ``drill-env identify DATA --known string_stiffness=...`` (the lab knows its string):
    ``OUT/identified/`` (rig.yaml, identification.json, report.md, figures).
-4. ``drill-env discrepancy DATA --params OUT/identified/rig.yaml``: the effect the identified
-   model misses, relative to it (``OUT/discrepancy/``).
+4. (the discrepancy tests ran inside ``identify``: its structure search; see its report).
 5. ``drill-env bifurcation --preset OUT/identified/rig.yaml`` (``OUT/bifurcation/``) and
    ``drill-env tune --params OUT/identified/rig.yaml`` (``OUT/controllers.yaml``); the tuned
    controllers then run, through the Python API, on an environment whose plant is the truth
@@ -139,10 +138,7 @@ def main() -> None:
             [*exe, "identify", str(data), "--out", str(out / "identified"),
              "--known", f"string_stiffness={truth.string_stiffness!r}"]
         )  # fmt: skip
-        run(
-            [*exe, "discrepancy", str(data), "--params", str(out / "identified" / "rig.yaml"),
-             "--out", str(out / "discrepancy")]
-        )  # fmt: skip
+        # the structure search of identify ran the discrepancy tests (its rounds are in the report)
     run(
         [*exe, "bifurcation", "--preset", str(out / "identified" / "rig.yaml"), "--umax", "5",
          "--out", str(out / "bifurcation"), "--no-check"]
@@ -158,7 +154,6 @@ def main() -> None:
     atomic_write_text(out / "controllers_on_truth.json", json.dumps(rows, indent=2) + "\n")
 
     ident = json.loads((out / "identified" / "identification.json").read_text())
-    verdict = json.loads((out / "discrepancy" / "result.json").read_text())
     lines = [
         "# Worked example: identify a rig far from the paper's",
         "",
@@ -218,9 +213,6 @@ def main() -> None:
                 lines.append(f"| {name} | {k} | {'-' if t is None else f'{t:.4g}'} | {v:.4g} | {ci} |")
         lines.append("")
     lines += [
-        f"`drill-env discrepancy DATA --params identified/rig.yaml` (tests the model's base part): "
-        f"**{verdict['effect']}** (confidence {verdict['confidence']:.2f}; the truth's effect: {EFFECT}). "
-        "See `discrepancy/report.md`.",
         "",
         "Controllers tuned on the identified model (`drill-env tune --params identified/rig.yaml`, "
         "`controllers.yaml`), run on the truth plant with its effect (Python API: "
@@ -238,7 +230,7 @@ def main() -> None:
     lines += [
         "",
         "Files: `identified/` (rig.yaml, identification.json, report.md, friction.png, heldout.png, "
-        "bifurcation.png), `discrepancy/`, `bifurcation/` (the identified model's diagram), "
+        "bifurcation.png), `bifurcation/` (the identified model's diagram), "
         "`controllers.yaml`, `controllers_on_truth.json`.",
         "",
     ]
