@@ -556,7 +556,7 @@ def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | Non
         "```bash",
         "drill-env simulate --preset rig.yaml --voltage 2",
         "drill-env bifurcation --preset rig.yaml --out bifurcation/",
-        "drill-env discrepancy DATASET --params rig.yaml --out discrepancy/",
+        *([] if res.effects else ["drill-env discrepancy DATASET --params rig.yaml --out discrepancy/"]),
         "drill-env tune --params rig.yaml --preset " + res.structure,
         "```",
         "",
