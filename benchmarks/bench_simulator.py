@@ -50,6 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from oracle import oracle_simulate  # noqa: E402
 
 import drill_env  # noqa: E402
+import drill_env.simulator  # noqa: E402 (a submodule: import drill_env loads it lazily)
 
 CASES = ((2.0, "stick-slip"), (1.0, "limit cycle, no stick"))
 T_RUN = 300.0  # [s] simulated time of the timed runs

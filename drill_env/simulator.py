@@ -545,19 +545,20 @@ def simulate(
     )
 
 
-def _run_stoppable(args: tuple[Any, ...], stats: np.ndarray, long_run: bool) -> int:
+def _run_stoppable(args: tuple[Any, ...], stats: np.ndarray, long_run: bool, kernel: Any = None) -> int:
     """Run the kernel; a long run in the main thread runs in a worker thread (the kernel
     releases the GIL) so that Ctrl-C stops it within a step: the kernel is asked to stop
     (``stats[ST_STOP]``), waited for, and KeyboardInterrupt is raised again."""
     import threading
 
+    kernel = run if kernel is None else kernel
     if not long_run or threading.current_thread() is not threading.main_thread():
-        return run(*args)
+        return kernel(*args)
     box: dict[str, Any] = {}
 
     def target() -> None:
         try:
-            box["status"] = run(*args)
+            box["status"] = kernel(*args)
         except BaseException as exc:  # noqa: BLE001 (passed on to the caller)
             box["error"] = exc
 
@@ -567,7 +568,7 @@ def _run_stoppable(args: tuple[Any, ...], stats: np.ndarray, long_run: bool) -> 
         while worker.is_alive():
             worker.join(0.05)
     except KeyboardInterrupt:
-        stats[ST_STOP] = 1.0
+        stats[..., ST_STOP] = 1.0  # every rig of a batch reads its own row
         worker.join()
         raise
     if "error" in box:
@@ -709,10 +710,16 @@ def simulate_batch(
     Yo = np.empty((n_rigs, t_out.size, L.NY))
     Mo = np.empty((n_rigs, t_out.size, 2), dtype=np.int64)
     Uo = np.empty((n_rigs, t_out.size))
-    stats = np.zeros((n_rigs, N_STATS))
+    stats = np.zeros((n_rigs, N_STATS + 1))  # the last slot of each row: a stop request (Ctrl-C)
     ev_count = np.zeros(n_rigs)
     max_steps = max(100_000, int(t_final * 2000))
-    _run_batch(P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count)
+    _run_stoppable(
+        (P, Y0, seg_t, SEG_U, t_out, rtol, atol, max_steps, Yo, Mo, Uo, stats, ev_count),
+        stats,
+        t_final * n_rigs >= _INTERRUPTIBLE_S,
+        kernel=_run_batch,
+    )
+    stats = stats[:, :N_STATS]
     for i in range(n_rigs):
         _check_heating(plist[i] if plist is not None else base, t_out, Yo[i, :, L.TH])
     bad = np.flatnonzero(stats[:, ST_STATUS] != 0)

@@ -353,3 +353,52 @@ def test_corrupted_files_load_or_raise_the_documented_error(edits_csv, edits_met
 @given(edits_csv=_edits, edits_meta=st.one_of(st.just([]), _edits))
 def test_corrupted_files_load_or_raise_the_documented_error_long(edits_csv, edits_meta):
     _load_corrupted(edits_csv, edits_meta)
+
+
+# -- probes of adversarial round 3: refused naming the line -------------------------------------------
+
+
+def test_cr_only_line_ends_are_refused_naming_the_line(folder):
+    p = folder / "run01.csv"
+    p.write_bytes(p.read_bytes().replace(b"\n", b"\r"))
+    msg = _error(folder)
+    assert msg.startswith("run01.csv: line 1, column 20: a CR that ends no CR LF pair"), msg
+    # a stray CR inside an LF file: its own line
+    lines = (folder / "run01.csv").read_bytes().replace(b"\r", b"\n").split(b"\n")
+    lines[6] = lines[6].replace(b",1.5,", b",1.5\r,")
+    p.write_bytes(b"\n".join(lines))
+    assert "line 7," in _error(folder)
+
+
+def test_quoted_numbers_are_refused_naming_the_line(folder):
+    p = folder / "run01.csv"
+    lines = p.read_text().splitlines()
+    lines[11] = lines[11].replace(",1.5,", ',"1.5",')
+    p.write_text("\n".join(lines) + "\n")
+    msg = _error(folder)
+    assert msg.startswith("run01.csv: line 12, column ") and "quoted field" in msg, msg
+
+
+def test_quoted_numbers_and_duplicate_keys_in_dataset_json_are_refused(folder):
+    (folder / "dataset.json").write_text('{"preset": "brake", "encoder_counts_per_rev": "2000"}')
+    assert "'encoder_counts_per_rev' = '2000'; expected an integer" in _error(folder)
+    (folder / "dataset.json").write_text(
+        '{"preset": "brake",\n "encoder_counts_per_rev": 2000,\n "encoder_counts_per_rev": 4000}'
+    )
+    msg = _error(folder)
+    assert "'encoder_counts_per_rev' appears twice (line 3)" in msg, msg
+
+
+@pytest.mark.parametrize("command", ["identify", "discrepancy"])
+def test_identify_and_discrepancy_refuse_such_datasets_in_one_line(folder, command):
+    from typer.testing import CliRunner
+
+    from drill_env.cli import app
+
+    p = folder / "run01.csv"
+    p.write_bytes(p.read_bytes().replace(b"\n", b"\r"))
+    res = CliRunner().invoke(app, [command, str(folder), "--out", str(folder.parent / "out")])
+    assert res.exit_code == 2, res.output
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and "CR LF" in errors[0] and "line 1" in errors[0], res.output
+    assert "Traceback" not in res.output

@@ -153,12 +153,14 @@ def test_pickled_env_continues_identically():
 
 
 def test_voltage_limit_holds_for_any_action():
+    """Every action of the action space gives at most the amplifier's +-5 V; one beyond the
+    space (a finite 1e308 among them) is refused naming the range, never clipped silently."""
     env = gym.make("DrillString-v0")
     env.reset(seed=0)
     big = float(np.finfo(np.float32).max)
-    cases = [1e6, -1e6, 1.5, -1.0000001, 1.0, -1.0, 0.999, big, -big, 0.0]
+    cases = [1.0, -1.0, 0.999, 0.0, float(np.nextafter(np.float32(1.0), np.float32(0.0)))]
     rng = np.random.default_rng(1)
-    cases += list(rng.normal(scale=50.0, size=100))
+    cases += list(rng.uniform(-1.0, 1.0, size=100))
     for a in cases:
         obs, _, _, _, info = env.step(np.array([a], dtype=np.float32))
         requested = 5.0 * float(np.float32(a))
@@ -169,19 +171,54 @@ def test_voltage_limit_holds_for_any_action():
         samples = env.unwrapped.last_step_samples()
         assert np.all(np.abs(samples["voltage"]) <= 5.0) and np.all(samples["voltage"] == info["voltage"])
         assert abs(float(obs[OBS["voltage"]]) * 5.0 - info["voltage"]) < 1e-5
+    for a in (1e6, -1e6, 1.5, -1.0001, big, -big, 1e308, -1e308):
+        with pytest.raises(
+            ValueError, match=r"^action: .* is outside the action space: allowed range \[-1, 1\]"
+        ):
+            env.step(np.array([a], dtype=np.float64))
     venv = gym.make("DrillString-v0", action_mode="voltage")
     venv.reset(seed=0)
-    _, _, _, _, info = venv.step(np.array([7.3], np.float32))
-    assert info["voltage"] == 5.0 and info["voltage_clipped"]
+    with pytest.raises(ValueError, match=r"^action: 7\.3.* allowed range \[-5, 5\]"):
+        venv.step(np.array([7.3], np.float32))
+    _, _, _, _, info = venv.step(np.array([5.0], np.float32))
+    assert info["voltage"] == 5.0 and not info["voltage_clipped"]
     assert venv.action_space.high[0] == 5.0
+    # a correction (v2) can ask beyond the amplifier: the rig's own clip, visible in info
+    corr = gym.make("DrillString-v2")
+    corr.reset(seed=0, options={"nominal_voltage": 4.5})
+    _, _, _, _, info = corr.step(np.array([1.0], np.float32))
+    assert (
+        info["voltage_requested"] == pytest.approx(6.5) and info["voltage"] == 5.0 and info["voltage_clipped"]
+    )
+
+
+def test_wrong_action_shapes_are_refused_naming_the_shape():
+    env = gym.make("DrillString-v3")
+    env.reset(seed=0)
+    for action, shape in (
+        (np.zeros((1, 1)), r"\(1, 1\)"),
+        (np.float32(0.2), r"\(\)"),
+        (0.2, r"\(\)"),
+        ([[0.2]], r"\(1, 1\)"),
+    ):
+        with pytest.raises(
+            ValueError, match=rf"^action: expected shape \(1,\), got shape {shape} \(allowed range \[-1, 1\]"
+        ):
+            env.step(action)
+    env.step([0.2])  # a list of one number is shape (1,)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_non_finite_actions_raise(bad):
     env = gym.make("DrillString-v0")
     env.reset(seed=0)
-    for action in (np.array([bad], np.float32), [bad], bad, np.array([[bad]])):
-        with pytest.raises(ValueError, match=r"action: must be finite.*\[-1, 1\]"):
+    for action in (np.array([bad], np.float32), [bad]):
+        with pytest.raises(
+            ValueError, match=r"action: .* outside the action space: allowed range \[-1, 1\], finite"
+        ):
+            env.step(action)
+    for action in (bad, np.array([[bad]])):
+        with pytest.raises(ValueError, match=r"action: expected shape \(1,\)"):
             env.step(action)
     with pytest.raises(ValueError, match=r"action: expected shape \(1,\)"):
         env.step(np.zeros(2, np.float32))
@@ -413,7 +450,7 @@ def test_reward_is_the_weighted_sum_of_documented_terms():
     s = max(target, 1.0)
     seen_stick = False
     for k in range(100):
-        a = unom / 5.0 + 0.1 * math.sin(k / 5.0)
+        a = min(unom / 5.0 + 0.1 * math.sin(k / 5.0), 1.0)
         _, reward, _, _, info = env.step(np.array([a], np.float32))
         smp = env.unwrapped.last_step_samples()
         terms = info["rewards"]
@@ -465,8 +502,9 @@ def test_the_integral_term_saturates_at_its_cap():
     [
         # correction mode: u_nom + 2 V a, up to 6.5 V asked at u_nom 4.5 V
         ("DrillString-v2", 2.0, 4.5, (0.1, 0.25, 0.7, 1.0, 0.6, 0.2)),
-        # normalized mode: 5 V a; an action beyond the box asks for more than the amplifier gives
-        ("DrillString-v0", 5.0, 0.0, (-0.94, -1.0, -1.18, -1.3, -1.14, -0.98)),
+        # the same at another distance from the limit (in normalized mode an action of the
+        # box never asks beyond the amplifier; one beyond the box is refused)
+        ("DrillString-v2", 2.0, 4.5, (-0.3, 0.15, 0.6, 0.95, 0.4, 0.0)),
     ],
 )
 def test_the_overdrive_term_is_the_request_beyond_the_amplifier_limit(

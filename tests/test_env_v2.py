@@ -51,7 +51,7 @@ def test_v2_runs_the_v1_episode_with_the_voltage_as_correction(env_id):
         if k == 5:
             a[:] = 1.0  # beyond 5 V wherever u_nom > 3 V
         u = u_nom + 2.0 * float(a[0])
-        s1 = v1.step(np.array([u / 5.0], dtype=np.float32))
+        s1 = v1.step(np.array([min(max(u, -5.0), 5.0) / 5.0], dtype=np.float32))  # v1: within its box
         s2 = v2.step(a)
         # v1's float32 action u/5 rounds the voltage by ~1e-7 V: agreement to that, not bit for bit
         np.testing.assert_allclose(s2[0], s1[0], rtol=1e-5, atol=1e-5)

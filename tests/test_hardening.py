@@ -479,6 +479,23 @@ def test_ctrl_c_stops_a_long_simulation_in_the_api_within_a_second():
     assert time.perf_counter() - sent[0] < 1.0
 
 
+def test_ctrl_c_stops_a_long_batch_simulation_in_the_api_within_a_second():
+    from drill_env.simulator import simulate_batch
+
+    simulate_batch("brake", [1.0, 2.0], 60.0)  # compiled
+    sent: list[float] = []
+
+    def interrupt():
+        time.sleep(1.0)
+        sent.append(time.perf_counter())
+        os.kill(os.getpid(), signal.SIGINT)
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        simulate_batch("brake", [1.0, 2.0, 3.0, 4.0], 1e6, dt=1e4)
+    assert time.perf_counter() - sent[0] < 1.0
+
+
 def test_ctrl_c_stops_the_simulate_command_and_says_so():
     """The reproducer: `drill-env simulate --duration 1e9 --dt 1e8` kept running after SIGINT
     (1e9 s is now refused; the longest run allowed, 1e7 s, takes hours)."""
@@ -602,3 +619,67 @@ def test_negative_seeds_are_refused_naming_the_option(tmp_path):
     ):
         res = runner.invoke(app, args)
         assert res.exit_code == 2 and "'--seed'" in res.output, res.output
+
+
+# -- round 3: an interrupted synth leaves no folder that loads as a complete dataset ----------------
+
+
+def test_an_interrupted_dataset_write_leaves_no_loadable_dataset(tmp_path, monkeypatch):
+    from drill_env.recordings import dataset as D
+
+    runner.invoke(
+        app,
+        [
+            "synth",
+            "--effect",
+            "none",
+            "--voltages",
+            "1,2,3",
+            "--random-runs",
+            "0",
+            "--duration",
+            "10",
+            "--rate",
+            "100",
+            "--out",
+            str(tmp_path / "d"),
+            "--answer",
+            str(tmp_path / "a.json"),
+        ],
+    )
+    full = D.load_dataset(tmp_path / "d")
+    assert len(full.runs) == 3
+    real = D.atomic_file
+    written: list[str] = []
+
+    def interrupted_after_one(path, *args, **kwargs):
+        if written:
+            raise KeyboardInterrupt
+        written.append(str(path))
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(D, "atomic_file", interrupted_after_one)
+    with pytest.raises(KeyboardInterrupt):  # rewriting the same runs, Ctrl-C after the first
+        D.write_dataset(tmp_path / "d", list(full.runs), preset="brake", encoder_counts_per_rev=2000)
+    with pytest.raises(D.DatasetError, match=r"dataset.json: missing"):
+        D.load_dataset(tmp_path / "d")
+
+
+def test_ctrl_c_in_synth_exits_130_and_leaves_no_dataset(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    code = "import sys; from drill_env.cli import main; print('ready', flush=True); main()"
+    args = [sys.executable, "-c", code, "synth", "--effect", "none", "--voltages", "0.5,1,2,3,4"]
+    args += ["--random-runs", "20", "--duration", "3600", "--out", str(tmp_path / "d")]
+    args += ["--answer", str(tmp_path / "a.json")]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == "ready"
+    time.sleep(3.0)
+    assert proc.poll() is None
+    t = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert time.perf_counter() - t < 5.0  # 2 s on a quiet machine; a loaded CI gets slack
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert not (tmp_path / "d" / "dataset.json").exists()
+    assert not (tmp_path / "a.json").exists()

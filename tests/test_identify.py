@@ -150,8 +150,16 @@ def test_cli_writes_a_usable_rig_file(rig_dataset, tmp_path, bifurcation):
     out = tmp_path / "id"
     r = CliRunner().invoke(
         app,
-        ["identify", str(data), "--out", str(out), "--known", f"string_stiffness={rig.string_stiffness!r}"]
-        + ([] if bifurcation else ["--no-bifurcation"]),
+        [
+            "identify",
+            str(data),
+            "--out",
+            str(out),
+            "--known",
+            f"string_stiffness={rig.string_stiffness!r}",
+            "--no-effects",
+        ]
+        + ([] if bifurcation else ["--no-bifurcation"]),  # fmt: skip
     )
     assert r.exit_code == 0, r.output
     ident = json.loads((out / "identification.json").read_text())
@@ -189,7 +197,7 @@ def test_cli_writes_a_usable_rig_file(rig_dataset, tmp_path, bifurcation):
 def test_without_a_known_value_the_report_says_the_scale_is_assumed(rig_dataset, tmp_path):
     rig, data = rig_dataset
     out = tmp_path / "id"
-    r = CliRunner().invoke(app, ["identify", str(data), "--out", str(out), "--no-figures"])
+    r = CliRunner().invoke(app, ["identify", str(data), "--out", str(out), "--no-figures", "--no-effects"])
     assert r.exit_code == 0, r.output
     first = (out / "report.md").read_text().splitlines()[2]
     assert "ASSUMED" in first and "string_stiffness = 0.078" in first

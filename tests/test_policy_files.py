@@ -91,7 +91,12 @@ def test_upgrading_a_former_residual_file_changes_its_objects_and_nothing_else(t
     obs = _observations(policy.observation_space, 64)
     actions_before = policy.predict(obs)[0]
     model_before = policy.policy.model
-    assert upgrade_policy_file(path) == ["learning_rate", "lr_schedule", "policy_class", "drill_env.json"]
+    assert upgrade_policy_file(path, trusted=True) == [
+        "learning_rate",
+        "lr_schedule",
+        "policy_class",
+        "drill_env.json",
+    ]
     after = _entries(path)
     assert list(after) == [*before, "drill_env.json"]  # the record of what it was trained on added
     assert {name for name in before if before[name] != after[name]} == {"data"}  # weights untouched
@@ -109,7 +114,7 @@ def test_upgrading_a_former_residual_file_changes_its_objects_and_nothing_else(t
         assert model.lr_schedule(progress) == model_before.lr_schedule(progress)
     with pytest.raises(CorrectionOnlyError, match="load_policy"):
         _sb3_class("ppo").load(str(path), device="cpu")
-    assert upgrade_policy_file(path) == [] and _entries(path) == after  # up to date: untouched
+    assert upgrade_policy_file(path, trusted=True) == [] and _entries(path) == after  # up to date: untouched
 
 
 def test_a_correction_file_without_the_config_of_its_base_is_refused(tmp_path):

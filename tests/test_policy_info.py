@@ -66,10 +66,10 @@ def test_each_committed_policy_carries_its_record_and_acts_as_before_its_convers
     before = load_policy(former, trusted=True)
     obs = _observations(before.observation_space)
     actions_before = before.predict(obs)[0]
-    assert upgrade_policy_file(former) == [POLICY_INFO_MEMBER]
+    assert upgrade_policy_file(former, trusted=True) == [POLICY_INFO_MEMBER]
     # the conversion is the committed file, byte for byte, and it is idempotent
     assert former.read_bytes() == committed.read_bytes()
-    assert upgrade_policy_file(former) == []
+    assert upgrade_policy_file(former, trusted=True) == []
     (former.parent / "config.yaml").unlink()  # the record alone is enough now
     (former.parent / "training_summary.json").unlink()
     after = load_policy(former, trusted=True)
@@ -88,7 +88,7 @@ def test_a_policy_with_no_record_and_no_config_is_refused_naming_what_is_missing
         lambda: load_policy(lone, algo="ppo", trusted=True),
         lambda: policy_observation_version(lone),
         lambda: policy_training_record(lone),
-        lambda: upgrade_policy_file(lone),
+        lambda: upgrade_policy_file(lone, trusted=True),
     ):
         with pytest.raises(ValueError, match=missing) as exc:
             read()
@@ -125,7 +125,7 @@ def test_a_lone_policy_file_with_its_record_runs_on_its_own_version(tmp_path):
 
     assert observation_version("ppo", "brake", tmp_path) == 3
     env = make_env("brake", EpisodeSettings(), 3)
-    ctrl = build_controller("ppo", env, "brake", agents_dir=tmp_path)
+    ctrl = build_controller("ppo", env, "brake", agents_dir=tmp_path, trusted=True)  # a copy made here
     # the benchmark's run of it at 1 V: suppressed (a v1 reading would apply 0.13 V: suppression 0)
     m = evaluate(ctrl, "brake", 1.0, 0, EpisodeSettings(), env=env)
     assert m.suppression > 0.95 and not m.stalled
@@ -146,7 +146,7 @@ def test_a_policy_of_the_other_rig_is_refused(tmp_path):
     with pytest.raises(
         ValueError, match=r"was trained on DrillString-v3 \(preset 'brake'\), not on preset 'no_brake'"
     ):
-        build_controller("ppo", env, "no_brake", agents_dir=tmp_path)
+        build_controller("ppo", env, "no_brake", agents_dir=tmp_path, trusted=True)
     env.close()
 
 

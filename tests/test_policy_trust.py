@@ -182,6 +182,19 @@ def test_every_command_refuses_an_untrusted_policy_folder_without_unpickling(tmp
     assert not any((tmp_path / d).exists() for d in ("s2r", "t", "b"))
 
 
+def _drop_record(path) -> None:
+    """The policy zip ``path`` as saved before policies carried what they were trained on."""
+    import zipfile
+
+    from drill_env.agents.learning.policy_info import POLICY_INFO_MEMBER
+
+    with zipfile.ZipFile(path) as zf:
+        items = [(i, zf.read(i.filename)) for i in zf.infolist() if i.filename != POLICY_INFO_MEMBER]
+    with zipfile.ZipFile(path, "w") as zf:
+        for info, content in items:
+            zf.writestr(info, content)
+
+
 def test_policy_cards_and_upgrade_policies_refuse_a_bad_config_yaml_in_one_line(tmp_path):
     from typer.testing import CliRunner
 
@@ -201,6 +214,7 @@ def test_policy_cards_and_upgrade_policies_refuse_a_bad_config_yaml_in_one_line(
         folder = tmp_path / kind / "ppo"
         shutil.copytree(policy_path("ppo", "brake").parent, folder)
         (folder / "config.yaml").write_text(text)
+        _drop_record(folder / "policy.zip")  # a former file: upgrade-policies reads its config.yaml
         for argv in (
             ["policy-cards", str(folder.parent)],
             ["upgrade-policies", "--trusted", str(folder.parent)],

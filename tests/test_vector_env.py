@@ -72,7 +72,7 @@ def test_native_vector_env_equals_sync_vector_of_single_envs(env_id, kwargs, mod
     rng = np.random.default_rng(0)
     ended = 0
     for _ in range(40):  # crosses two autoresets of every rig
-        a = rng.uniform(-1.3, 1.3, size=(N, 1)).astype(np.float32)
+        a = rng.uniform(-1.0, 1.0, size=(N, 1)).astype(np.float32)
         r1, r2 = native.step(a), sync.step(a)
         for x, y in zip(r1[:4], r2[:4], strict=True):
             assert_same(x, y)
@@ -103,10 +103,15 @@ def test_step_is_one_compiled_call_over_all_rigs(monkeypatch):
 def test_rewards_and_voltage_limit_in_the_vector_env():
     env = gym.make_vec("DrillString-v0", num_envs=3, normalize_observation=False)
     env.reset(seed=2)
-    a = np.array([[2.0], [-7.0], [0.3]], np.float32)
+    with pytest.raises(
+        ValueError, match=r"^actions\[0\]: 2\.0 is outside the action space: allowed range \[-1, 1\]"
+    ):
+        env.step(np.array([[2.0], [-7.0], [0.3]], np.float32))
+    a = np.array([[1.0], [-1.0], [0.3]], np.float32)
     obs, rew, term, trunc, info = env.step(a)
     assert np.all(np.abs(info["voltage"]) <= 5.0)
-    np.testing.assert_array_equal(info["voltage_clipped"], [True, True, False])
+    np.testing.assert_array_equal(info["voltage"], [5.0, -5.0, float(np.float32(0.3)) * 5.0])
+    np.testing.assert_array_equal(info["voltage_clipped"], [False, False, False])
     np.testing.assert_array_equal(obs[:, 5], np.float32(info["voltage"]))
     w = {"tracking": 1.0, "stick": 1.0, "oscillation": 0.5, "effort": 0.1}
     expected = -sum(w[k] * info["rewards"][k] for k in w)
@@ -170,10 +175,24 @@ def test_the_overdrive_term_and_the_applied_voltage_match_the_single_env():
 def test_bad_actions_raise(bad):
     env = gym.make_vec("DrillString-v0", num_envs=2)
     env.reset(seed=0)
-    with pytest.raises(ValueError, match=r"actions\[1\]: must be finite"):
+    with pytest.raises(
+        ValueError, match=r"actions\[1\]: .* outside the action space: allowed range \[-1, 1\], finite"
+    ):
         env.step(np.array([[0.0], [bad]], np.float32))
-    with pytest.raises(ValueError, match=r"actions: expected shape \(2, 1\)"):
-        env.step(np.zeros((3, 1), np.float32))
+    for shape in ((3, 1), (2,), (1, 2), (2, 1, 1)):
+        with pytest.raises(ValueError, match=r"actions: expected shape \(2, 1\), got shape"):
+            env.step(np.zeros(shape, np.float32))
+
+
+def test_the_vector_env_of_four_rigs_takes_only_shape_4_1():
+    from drill_env.envs.vector import DrillStringVectorEnv
+
+    env = DrillStringVectorEnv(num_envs=4)
+    env.reset(seed=0)
+    for shape in ((4,), (1, 4), (2, 2)):
+        with pytest.raises(ValueError, match=rf"^actions: expected shape \(4, 1\), got shape \({shape[0]},"):
+            env.step(np.zeros(shape, np.float32))
+    env.step(np.zeros((4, 1), np.float32))
 
 
 def test_bad_arguments_and_options_raise():

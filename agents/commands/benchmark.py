@@ -167,6 +167,10 @@ def register(app: typer.Typer) -> None:
                 _fail(f"--preset: {name!r} is not one of {list(PRESETS)}")
         if not names:
             _fail(f"--preset: expected one or more of {list(PRESETS)}, got {preset!r}")
+        if len(set(names)) != len(names):
+            _fail(
+                f"--preset: {next(n for n in names if names.count(n) > 1)!r} is given twice; name each preset once"
+            )
         from rich.console import Console
         from rich.progress import (
             BarColumn,
@@ -189,6 +193,8 @@ def register(app: typer.Typer) -> None:
 
         if backend not in BACKENDS:
             _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
+        if ray_address is not None and backend != "ray":
+            _fail(f"--ray-address: only with --backend ray (the {backend} backend runs on this machine)")
         if ray_address and backend == "ray":  # an address nothing answers at: said within seconds
             from drill_env.ray_cluster import check_ray_address
 
@@ -200,6 +206,9 @@ def register(app: typer.Typer) -> None:
         ctrls = CONTROLLERS
         if controllers is not None:
             ctrls = tuple(c.strip() for c in controllers.split(",") if c.strip())
+            if len(set(ctrls)) != len(ctrls):
+                twice = next(c for c in ctrls if ctrls.count(c) > 1)
+                _fail(f"--controllers: {twice!r} is given twice; name each controller once")
         if seeds is not None and not 1 <= seeds <= MAX_SEEDS:
             _fail(f"--seeds: {seeds!r}; allowed: an integer from 1 to {MAX_SEEDS}")
         if workers is not None and not 1 <= workers <= MAX_WORKERS:

@@ -49,7 +49,10 @@ def register(app: typer.Typer) -> None:
             help="Rewrite policies outside results/agents/ too (rewriting unpickles their stored objects).",
         ),
     ) -> None:
-        """Rewrite the stored objects of every policy.zip under AGENTS_DIR in their present form.
+        """Bring every policy.zip under AGENTS_DIR to the present format.
+
+        A file without the record of what it was trained on gets it (drill_env.json: algo, env
+        id, env kwargs, observation version, training config), made from the config.yaml beside it.
 
         Objects pickled under a former module path are stored under the present one, and a
         residual policy's file names the policy class that refuses to load without its base
@@ -58,6 +61,7 @@ def register(app: typer.Typer) -> None:
         date is not touched.
         """
         from drill_env.agents.learning.cards import policy_folders
+        from drill_env.agents.learning.policy_info import POLICY_INFO_MEMBER
         from drill_env.agents.learning.rl import check_policy_zip, untrusted_policy_note, upgrade_policy_file
 
         if not agents_dir.is_dir():
@@ -82,5 +86,10 @@ def register(app: typer.Typer) -> None:
                 changed = upgrade_policy_file(folder / "policy.zip", trusted=trusted)
             except ValueError as exc:
                 _fail(str(exc))
-            what = f"rewrote {', '.join(changed)}" if changed else "up to date"
+            added = [c for c in changed if c == POLICY_INFO_MEMBER]
+            rewritten = [c for c in changed if c != POLICY_INFO_MEMBER]
+            parts = ([f"rewrote {', '.join(rewritten)}"] if rewritten else []) + (
+                [f"added {POLICY_INFO_MEMBER} (what it was trained on)"] if added else []
+            )
+            what = "; ".join(parts) if parts else "up to date"
             typer.echo(f"{folder / 'policy.zip'}: {what}")

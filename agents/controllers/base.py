@@ -140,10 +140,13 @@ class ControllerSpec:
         )
 
     def to_action(self, volts: np.ndarray, physical: np.ndarray | None = None) -> np.ndarray:
-        """Voltages (n,) -> actions (n, 1), float32, within the amplifier range.
+        """Voltages (n,) -> actions (n, 1), float32, within the amplifier range and the action
+        space ``[-1, 1]`` (the environment refuses an action outside it).
 
         With ``action_offset`` the action is relative to the nominal voltage, read from the
-        physical observations ``physical`` (n, ...), which are then required."""
+        physical observations ``physical`` (n, ...), which are then required; a correction
+        beyond the action space's range (``action_to_volts``) is held at its end, as the
+        environment clipped it before it refused such actions."""
         v = np.clip(np.asarray(volts, dtype=np.float64), -self.voltage_limit, self.voltage_limit)
         if self.action_offset:
             if physical is None:
@@ -151,7 +154,7 @@ class ControllerSpec:
                     "physical: the observations are needed to form a correction action (action_offset)"
                 )
             v = v - np.asarray(physical, dtype=np.float64)[:, self.index("nominal_voltage")]
-        return (v / self.action_to_volts).astype(np.float32).reshape(-1, 1)
+        return np.clip(v / self.action_to_volts, -1.0, 1.0).astype(np.float32).reshape(-1, 1)
 
 
 class Controller:

@@ -48,6 +48,13 @@ training has converged if ``Q_last - Q_prev <= tolerance * |Q_last|``: the last 
 improved the return by less than ``tolerance`` (5 %) of the level it reached (and at least
 ``min_evaluations`` evaluations were made).
 
+A policy file says what it was trained on: every zip :func:`train` saves carries
+``drill_env.json`` (algo, env id, env kwargs, observation version, drill-env version, the
+training config; :mod:`drill_env.agents.learning.policy_info`), which :func:`load_policy` and
+:func:`policy_observation_version` read; a file with neither it nor a ``config.yaml`` beside it
+is refused. With ``evaluation.target_check`` the kept policy is the best by the learned
+controllers' target check instead of the return (:func:`train`).
+
 Policy files are code: a stable-baselines3 ``.zip`` stores some of its objects (the spaces,
 the policy class and its arguments, the schedules) as pickles, and unpickling can run
 arbitrary code. :func:`load_policy` loads the policies committed under ``results/agents/``
@@ -493,8 +500,8 @@ def refuse_untrusted(path: str | Path, trusted: bool = False) -> None:
     note = untrusted_policy_note(path)
     if note is not None and not (trusted or trust_from_environment()):
         raise UntrustedPolicyError(
-            f"{note}; pass trusted=True for a file you made or trust (on the command line: "
-            f"--trust-policies, or set {TRUST_ENV_VAR}=1)"
+            f"{note} (pass trusted=True to load one; on the command line --trust-policies, or "
+            f"set {TRUST_ENV_VAR}=1)"
         )
 
 

@@ -44,7 +44,11 @@ def _stage_progress() -> Iterator[Callable[[str, int, int], None]]:
 DATASET_FILES = ("dataset.json", "*.csv")  # what synth writes into --out
 
 
+MAX_SEED = 2**63 - 1  # a seed is written to the answer file and read back as an int64
+
+
 def synth(
+    ctx: typer.Context,
     preset: str = typer.Option("brake", help="Rig preset of the truth model (brake, no_brake)."),
     effect: str | None = typer.Option(
         None,
@@ -136,6 +140,18 @@ def synth(
     )
 
     # the arguments first, then both outputs, all before the runs are simulated
+    if seed > MAX_SEED:
+        _fail(f"--seed: {seed}; allowed: an integer from 0 to 2**63 - 1 ({MAX_SEED})")
+    if plan is not None:
+        given = [
+            f"--{name.replace('_', '-')}"
+            for name in ("voltages", "random_runs", "duration")
+            if getattr(ctx.get_parameter_source(name), "name", "DEFAULT") != "DEFAULT"
+        ]
+        if given:
+            _fail(
+                f"{', '.join(given)}: cannot be given with --plan (the plan sets the voltages, runs and durations)"
+            )
     if (effect is None) == (plant is None):
         _fail(
             "--effect/--plant: give exactly one of them (a hidden effect on the preset, or a truth plant file)"
@@ -156,8 +172,11 @@ def synth(
             _fail("--param-error: a truth plant file holds its own parameters; leave --param-error out")
         counts = int(truth_file.sensors.get("counts_per_rev", counts))
         angle_noise = float(truth_file.sensors.get("angle_noise_std", angle_noise))
+    pieces = [v.strip() for v in voltages.split(",")] if voltages.strip() else []
+    if "" in pieces:
+        _fail(f"--voltages: an empty entry in {voltages!r}; expected comma-separated numbers ('' for none)")
     try:
-        volts = tuple(float(v) for v in voltages.split(",") if v.strip())
+        volts = tuple(float(v) for v in pieces)
     except ValueError:
         _fail(f"--voltages: expected comma-separated numbers, got {voltages!r}")
     truth = preset
@@ -280,6 +299,9 @@ def discrepancy(
     ):
         _fail(f"--out {out}: lies in the dataset folder {data_dir}; keep the analysis apart from the data")
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout else None
+    if held is not None and len(set(held)) != len(held):
+        twice = next(h for h in held if held.count(h) > 1)
+        _fail(f"--heldout: run {twice!r} is named twice; name each held-out run once")
     try:
         with (
             command_folder(out, "discrepancy", "--out", own=DISCREPANCY_FILES),

@@ -91,7 +91,16 @@ def identify(
     except ValueError as exc:
         _fail(f"--{exc}")
     check_command_folder(out, "identify", "--out", own=IDENTIFY_FILES)
+    if data_dir.exists() and (
+        out.resolve() == data_dir.resolve() or data_dir.resolve() in out.resolve().parents
+    ):
+        _fail(
+            f"--out {out}: lies in the dataset folder {data_dir}; keep the identification apart from the data"
+        )
     held = [h.strip() for h in heldout.split(",") if h.strip()] if heldout is not None else None
+    if held is not None and len(set(held)) != len(held):
+        twice = next(h for h in held if held.count(h) > 1)
+        _fail(f"--heldout: run {twice!r} is named twice; name each held-out run once")
     dataset = load_dataset(data_dir)
     from drill_env.commands.discrepancy import _stage_progress
 

@@ -216,9 +216,38 @@ def numeric_action(action: Any, name: str) -> np.ndarray:
     return arr.astype(np.float64)
 
 
+def check_actions(action: Any, name: str, shape: tuple[int, ...], high: float) -> np.ndarray:
+    """``action`` as float64 of exactly ``shape``, every entry finite and within the action
+    space ``[-high, high]`` (a float32 rounding beyond it allowed: the space is float32);
+    otherwise a ValueError naming the argument, the shape and the range. Nothing is reshaped
+    or clipped here; the amplifier's own +-5 V limit acts in the rig (``info["voltage_clipped"]``)."""
+    arr = numeric_action(action, name)
+    expected = "(" + ", ".join(str(n) for n in shape) + ("," if len(shape) == 1 else "") + ")"
+    if arr.shape != shape:
+        raise ValueError(
+            f"{name}: expected shape {expected}, got shape {arr.shape} (allowed range "
+            f"[{-high:g}, {high:g}] per entry)"
+        )
+    flat = arr.reshape(-1)
+    bad = np.flatnonzero(~(np.abs(flat) <= high * (1.0 + float(np.finfo(np.float32).eps))))
+    if bad.size:
+        where = name if arr.size == 1 else f"{name}[{bad[0]}]"
+        raise ValueError(
+            f"{where}: {float(flat[bad[0]])!r} is outside the action space: allowed range "
+            f"[{-high:g}, {high:g}], finite (shape {expected})"
+        )
+    return arr
+
+
+# A reward weight beyond this makes no sense beside the others (1 for tracking) and lets a
+# reward overflow; weights are finite and within [0, MAX_REWARD_WEIGHT].
+MAX_REWARD_WEIGHT = 1e6
+
+
 @dataclass(frozen=True)
 class RewardWeights:
-    """Weights of the reward terms; reward = -(sum of weight * term), see the env docstring."""
+    """Weights of the reward terms; reward = -(sum of weight * term), see the env docstring.
+    Each weight is finite, from 0 to :data:`MAX_REWARD_WEIGHT`."""
 
     tracking: float = 1.0
     stick: float = 1.0
@@ -229,7 +258,11 @@ class RewardWeights:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            object.__setattr__(self, f.name, _number(f"reward_weights.{f.name}", getattr(self, f.name), 0.0))
+            object.__setattr__(
+                self,
+                f.name,
+                _number(f"reward_weights.{f.name}", getattr(self, f.name), 0.0, MAX_REWARD_WEIGHT),
+            )
 
 
 _FRICTION_FIELDS = (

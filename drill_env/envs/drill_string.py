@@ -4,7 +4,6 @@ rig's amplifier and sensors."""
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from collections import deque
 from collections.abc import Mapping
@@ -23,10 +22,10 @@ from drill_env.envs.config import (
     EnvSettings,
     EpisodeSetup,
     RewardWeights,
+    check_actions,
     check_seed,
-    numeric_action,
 )
-from drill_env.envs.task import VOLTAGE_LIMIT, TaskConfig
+from drill_env.envs.task import TaskConfig
 from drill_env.kernel import STATUS_MESSAGES
 from drill_env.params import RigParams
 from drill_env.sensors import SensorConfig
@@ -334,6 +333,8 @@ class DrillStringEnv(gym.Env):
         self.action_space = s.action_space()
         self.observation_space = s.observation_space()
         self._action_to_volts = s.action_to_volts
+        # the action space's bound with its float32 rounding (check_actions's)
+        self._action_high = float(s.action_space().high[0]) * (1.0 + float(np.finfo(np.float32).eps))
         self._action_offset = s.action_offset
         self._ecfg = s.ecfg
         n = s.n_sub
@@ -384,16 +385,15 @@ class DrillStringEnv(gym.Env):
         return self._obs.copy(), self._reset_info(setup)
 
     def step(self, action):
-        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
-            a = float(action[0])
+        if (
+            type(action) is np.ndarray
+            and action.shape == (1,)
+            and action.dtype.kind == "f"
+            and abs(float(action[0])) <= self._action_high
+        ):
+            a = float(action[0])  # the common case, checked at once
         else:
-            a = _scalar_action(action)
-        if not math.isfinite(a):
-            amax = self.action_space.high[0]
-            raise ValueError(
-                f"action: must be finite, got {a!r} (allowed range [{-amax:g}, {amax:g}], "
-                f"mapped to [-{VOLTAGE_LIMIT:g}, {VOLTAGE_LIMIT:g}] V)"
-            )
+            a = float(check_actions(action, "action", (1,), self._action_high)[0])
         if self._episode is None:
             raise gym.error.ResetNeeded("step: call reset() before step()")
         u_req = a * self._action_to_volts
@@ -609,13 +609,6 @@ class DrillStringEnv(gym.Env):
         state = self.__dict__.copy()
         state["_renderer"] = None  # figures do not pickle; a new one is made on demand
         return state
-
-
-def _scalar_action(action: Any) -> float:
-    arr = numeric_action(action, "action")
-    if arr.size != 1:
-        raise ValueError(f"action: expected shape (1,), got shape {arr.shape}")
-    return float(arr.reshape(-1)[0])
 
 
 def _with_warm_ticks(setup: EpisodeSetup, warm_ticks: int) -> EpisodeSetup:

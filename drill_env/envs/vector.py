@@ -32,8 +32,7 @@ from gymnasium.vector.utils import batch_space
 
 from drill_env import _layout as L
 from drill_env.envs import _core as C
-from drill_env.envs.config import MAX_WARMUP_RETRIES, REWARD_NAMES, EnvSettings, check_seed, numeric_action
-from drill_env.envs.task import VOLTAGE_LIMIT
+from drill_env.envs.config import MAX_WARMUP_RETRIES, REWARD_NAMES, EnvSettings, check_actions, check_seed
 from drill_env.kernel import STATUS_MESSAGES
 
 __all__ = ["DrillStringVectorEnv"]
@@ -168,17 +167,8 @@ class DrillStringVectorEnv(VectorEnv):
                 + (f" (rigs {never} were never reset)" if len(never) < self.num_envs else "")
             )
         n = self.num_envs
-        a = numeric_action(actions, "actions")
-        if a.size != n:
-            raise ValueError(f"actions: expected shape ({n}, 1), got {a.shape}")
-        a = a.reshape(n)
-        bad = np.flatnonzero(~np.isfinite(a))
-        if bad.size:
-            amax = float(self.single_action_space.high[0])
-            raise ValueError(
-                f"actions[{bad[0]}]: must be finite, got {a[bad[0]]!r} (allowed range [{-amax:g}, {amax:g}], "
-                f"mapped to [-{VOLTAGE_LIMIT:g}, {VOLTAGE_LIMIT:g}] V)"
-            )
+        high = float(self.single_action_space.high[0])
+        a = check_actions(actions, "actions", (n, 1), high).reshape(n)
         u_req = a * self._action_to_volts
         if self._action_offset:
             u_req = u_req + self._EP[:, C.EP_UNOM]

@@ -431,9 +431,7 @@ def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | Non
         lines.append("")
     if search is not None:
         lines += _rounds_section(search)
-    elif res.effects:
-        pass
-    else:
+    elif not res.effects:
         lines += [
             "Base model only (`--no-effects`): no discrepancy tests ran; run `drill-env discrepancy "
             "DATASET --params rig.yaml` to test it.",
@@ -558,7 +556,7 @@ def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | Non
         "```bash",
         "drill-env simulate --preset rig.yaml --voltage 2",
         "drill-env bifurcation --preset rig.yaml --out bifurcation/",
-        "drill-env discrepancy DATASET --params rig.yaml --out discrepancy/",
+        *([] if res.effects else ["drill-env discrepancy DATASET --params rig.yaml --out discrepancy/"]),
         "drill-env tune --params rig.yaml --preset " + res.structure,
         "```",
         "",

@@ -299,7 +299,8 @@ def _lines_of_rows(raw: bytes) -> tuple[bytes, np.ndarray]:
     """The CSV without blank lines, and the file's line number of every remaining line.
 
     Blank lines are allowed anywhere; a message still names the line of the file. Line
-    ends may be LF, CRLF or CR.
+    ends are LF or CRLF; a CR that ends no CRLF pair (CR-only line ends, or a stray CR
+    inside a line) is refused by :func:`_refuse_cr_and_quotes`, as is a quoted field.
     """
     body = raw[:-1] if raw.endswith(b"\n") else raw
     if b"\r" not in raw and re.search(rb"(?:^|\n)[ \t\f\v]*(?:\n|$)", body) is None:
@@ -314,6 +315,24 @@ def _lines_of_rows(raw: bytes) -> tuple[bytes, np.ndarray]:
     if len(keep) == len(lines):
         return raw, np.arange(1, len(lines) + 1)
     return b"\n".join(lines[i] for i in keep) + b"\n", np.asarray(keep, dtype=np.int64) + 1
+
+
+def _refuse_cr_and_quotes(raw: bytes, name: str) -> None:
+    """Refuse what a CSV reader would read its own way: a CR that is not part of a CRLF line
+    end (CR-only line ends were the line end of classic Mac OS; readers differ on them) and a
+    quoted field (``"0.5"``: a number written as text, which a parser would unquote
+    silently), naming the line of the file."""
+    for pattern, why in (
+        (rb"\r(?!\n)", "a CR that ends no CR LF pair (CR-only line ends?); line ends are LF or CR LF"),
+        (rb'"', "a quoted field; numbers are written unquoted"),
+    ):
+        m = re.search(pattern, raw)
+        if m is not None:
+            lineno = raw.count(b"\n", 0, m.start()) + 1
+            if why.startswith("a CR"):
+                lineno = raw.count(b"\r", 0, m.start()) + 1 if b"\n" not in raw[: m.start()] else lineno
+            col = m.start() - (raw.rfind(b"\n", 0, m.start()) + 1) + 1
+            raise DatasetError(f"{name}: line {lineno}, column {col}: {why}")
 
 
 def _print_quantum(raw: bytes, col: int, tmax: float) -> float:
@@ -445,6 +464,7 @@ def _load_csv(
 
     raw = _read_text(path, "run file (CSV)", MAX_RUN_BYTES)
     name = path.name
+    _refuse_cr_and_quotes(raw, name)
     raw, line_no = _lines_of_rows(raw)
     if line_no.size == 0:
         raise DatasetError(f"{name}: empty file; expected header {','.join(COLUMNS)}")
@@ -706,9 +726,12 @@ def _write_dataset(
         meta["sample_rate_hz"] = rates[0]
     if description:
         meta["description"] = description
-    atomic_write_text(folder / "dataset.json", json.dumps(meta, indent=2) + "\n")
+    # dataset.json is what makes the folder a dataset: removed first and written last, so that
+    # a write interrupted (Ctrl-C, a full disk) leaves a folder that never loads as complete
+    (folder / "dataset.json").unlink(missing_ok=True)
     for r in runs:
         df = pd.DataFrame({"t": r.t, "u": r.u, "theta_u": r.theta_u, "theta_l": r.theta_l})
         with atomic_file(folder / f"{r.name}.csv", "w", newline="") as f:
             df.to_csv(f, index=False, float_format="%.12g")
+    atomic_write_text(folder / "dataset.json", json.dumps(meta, indent=2) + "\n")
     return folder

@@ -12,7 +12,7 @@ hold sequence on a 0.1 s grid covering the settle (not recorded) and the recordi
 * ``constant_from_rest``: constant voltages recorded from the rig at rest (the start-up
   transient recorded, no settle);
 * ``constant_after_settle``: constant voltages recorded after 60 s at the voltage;
-* ``closed_loop_pi``: a PI controller (20 Hz, on the lower encoder's speed) holding lower-disk
+* ``closed_loop_pi``: a PI controller (10 Hz, on the lower encoder's speed) holding lower-disk
   speed set points that step every 15-30 s (the rig's own voltage limit clips it, visibly);
 * ``mixed``: a lab's week: one staircase, one slow ramp, one PRBS, a closed-loop run and four
   constant runs (two from rest, two after a settle).
@@ -47,7 +47,7 @@ PROTOCOLS = (
     "mixed",
 )
 QUANTUM_S = 0.1  # hold period of the voltage programs [s]
-PI_DT_S = 0.05  # period of the closed-loop PI [s]
+PI_DT_S = 0.1  # period of the closed-loop PI [s]
 
 
 @dataclass(frozen=True)
@@ -155,14 +155,15 @@ def _closed_loop_levels(truth: RigParams, run: ProtocolRun, cfg: SynthConfig, rn
 
     step = 2.0 * math.pi / cfg.encoder_counts_per_rev
     n = int(round((run.settle_s + cfg.duration_s) / PI_DT_S)) + 2
-    kp, ki = 0.4, 0.8  # [V s/rad], [V/rad]
+    kp, ki = 0.08, 0.25  # [V s/rad], [V/rad]
     u = np.zeros(n)
     x0: Any = None
     integ = 0.0
     theta_prev = 0.0
     for k in range(n):
         sp = run.set_points[min(int(k * PI_DT_S / QUANTUM_S), len(run.set_points) - 1)]
-        res = simulate(truth, float(u[k - 1]) if k else 0.0, PI_DT_S, x0=x0, dt=PI_DT_S)
+        t0 = k * PI_DT_S
+        res = simulate(truth, float(u[k - 1]) if k else 0.0, t0 + PI_DT_S, x0=x0, dt=PI_DT_S, t0=t0)
         if res.status != 0:
             raise ValueError(f"closed loop: the truth could not be simulated ({res.message})")
         theta = math.floor(float(res.theta_l[-1]) / step) * step
@@ -173,8 +174,28 @@ def _closed_loop_levels(truth: RigParams, run: ProtocolRun, cfg: SynthConfig, rn
         if -5.0 < raw < 5.0:
             integ += err * PI_DT_S
         u[k] = float(np.clip(kp * err + ki * integ, -5.0, 5.0))
-        x0 = res.final_state
+        x0 = _continued(truth, res.final_state)
     return u
+
+
+def _continued(truth: RigParams, y: np.ndarray) -> dict[str, float]:
+    """The initial condition that continues a run from its final kernel state ``y``."""
+    from drill_env import _layout as L
+
+    x0 = {
+        "x1": float(y[L.X1]),
+        "theta_l": float(y[L.THL]),
+        "x2": float(y[L.X2]),
+        "x3": float(y[L.X3]),
+    }
+    e = truth.effects
+    if e.motor_lag > 0:
+        x0["motor_torque"] = float(y[L.TM])
+    if e.friction_lag > 0:
+        x0["memory_speed"] = max(float(y[L.WL]), 0.0)
+    if e.friction_heating != 0:
+        x0["thermal_state"] = max(float(y[L.TH]), 0.0)
+    return x0
 
 
 def record_protocol(

@@ -132,7 +132,7 @@ def write_rankings(rankings: Sequence[tuple[str, str, PairedStatistics]], out: P
         "",
     ]
     for key, title, st in rankings:
-        lines += ranking_lines(st, title=title)
+        lines += ranking_lines(st, title=title, level=2)
         lines += [f"![ranking {key}](ranking_{key}.png)", ""]
         paths.append(ranking_figure(st, title, out / f"ranking_{key}.png"))
     atomic_write_text(paths[1], "\n".join(lines) + "\n")

@@ -341,13 +341,13 @@ def _num(x: float, digits: int = 3) -> str:
     return t[1:] if t.startswith("-") and float(t) == 0.0 else t
 
 
-def ranking_lines(stats: PairedStatistics, *, title: str, digits: int = 4) -> list[str]:
+def ranking_lines(stats: PairedStatistics, *, title: str, digits: int = 4, level: int = 3) -> list[str]:
     """Markdown of the ranking: the scores with their intervals and ranks, then every pair's
     difference with its interval (the resolved ones marked)."""
     pct = f"{100 * stats.confidence:g} %"
     n_pairs = len(stats.pairs)
     lines = [
-        f"### {title}",
+        f"{'#' * level} {title}",
         "",
         f"Mean {stats.score} over {stats.n_units} paired units ({', '.join(stats.units)}), every controller on "
         f"the same units; {pct} {stats.method} bootstrap intervals from {stats.n_resamples:,} resamples of "
