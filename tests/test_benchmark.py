@@ -273,10 +273,25 @@ def test_cli_benchmark_says_what_was_resumed_and_fails_when_a_run_failed(tmp_pat
         app, [*args, "--controllers", "open_loop,ppo", "--agents-dir", str(tmp_path / "none")]
     )
     assert res.exit_code == 2 and "--agents-dir" in res.output
-    # one run more, one from before; the learned one fails: its policy file is damaged
+    # a file that is no policy at all is bad input too, refused before any run
     agents = tmp_path / "agents"
     (agents / "ppo").mkdir(parents=True)
     (agents / "ppo" / "policy.zip").write_bytes(b"PK\x03\x04 not a policy")
+    res = runner.invoke(
+        app, [*args, "--controllers", "open_loop,ppo", "--agents-dir", str(agents), "--trust-policies"]
+    )
+    assert res.exit_code == 2 and "policy" in res.output
+    # one run more, one from before; the learned one fails: its weights are damaged (the file
+    # says what it was trained on, so it passes the checks made before the runs)
+    import zipfile
+
+    with zipfile.ZipFile(
+        Path(__file__).resolve().parents[1] / "results" / "agents" / "ppo" / "policy.zip"
+    ) as zf:
+        members = [(i, zf.read(i.filename)) for i in zf.infolist()]
+    with zipfile.ZipFile(agents / "ppo" / "policy.zip", "w") as zf:
+        for info, content in members:
+            zf.writestr(info, b"not the weights" if info.filename == "policy.pth" else content)
     res = runner.invoke(
         app, [*args, "--controllers", "open_loop,ppo", "--agents-dir", str(agents), "--trust-policies"]
     )
