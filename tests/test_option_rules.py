@@ -124,3 +124,30 @@ def test_synth_takes_the_largest_seed_and_an_empty_voltage_list(tmp_path):
     from drill_env.recordings.dataset import load_dataset
 
     assert len(load_dataset(tmp_path / "d").runs) == 1
+
+
+def test_a_plant_file_with_ideal_angles_cannot_be_recorded(tmp_path):
+    """``sensors: {counts_per_rev: null}`` is a rig model with ideal angles; a recording holds
+    encoder counts, so ``synth --plant`` refuses it in one line (it was a TypeError)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    plant = tmp_path / "plant.yaml"
+    plant.write_text(
+        (root / "configs" / "rig" / "brake.yaml").read_text() + "sensors:\n  counts_per_rev: null\n"
+    )
+    out = tmp_path / "d"
+    argv = [
+        "synth",
+        "--plant",
+        str(plant),
+        "--duration",
+        "20",
+        "--out",
+        str(out),
+        "--answer",
+        str(tmp_path / "a.json"),
+    ]
+    line = _one_error_line(runner.invoke(app, argv))
+    assert "sensors.counts_per_rev: null" in line and "integer from 1 to 2^26" in line, line
+    assert not out.exists() and not (tmp_path / "a.json").exists()

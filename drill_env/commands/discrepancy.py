@@ -170,7 +170,13 @@ def synth(
             _fail(f"--plant {plant}: {exc}")
         if param_error:
             _fail("--param-error: a truth plant file holds its own parameters; leave --param-error out")
-        counts = int(truth_file.sensors.get("counts_per_rev", counts))
+        if "counts_per_rev" in truth_file.sensors:
+            counts = truth_file.sensors["counts_per_rev"]
+            if counts is None:  # ideal angles: the rig model allows them, a recording does not
+                _fail(
+                    f"--plant {plant}: sensors.counts_per_rev: null (ideal angles) cannot be recorded: "
+                    "a recording holds encoder counts; allowed: an integer from 1 to 2^26"
+                )
         angle_noise = float(truth_file.sensors.get("angle_noise_std", angle_noise))
     pieces = [v.strip() for v in voltages.split(",")] if voltages.strip() else []
     if "" in pieces:
