@@ -249,7 +249,16 @@ def test_too_little_excitation_is_named(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--known", "string_stiffness=-1"], "--known: string_stiffness=-1; allowed: a finite number > 0"),
+        (
+            ["--known", "string_stiffness=-1"],
+            "--known: string_stiffness=-1; allowed: a number from 1e-06 to 1e+06",
+        ),
+        # beyond the range the regression overflowed ("SVD did not converge")
+        (
+            ["--known", "string_stiffness=1e300"],
+            "--known: string_stiffness=1e300; allowed: a number from 1e-06",
+        ),
+        (["--known", "motor_constant=nan"], "--known: motor_constant=nan; allowed: a number from"),
         (["--known", "lower_inertia=0.03"], "--known: 'lower_inertia' cannot be given"),
         (["--known", "string_stiffness"], "is not NAME=VALUE"),
         (["--known", "string_stiffness=0.08", "--known", "motor_constant=3"], "give one of"),

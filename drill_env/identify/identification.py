@@ -208,6 +208,12 @@ class Identification:
         return f"The scale is fixed by the user: {name} = {value:g} {unit} (--known)."
 
 
+# The range a known scale parameter may take [N m/rad or N m/V]: from a bench-top rig far
+# softer than the paper's (0.078 N m/rad, 3.5 N m/V) to field drill strings (10^3-10^5 N m/rad);
+# beyond it the regression's columns overflow and the fit is meaningless.
+KNOWN_SCALE_RANGE = (1e-6, 1e6)
+
+
 def parse_known(items: list[str] | tuple[str, ...] | None) -> dict[str, float]:
     """``["string_stiffness=0.08"]`` -> ``{"string_stiffness": 0.08}``; ValueError naming the item."""
     out: dict[str, float] = {}
@@ -224,8 +230,9 @@ def parse_known(items: list[str] | tuple[str, ...] | None) -> dict[str, float]:
             value = float(text)
         except ValueError:
             raise ValueError(f"known: {name}={text!r} is not a number") from None
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f"known: {name}={text}; allowed: a finite number > 0")
+        lo, hi = KNOWN_SCALE_RANGE
+        if not (math.isfinite(value) and lo <= value <= hi):
+            raise ValueError(f"known: {name}={text}; allowed: a number from {lo:g} to {hi:g}")
         if name in out:
             raise ValueError(f"known: {name} given twice")
         out[name] = value
