@@ -64,6 +64,8 @@ class ControllerSpec:
     action_to_volts: float = VOLTAGE_LIMIT  # [V per action unit]
     voltage_limit: float = VOLTAGE_LIMIT  # [V] the amplifier range
     action_offset: bool = False  # the action is the correction to the nominal voltage (v2)
+    # the action space's bound [action units]: the env refuses an action beyond it
+    action_limit: float = math.inf
     sensors: SensorConfig = field(default_factory=SensorConfig)  # the measurement chain
     env_id: str | None = None
     # the design model's named effects (ModelEffects; None: those of ``params`` as given, then
@@ -112,6 +114,9 @@ class ControllerSpec:
             observation_scales=tuple(float(s) for s in scales),
             action_to_volts=float(settings.action_to_volts),
             action_offset=bool(getattr(settings, "action_offset", False)),
+            action_limit=float(settings.action_space().high[0])
+            if hasattr(settings, "action_space")
+            else math.inf,
             sensors=settings.sensors,
             env_id=None if spec is None else spec.id,
         )
@@ -141,7 +146,7 @@ class ControllerSpec:
 
     def to_action(self, volts: np.ndarray, physical: np.ndarray | None = None) -> np.ndarray:
         """Voltages (n,) -> actions (n, 1), float32, within the amplifier range and the action
-        space ``[-1, 1]`` (the environment refuses an action outside it).
+        space (``action_limit``: the environment refuses an action outside it).
 
         With ``action_offset`` the action is relative to the nominal voltage, read from the
         physical observations ``physical`` (n, ...), which are then required; a correction
@@ -154,7 +159,8 @@ class ControllerSpec:
                     "physical: the observations are needed to form a correction action (action_offset)"
                 )
             v = v - np.asarray(physical, dtype=np.float64)[:, self.index("nominal_voltage")]
-        return np.clip(v / self.action_to_volts, -1.0, 1.0).astype(np.float32).reshape(-1, 1)
+        a = np.clip(v / self.action_to_volts, -self.action_limit, self.action_limit)
+        return a.astype(np.float32).reshape(-1, 1)
 
 
 class Controller:
