@@ -235,11 +235,13 @@ def refuse_links(folder: str | os.PathLike[str], names: tuple[str, ...], option:
             )
 
 
-def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
-    """Open ``path`` for appending text, never through a symbolic link (``O_NOFOLLOW``)."""
-    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+def _open_no_link(
+    path: str | os.PathLike[str], flags: int, mode: str, open_kwargs: dict[str, Any]
+) -> IO[Any]:
+    """Open ``path`` as text with ``os.open`` ``flags``, never through a symbolic link
+    (``O_NOFOLLOW``; a link is refused in one line)."""
     try:
-        fd = os.open(path, flags, 0o666)
+        fd = os.open(path, flags | os.O_WRONLY | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
     except OSError:
         if Path(path).is_symlink():
             raise OutputFolderError(
@@ -247,23 +249,18 @@ def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
             ) from None
         raise
     open_kwargs.setdefault("encoding", "utf-8")
-    return os.fdopen(fd, "a", **open_kwargs)
+    return os.fdopen(fd, mode, **open_kwargs)
+
+
+def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
+    """Open ``path`` for appending text, never through a symbolic link (``O_NOFOLLOW``)."""
+    return _open_no_link(path, os.O_APPEND, "a", open_kwargs)
 
 
 def open_new(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
     """Open ``path`` for writing text from its start (a log written as it runs), never through
     a symbolic link (``O_NOFOLLOW``)."""
-    flags = os.O_WRONLY | os.O_TRUNC | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
-    try:
-        fd = os.open(path, flags, 0o666)
-    except OSError:
-        if Path(path).is_symlink():
-            raise OutputFolderError(
-                f"{path}: is a symbolic link; output files are never written through links"
-            ) from None
-        raise
-    open_kwargs.setdefault("encoding", "utf-8")
-    return os.fdopen(fd, "w", **open_kwargs)
+    return _open_no_link(path, os.O_TRUNC, "w", open_kwargs)
 
 
 # -- one writer per folder -------------------------------------------------------------------------
@@ -566,46 +563,26 @@ def atomic_file(path: str | os.PathLike[str], mode: str = "w", **open_kwargs: An
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"mode: expected 'w' or 'wb', got {mode!r}")
+    if mode == "w":
+        open_kwargs.setdefault("encoding", "utf-8")
+    with atomic_path(path) as tmp, open(tmp, mode, **open_kwargs) as f:  # f.name: the temporary file
+        yield f
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str], suffix: str = ".tmp") -> Iterator[Path]:
+    """A unique temporary file name beside ``path`` (for a library that writes by file name, as
+    stable-baselines3's ``model.save``); on success it is synced and replaces ``path`` in one
+    step, keeping the permissions of the file it replaces. On an error it is removed and
+    ``path`` is left as it was; a write error (a full disk) is raised as
+    :class:`OutputWriteError` naming ``path``. ``path`` must not be a link (refused, never
+    followed, also when one is planted while the file is written)."""
     path = refuse_link(path)
     existed = path.exists()
     try:
         perms = path.stat().st_mode & 0o7777
     except OSError:
         perms = 0o666 & ~_UMASK
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise OutputWriteError(f"cannot write {path}: {_reason(exc)}") from None
-    try:
-        if mode == "w":
-            open_kwargs.setdefault("encoding", "utf-8")
-        os.close(fd)
-        with open(tmp, mode, **open_kwargs) as f:  # f.name: the temporary file
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, perms)
-        refuse_link(path)  # a link planted while the file was written
-        os.replace(tmp, path)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(exc, OSError) and not isinstance(exc, ValueError):
-            raise OutputWriteError(
-                f"cannot write {path}: {_reason(exc)}; {path} was left as it was"
-            ) from None
-        raise
-    if not existed:
-        _created(path)
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike[str], suffix: str = ".tmp") -> Iterator[Path]:
-    """A unique temporary file name beside ``path`` for a library that writes by file name
-    (stable-baselines3's ``model.save``); on success it replaces ``path`` in one step, on an
-    error it is removed and ``path`` is left as it was. ``path`` must not be a link."""
-    path = refuse_link(path)
-    existed = path.exists()
     try:
         fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
         os.close(fd)
@@ -614,10 +591,10 @@ def atomic_path(path: str | os.PathLike[str], suffix: str = ".tmp") -> Iterator[
     tmp = Path(name)
     try:
         yield tmp
-        refuse_link(path)
-        with open(tmp, "rb+") as f:
+        with open(tmp, "rb+") as f:  # what was written (and closed) reaches the disk
             os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_UMASK)
+        os.chmod(tmp, perms)
+        refuse_link(path)  # a link planted while the file was written
         os.replace(tmp, path)
     except BaseException as exc:
         with contextlib.suppress(OSError):
