@@ -16,6 +16,7 @@ from drill_env.agents.controllers.soft_torque import SoftTorque, band_pass_coeff
 from drill_env.agents.controllers.z_torque import ZTorque
 from drill_env.agents.evaluation.episodes import EpisodeSettings, evaluate, make_env
 from drill_env.agents.registry import CLASSICAL, build_controller
+from drill_env.friction import lower_friction_curve
 from drill_env.params import load_params
 
 SHORT = EpisodeSettings(duration=30.0, window=10.0, warmup_time=25.0, warmup_jitter=2.0)
@@ -111,3 +112,40 @@ def test_they_are_designed_on_the_design_model_not_the_plant():
         a = build_controller(name, nominal, "brake").describe()
         b = build_controller(name, heavy, "brake").describe()
         assert a == b
+
+
+@pytest.mark.parametrize("preset,dt", [("brake", 0.05), ("no_brake", 0.01)])
+def test_z_torque_actions_are_those_of_its_published_law(preset, dt):
+    # the law of the module docstring written out here, step by step, against the controller
+    # (which reuses the torque feedback's code): the same voltages and states, the limit and the
+    # anti-windup included
+    p = load_params(preset)
+    spec = ControllerSpec(params=p, control_dt=dt)
+    c = ZTorque.design(spec)
+    km, vmax = p.motor_constant, spec.voltage_limit
+    kp, ki = c.p_torque / km, c.i_torque / km
+    tracking = max(kp / ki, dt)
+    a = 1.0 - math.exp(-dt / c.tau_hp)
+    rng = np.random.default_rng(3)
+    n, batch = 300, 4
+    y = rng.normal(size=(n, batch, 8))
+    it, iw, iu, iv = (spec.index(k) for k in ("target_speed", "twist", "nominal_voltage", "upper_speed_mean"))
+    y[:, :, it] = 1.0 + np.abs(y[:, :, it])
+    y[:, :, iw] *= 5.0  # large torque swings: the 5 V limit is reached
+    state = c.initial_state(y[0])
+    z = np.zeros(batch)
+    t_slow = np.asarray([float(np.asarray(lower_friction_curve(p, w))) for w in y[0, :, it]])
+    np.testing.assert_allclose(state[:, 1], t_slow, rtol=1e-12)
+    hit_limit = False
+    for k in range(n):
+        torque = p.string_stiffness * y[k, :, iw]
+        e = y[k, :, it] - (torque - t_slow) / c.impedance - y[k, :, iv]
+        u_req = y[k, :, iu] + kp * e + ki * z
+        u_ref = np.clip(u_req, -vmax, vmax)
+        hit_limit |= bool(np.any(u_ref != u_req))
+        z = z + dt * e + dt / (ki * tracking) * (u_ref - u_req)
+        t_slow = t_slow + a * (torque - t_slow)
+        u, state = c.control(y[k], state)
+        np.testing.assert_allclose(u, u_ref, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(state, np.stack([z, t_slow], axis=1), rtol=1e-10, atol=1e-12)
+    assert hit_limit

@@ -160,6 +160,26 @@ def test_loop_runs_a_controller_and_records_a_dataset(tmp_path):
     assert result["completed"] and (tmp_path / "report.md").is_file() and (tmp_path / "run.png").is_file()
     log = np.genfromtxt(tmp_path / "controller_log.csv", delimiter=",", names=True, dtype=None, encoding=None)
     assert len(log) == 240
+    # every command was applied before the rig's next reading: no deadline missed
+    assert result["timing"]["missed_deadlines"] == 0 and result["timing"]["late_at_rig"] == 0
+    assert list(log["command_seq"]) == list(range(240))
+
+
+def test_commands_the_rig_applied_late_are_missed_deadlines():
+    """A loop a period behind its rig (each command applied only after the next reading was
+    sent: what a loop descheduled with readings queued in its socket does) meets every one of
+    its own wall-clock checks; the readings' last applied command show every deadline missed."""
+    from drill_env.rig.loop import command_applied, timing_metrics
+
+    rig, res = _lockstep("lqi", 2.0, warmup=1.0, duration=2.0, late_commands=1)
+    assert res.trip is None
+    tm = timing_metrics(res)
+    # the last period's command has no next reading to be judged by
+    assert tm["late_at_rig"] == tm["missed_deadlines"] == len(res.log) - 1 == 59
+    assert not any(r["latency_ms"] > 50.0 for r in res.log)  # the loop's own clock saw nothing
+    assert command_applied(5, 5) and command_applied(6, 5) and not command_applied(4, 5)
+    assert command_applied(2, 0xFFFFFFF0) and not command_applied(0xFFFFFFF0, 2)  # wrapping
+    assert not command_applied(0xFFFFFFFF, 0)  # none applied yet
 
 
 def test_a_raising_controller_trips_the_supervisor_at_0_volt():
@@ -357,7 +377,7 @@ def test_an_overrunning_controller_trips_the_watchdog(emulator, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(TESTS)}
     p = run_cli(
         "run-controller", "rig_controllers:Overrunning", "--rig", emulator.address, "--voltage", "2",
-        "--warmup", "1", "--duration", "10", "--out", str(tmp_path / "o"), env=env,
+        "--warmup", "1", "--duration", "10", "--window", "5", "--out", str(tmp_path / "o"), env=env,
     )  # fmt: skip
     assert p.returncode == 1
     assert "error: watchdog: the controller call took" in p.stderr

@@ -57,13 +57,19 @@ def register(app: typer.Typer) -> None:
         workers: int | None = typer.Option(
             None, help=f"Parallel processes, 1 to {MAX_WORKERS} (default: the number of CPUs)."
         ),
+        nominal_ranking: Path | None = typer.Option(
+            None,
+            help="A nominal benchmark's ranking.json (or its folder, e.g. results/benchmark): the summary "
+            "counts how many pairs of its leaders (mean suppression 0.99 or more) the suite resolves.",
+        ),
     ) -> None:
         """Run every controller through the scenario suite on the same seeds (paired runs).
 
         Writes OUT/runs.csv (one row per controller x scenario x preset x seed, the open loop's
         reference runs included), OUT/scenarios.csv (mean score per controller and scenario and
-        the suite score), OUT/summary.md, OUT/scores.png and OUT/set_point_steps_<preset>.png.
-        Scores: docs/explanation/scenarios.md.
+        the suite score), the paired statistics of the suite score and of every scenario's
+        (OUT/ranking.json, OUT/ranking.md, OUT/ranking_suite.png), OUT/summary.md, OUT/scores.png
+        and OUT/set_point_steps_<preset>.png. Scores: docs/explanation/scenarios.md.
         """
         import os
         import shlex
@@ -95,6 +101,14 @@ def register(app: typer.Typer) -> None:
             folder = check_output_folder(out)
         except ValueError as exc:
             _fail(str(exc))
+        nominal = None
+        if nominal_ranking is not None:
+            from drill_env.agents.evaluation.scenario_report import read_nominal_ranking
+
+            try:
+                nominal = read_nominal_ranking(nominal_ranking)
+            except ValueError as exc:
+                _fail(str(exc))
 
         from drill_env.agents.evaluation.scenario_report import write_report
         from drill_env.agents.evaluation.scenarios import SuiteConfig, run_suite
@@ -120,12 +134,34 @@ def register(app: typer.Typer) -> None:
             "workers": n_workers,
             "version": _code_version(),
         }
-        paths = write_report(runs, folder, meta, presets=presets)
+        paths = write_report(runs, folder, meta, presets=presets, nominal=nominal)
+        import json
+
+        from drill_env.agents.evaluation.benchmark.ranking import RANKING_FILE
         from drill_env.agents.evaluation.scenarios import scenario_table
 
         table = scenario_table(runs)
-        typer.echo(f"suite score ({wall:.0f} s):")
+        record = (
+            json.loads((folder / RANKING_FILE).read_text(encoding="utf-8"))
+            if (folder / RANKING_FILE).is_file()
+            else {}
+        )
+        suite = next((r for r in record.get("rankings", []) if r["key"] == "suite"), None)
+        typer.echo(f"suite score ({wall:.0f} s){' [95 % paired interval] ranks' if suite else ''}:")
+        rows = {r["controller"]: r for r in suite["scores"]} if suite else {}
         for name, score in table["suite_score"].items():
-            typer.echo(f"  {name:<16} {score:7.3f}")
+            r = rows.get(name)
+            ci = f"  [{r['low']:.3f}, {r['high']:.3f}]  {r['best_rank']}-{r['worst_rank']}" if r else ""
+            typer.echo(f"  {name:<16} {score:7.3f}{ci}")
+        for h in record.get("headroom", []):
+            typer.echo(
+                f"  headroom {h['scenario']:<16} best {h['best_controller']:<16} {h['best_score']:.3f}"
+            )
+        lead = record.get("nominal_leaders")
+        if lead:
+            typer.echo(
+                f"  the nominal benchmark's {len(lead['controllers'])} leaders (>= {lead['threshold']:g}): "
+                f"{lead['resolved']} of {lead['n_pairs']} pairs resolved ({lead['resolved_holm']} with Holm)"
+            )
         for p in paths:
             typer.echo(f"wrote {p}")

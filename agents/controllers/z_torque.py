@@ -43,12 +43,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
-
-from drill_env.agents.controllers.base import Controller, ControllerSpec
+from drill_env.agents.controllers.base import ControllerSpec
 from drill_env.agents.controllers.impedance import characteristic_impedance, torsional_mode
 from drill_env.agents.controllers.pi import _gain
-from drill_env.friction import lower_friction_curve
+from drill_env.agents.controllers.torque_feedback import TorqueFeedback
 
 __all__ = ["ZTorque"]
 
@@ -57,8 +55,10 @@ NYQUIST_FRACTION = 0.1  # w_c at most this fraction of pi / dt
 HIGH_PASS_PERIODS = 2.0  # tau of the torque low-pass in torsional periods
 
 
-class ZTorque(Controller):
-    """Z-Torque-type impedance matching (see the module docstring).
+class ZTorque(TorqueFeedback):
+    """Z-Torque-type impedance matching (see the module docstring): the control law of
+    :class:`~drill_env.agents.controllers.torque_feedback.TorqueFeedback` (with its anti-windup
+    and tracking time), its gains given as the speed loop's torques and designed by :meth:`design`.
 
     Args:
         spec: the environment's :class:`~drill_env.agents.controllers.base.ControllerSpec`.
@@ -71,7 +71,6 @@ class ZTorque(Controller):
     """
 
     name = "z_torque"
-    state_size = 2  # z (speed-error integral [rad]), T_slow (low-passed string torque [N m])
 
     def __init__(
         self,
@@ -81,17 +80,14 @@ class ZTorque(Controller):
         impedance: float,
         tau_hp: float,
     ):
-        super().__init__(spec)
         self.p_torque = _gain("p_torque", p_torque)
         self.i_torque = _gain("i_torque", i_torque)
         self.impedance = _gain("impedance", impedance, positive=True)
-        self.tau_hp = _gain("tau_hp", tau_hp, positive=True)
-        dt = spec.control_dt
         km = spec.params.motor_constant
-        self._kp, self._ki = self.p_torque / km, self.i_torque / km  # [V s/rad], [V/rad]
-        self._a = 1.0 - math.exp(-dt / self.tau_hp)  # exact discrete first-order low-pass
-        self._k = spec.params.string_stiffness
-        self.tracking_time = max(self._kp / self._ki, dt) if self._ki > 0 else dt
+        # the speed loop's torques in volts: kp [V s/rad], ki [V/rad]
+        super().__init__(
+            spec, kp=self.p_torque / km, ki=self.i_torque / km, z_imp=self.impedance, tau_hp=tau_hp
+        )
 
     @classmethod
     def design(cls, spec: ControllerSpec) -> ZTorque:
@@ -106,26 +102,6 @@ class ZTorque(Controller):
             impedance=characteristic_impedance(p),
             tau_hp=HIGH_PASS_PERIODS * 2.0 * math.pi / w_s,
         )
-
-    def initial_state(self, y: np.ndarray) -> np.ndarray:
-        s = np.zeros((y.shape[0], self.state_size))
-        w = np.maximum(y[:, self._i_target], 0.0)
-        s[:, 1] = np.asarray(lower_friction_curve(self.spec.params, w), dtype=float)
-        return s
-
-    def control(self, y: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        dt, vmax = self.spec.control_dt, self.spec.voltage_limit
-        z, t_slow = state[:, 0], state[:, 1]
-        torque = self._k * y[:, self._i_twist]
-        w_ref = y[:, self._i_target] - (torque - t_slow) / self.impedance
-        e = w_ref - y[:, self._i_upper_mean]
-        u_req = y[:, self._i_unom] + self._kp * e + self._ki * z
-        u = np.clip(u_req, -vmax, vmax)
-        z_next = z + dt * e
-        if self._ki > 0:
-            z_next = z_next + dt / (self._ki * self.tracking_time) * (u - u_req)
-        t_next = t_slow + self._a * (torque - t_slow)
-        return u, np.stack([z_next, t_next], axis=1)
 
     def describe(self) -> dict[str, Any]:
         return {

@@ -1,7 +1,10 @@
 """The scenario suite's report: ``runs.csv`` (one row per run), ``scenarios.csv`` (mean score
-per controller and scenario, and the suite score), ``summary.md`` and the figures
-``scores.png`` (the per-scenario table as a heat map) and ``set_point_steps_<preset>.png``
-(the lower-disk speed of the leading controllers through the set-point steps)."""
+per controller and scenario, and the suite score), the rankings with paired statistics
+(``ranking.json``, ``ranking.md``, ``ranking_suite.png``: the benchmark's code,
+:mod:`~drill_env.agents.evaluation.benchmark.ranking`, on the units scenario x preset x seed),
+``summary.md`` and the figures ``scores.png`` (the per-scenario table as a heat map) and
+``set_point_steps_<preset>.png`` (the lower-disk speed of the leading controllers through the
+set-point steps)."""
 
 from __future__ import annotations
 
@@ -20,9 +23,114 @@ from drill_env.agents.evaluation.scenarios import (
 from drill_env.envs.scenarios import SCENARIOS
 from drill_env.outputs import atomic_write_text
 
-__all__ = ["write_report", "scores_figure", "set_point_figure"]
+__all__ = [
+    "NOMINAL_TOP",
+    "nominal_leaders",
+    "read_nominal_ranking",
+    "scores_figure",
+    "set_point_figure",
+    "suite_rankings",
+    "write_report",
+]
 
 N_LEADERS = 3  # controllers drawn beside the open loop in the set-point figure
+SUITE = "suite"  # the key of the suite's ranking (units: scenario, preset, seed)
+SUITE_UNITS = ("scenario", "preset", "seed")
+NOMINAL_TOP = 0.99  # the nominal benchmark's leaders: mean suppression at least this
+
+
+def suite_rankings(runs: Any) -> list[tuple[str, str, Any]]:
+    """(key, title, paired statistics) of the suite score (units: scenario, preset, seed; the
+    mean over them is the suite score, every scenario having the same presets and seeds) and of
+    each scenario's score (units: preset, seed), by
+    :func:`~drill_env.agents.evaluation.benchmark.ranking.paired_ranking`: the benchmark's
+    statistics, every controller on the same units. A failed run is in its unit at the score
+    floor (never left out)."""
+    from drill_env.agents.evaluation.benchmark.ranking import paired_ranking
+
+    rows = runs[["controller", *SUITE_UNITS, "score"]]
+    if rows["controller"].nunique() < 2:
+        return []
+    sizes = rows.groupby("scenario")[["preset", "seed"]].apply(lambda g: len(g.drop_duplicates()))
+    if sizes.nunique() > 1:
+        raise ValueError(
+            f"runs: the scenarios have different numbers of preset x seed units ({sizes.to_dict()}); "
+            "the suite score is their mean only on a balanced suite"
+        )
+    out = []
+    if len(rows[list(SUITE_UNITS)].drop_duplicates()) >= 2:
+        out.append(
+            (
+                SUITE,
+                "scenario suite: every scenario, preset and seed",
+                paired_ranking(rows, SUITE_UNITS, "score"),
+            )
+        )
+    for name in [n for n in SCENARIOS if n in set(rows["scenario"])]:
+        sub = rows[rows["scenario"] == name]
+        if len(sub[["preset", "seed"]].drop_duplicates()) >= 2:
+            out.append(
+                (name, f"{name}: every preset and seed", paired_ranking(sub, ("preset", "seed"), "score"))
+            )
+    return out
+
+
+def read_nominal_ranking(path: str | Path) -> dict[str, Any]:
+    """The ranking of the nominal benchmark in ``path`` (its ``ranking.json``, or a folder
+    holding one) that :func:`nominal_leaders` uses: the one over both presets (key ``all``),
+    else the first; raises ValueError naming the file."""
+    import json
+
+    from drill_env.agents.evaluation.benchmark.ranking import RANKING_FILE
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / RANKING_FILE
+    if not p.is_file():
+        raise ValueError(f"--nominal-ranking: {str(path)!r} is no {RANKING_FILE} (nor a folder holding one)")
+    try:
+        record = json.loads(p.read_text(encoding="utf-8"))
+        rankings = record["rankings"]
+        chosen = next((r for r in rankings if r.get("key") == "all"), rankings[0])
+        scores = {str(r["controller"]): float(r["score"]) for r in chosen["scores"]}
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, IndexError, TypeError) as exc:
+        raise ValueError(
+            f"--nominal-ranking: {str(p)!r} is not a benchmark's {RANKING_FILE} ({type(exc).__name__}: {exc})"
+        ) from None
+    return {
+        "source": p.as_posix(),
+        "key": str(chosen.get("key", "")),
+        "score": str(chosen.get("score", "")),
+        "scores": scores,
+    }
+
+
+def nominal_leaders(suite: Any, nominal: Mapping[str, Any], top: float = NOMINAL_TOP) -> dict[str, Any]:
+    """Which pairs of the nominal benchmark's leaders (mean score at least ``top`` in
+    ``nominal``, from :func:`read_nominal_ranking`) the suite's paired statistics ``suite``
+    resolve: the controllers, the number of their pairs and of those resolved (per pair and
+    with Holm's correction), and every pair with its difference and interval."""
+    present = set(suite.scores["controller"])
+    leaders = [
+        c for c, v in sorted(nominal["scores"].items(), key=lambda kv: -kv[1]) if v >= top and c in present
+    ]
+    pairs = suite.pairs[suite.pairs["a"].isin(leaders) & suite.pairs["b"].isin(leaders)]
+    return {
+        "source": nominal["source"],
+        "ranking": nominal["key"],
+        "score": nominal["score"],
+        "threshold": top,
+        "controllers": {c: nominal["scores"][c] for c in leaders},
+        "n_pairs": len(pairs),
+        "resolved": int(pairs["resolved"].sum()),
+        "resolved_holm": int(pairs["resolved_holm"].sum()),
+        "pairs": [
+            {k: (bool(v) if k.startswith("resolved") else v) for k, v in r.items()}
+            for r in pairs[["a", "b", "difference", "low", "high", "resolved", "resolved_holm"]].to_dict(
+                "records"
+            )
+        ],
+    }
 
 
 def _canvas(fig: Any) -> None:
@@ -105,10 +213,114 @@ def _markdown(table: Any, digits: int = 3) -> str:
     return "\n".join(lines)
 
 
-def summary_text(runs: Any, meta: Mapping[str, Any]) -> str:
-    """``summary.md``: what ran, the per-scenario table, the headroom and the effort."""
+def headroom_records(runs: Any, rankings: Sequence[tuple[str, str, Any]] = ()) -> list[dict[str, Any]]:
+    """Per scenario: the best controller (open loop left out), its mean score, the upper end of
+    its interval in the scenario's ranking (if ranked) and the room left, 1 - score."""
+    intervals = {
+        key: {r["controller"]: (r["low"], r["high"]) for r in st.scores.to_dict("records")}
+        for key, _title, st in rankings
+    }
+    out = []
+    for name, r in headroom(runs).iterrows():
+        low, high = intervals.get(str(name), {}).get(r.best_controller, (float("nan"), float("nan")))
+        out.append(
+            {
+                "scenario": str(name),
+                "best_controller": str(r.best_controller),
+                "best_score": float(r.best_score),
+                "low": float(low),
+                "high": float(high),
+                "room": 1.0 - float(r.best_score),
+            }
+        )
+    return out
+
+
+def _span(r: Mapping[str, Any]) -> str:
+    b, w = int(r["best_rank"]), int(r["worst_rank"])
+    return f"{b}" if b == w else f"{b}-{w}"
+
+
+def _ranking_lines(rankings: Sequence[tuple[str, str, Any]], leaders: Mapping[str, Any] | None) -> list[str]:
+    """The summary's ranking sections: the suite score with its interval and range of ranks, the
+    rank of every controller on every scenario, and the nominal leaders' pairs."""
+    by_key = {key: st for key, _title, st in rankings}
+    suite = by_key.get(SUITE)
+    if suite is None:
+        return []
+    pct = f"{100 * suite.confidence:g} %"
+    n_res, n_holm = int(suite.pairs["resolved"].sum()), int(suite.pairs["resolved_holm"].sum())
+    lines = [
+        "## Suite score with paired intervals",
+        "",
+        f"Mean score over the {suite.n_units} paired units (scenario, preset, seed; every controller on "
+        f"the same ones), {pct} {suite.method} bootstrap intervals from {suite.n_resamples:,} joint resamples "
+        "of the units (`agents/evaluation/benchmark/statistics.py`, the benchmark's ranking code); *ranks*: "
+        f"the range the resolved differences allow. {n_res} of {len(suite.pairs)} pairs resolved, {n_holm} "
+        "with Holm's correction; every pair in `ranking.md`, as data in `ranking.json`.",
+        "",
+        f"| rank | controller | suite score | {pct} interval | ranks |",
+        "|---|---|---|---|---|",
+    ]
+    for r in suite.scores.to_dict("records"):
+        lines.append(
+            f"| {r['rank']} | {r['controller']} | {r['score']:.3f} | [{r['low']:.3f}, {r['high']:.3f}] | {_span(r)} |"
+        )
+    scen = [k for k in SCENARIOS if k in by_key]
+    if scen:
+        lines += [
+            "",
+            "## Rank on each scenario",
+            "",
+            "Rank by the scenario's mean score (in brackets the range of ranks its paired intervals allow; "
+            "units: preset, seed).",
+            "",
+            "| controller | " + " | ".join(scen) + " |",
+            "|---" * (len(scen) + 1) + "|",
+        ]
+        ranks = {k: {r["controller"]: r for r in by_key[k].scores.to_dict("records")} for k in scen}
+        for name in suite.scores["controller"]:
+            cells = [
+                f"{ranks[k][name]['rank']} ({_span(ranks[k][name])})" if name in ranks[k] else "-"
+                for k in scen
+            ]
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    if leaders is not None:
+        names = ", ".join(f"{c} ({v:.4f})" for c, v in leaders["controllers"].items())
+        lines += [
+            "",
+            "## The nominal benchmark's leaders told apart",
+            "",
+            f"The controllers at {leaders['threshold']:g} or more mean {leaders['score']} in the nominal benchmark "
+            f"(`{leaders['source']}`, ranking `{leaders['ranking']}`): {names or 'none'}. Of their "
+            f"{leaders['n_pairs']} pairs the suite's paired intervals resolve **{leaders['resolved']}** "
+            f"({leaders['resolved_holm']} with Holm's correction over all the suite's pairs).",
+            "",
+        ]
+        if leaders["pairs"]:
+            lines += [
+                "| a | b | a - b | interval | resolved | resolved (Holm) |",
+                "|---|---|---|---|---|---|",
+            ]
+            for q in leaders["pairs"]:
+                lines.append(
+                    f"| {q['a']} | {q['b']} | {q['difference']:.4f} | [{q['low']:.4f}, {q['high']:.4f}] | "
+                    f"{'**yes**' if q['resolved'] else 'no'} | {'yes' if q['resolved_holm'] else 'no'} |"
+                )
+    lines.append("")
+    return lines
+
+
+def summary_text(
+    runs: Any,
+    meta: Mapping[str, Any],
+    rankings: Sequence[tuple[str, str, Any]] = (),
+    leaders: Mapping[str, Any] | None = None,
+) -> str:
+    """``summary.md``: what ran, the per-scenario table, the ranking with paired intervals, the
+    headroom, the nominal leaders' pairs and the effort."""
     table = scenario_table(runs)
-    head = headroom(runs)
+    head = headroom_records(runs, rankings)
     failed = runs[runs["error"].fillna("") != ""]
     effort = (
         runs[runs["scenario"] == "effort"]
@@ -136,10 +348,18 @@ def summary_text(runs: Any, meta: Mapping[str, Any]) -> str:
         "",
         "## Headroom: the best controller on each scenario (open loop left out)",
         "",
-        "| scenario | best controller | best score |",
-        "|---|---|---|",
-        *[f"| {s} | {r.best_controller} | {r.best_score:.3f} |" for s, r in head.iterrows()],
+        f"The best score is below 1 on {sum(h['best_score'] < 1 for h in head)} of {len(head)} scenarios, "
+        f"the upper end of its interval below 0.99 on {sum(h['high'] < 0.99 for h in head)}.",
         "",
+        "| scenario | best controller | best score | 95 % interval | room left (1 - score) |",
+        "|---|---|---|---|---|",
+        *[
+            f"| {h['scenario']} | {h['best_controller']} | {h['best_score']:.3f} | "
+            f"[{h['low']:.3f}, {h['high']:.3f}] | {h['room']:.3f} |"
+            for h in head
+        ],
+        "",
+        *_ranking_lines(rankings, leaders),
         "## Effort on the `effort` scenario (means over presets and seeds)",
         "",
         "energy_ratio: the motor's work over the equilibrium's; u_rms [V]; u_peak_abs [V]; "
@@ -161,15 +381,40 @@ def summary_text(runs: Any, meta: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+RANKING_INTRO = (
+    "Paired bootstrap statistics of the scenario suite's scores (`agents/evaluation/benchmark/statistics.py`, "
+    "the benchmark's ranking code): the suite's units (scenario, preset, seed) and each scenario's "
+    "(preset, seed) resampled jointly for all controllers; a difference is *resolved* when its interval "
+    "excludes 0."
+)
+
+
 def write_report(
-    runs: Any, out: Path, meta: Mapping[str, Any], *, presets: Sequence[str], agents_dir: str | None = None
+    runs: Any,
+    out: Path,
+    meta: Mapping[str, Any],
+    *,
+    presets: Sequence[str],
+    agents_dir: str | None = None,
+    nominal: Mapping[str, Any] | None = None,
 ) -> list[Path]:
-    """Write the CSVs, ``summary.md`` and the figures into ``out``; returns the paths."""
+    """Write the CSVs, the rankings, ``summary.md`` and the figures into ``out``; returns the
+    paths. ``nominal``: the nominal benchmark's ranking (:func:`read_nominal_ranking`), whose
+    leaders' pairs the summary counts."""
+    from drill_env.agents.evaluation.benchmark.ranking import write_rankings
+
     out.mkdir(parents=True, exist_ok=True)
+    rankings = suite_rankings(runs)
+    suite = next((st for key, _t, st in rankings if key == SUITE), None)
+    leaders = nominal_leaders(suite, nominal) if nominal is not None and suite is not None else None
     paths = [out / "runs.csv", out / "scenarios.csv", out / "summary.md"]
     atomic_write_text(paths[0], runs.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(paths[1], scenario_table(runs).to_csv(float_format="%.6g"))
-    atomic_write_text(paths[2], summary_text(runs, meta))
+    atomic_write_text(paths[2], summary_text(runs, meta, rankings, leaders))
+    extra: dict[str, Any] = {"headroom": headroom_records(runs, rankings)}
+    if leaders is not None:
+        extra["nominal_leaders"] = leaders
+    paths += write_rankings(rankings, out, intro=RANKING_INTRO, figures=(SUITE,), extra=extra)
     paths.append(scores_figure(runs, out))
     for preset in presets:
         p = set_point_figure(runs, preset, out, agents_dir=agents_dir)

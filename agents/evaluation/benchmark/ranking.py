@@ -8,7 +8,7 @@ interval: the leading controllers told apart where their suppression all reads 0
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ __all__ = [
     "RANKING_REPORT",
     "SCORE",
     "benchmark_rankings",
+    "paired_ranking",
     "ranking_figure",
     "ranking_record",
     "ranking_summary_lines",
@@ -45,6 +46,22 @@ SEED = 0
 SHORTFALL_FLOOR = 1e-4  # [-] a shortfall 1 - suppression below this is drawn at it
 LINEAR_BELOW = 1e-4  # [-] the difference axis is linear within +-this, logarithmic beyond
 SHOWN_ABOVE = 0.01  # [-] the figure draws the controllers whose mean score is above this
+
+
+def paired_ranking(rows: Any, units: Sequence[str], score: str = SCORE) -> PairedStatistics:
+    """The paired statistics of ``score`` over ``units`` with the rankings' settings
+    (:data:`CONFIDENCE`, :data:`N_RESAMPLES`, :data:`METHOD`, :data:`SEED`): one code path for
+    the benchmark's rankings and the scenario suite's."""
+    units = tuple(units)
+    return paired_bootstrap(
+        rows[["controller", *units, score]],
+        score=score,
+        units=units,
+        confidence=CONFIDENCE,
+        n_resamples=N_RESAMPLES,
+        method=METHOD,
+        seed=SEED,
+    )
 
 
 def benchmark_rankings(df: Any) -> list[tuple[str, str, PairedStatistics]]:
@@ -67,16 +84,7 @@ def benchmark_rankings(df: Any) -> list[tuple[str, str, PairedStatistics]]:
         units = ("plant", "voltage", "seed") if key != "all" else ("preset", "plant", "voltage", "seed")
         if sub[SCORE].notna().groupby([sub[u] for u in units]).any().sum() < 2:
             continue
-        st = paired_bootstrap(
-            sub[["controller", *units, SCORE]],
-            score=SCORE,
-            units=units,
-            confidence=CONFIDENCE,
-            n_resamples=N_RESAMPLES,
-            method=METHOD,
-            seed=SEED,
-        )
-        out.append((key, title, st))
+        out.append((key, title, paired_ranking(sub, units)))
     return out
 
 
@@ -91,19 +99,26 @@ def ranking_record(key: str, title: str, st: PairedStatistics) -> dict[str, Any]
     }
 
 
-def ranking_summary_lines(rankings: Sequence[tuple[str, str, PairedStatistics]]) -> list[str]:
+BENCHMARK_SUMMARY_INTRO = (
+    "Every controller ran on the same units (operating point, seed, plant), so the rankings pair "
+    "them; the differences of every pair with their intervals are in `ranking.md`, the "
+    "figures in `ranking_<preset>.png`."
+)
+BENCHMARK_REPORT_INTRO = (
+    "Paired bootstrap statistics of the suppression (`agents/evaluation/benchmark/statistics.py`): "
+    "the units (plant, operating point, seed) resampled jointly for all controllers; a difference is "
+    "*resolved* when its interval excludes 0."
+)
+
+
+def ranking_summary_lines(
+    rankings: Sequence[tuple[str, str, PairedStatistics]], *, intro: str = BENCHMARK_SUMMARY_INTRO
+) -> list[str]:
     """The ranking section of ``summary.md``: the score table of each ranking (the pairs are
-    in ``ranking.md``)."""
+    in ``ranking.md``) under ``intro``."""
     if not rankings:
         return []
-    lines = [
-        "## Ranking (paired bootstrap)",
-        "",
-        "Every controller ran on the same units (operating point, seed, plant), so the rankings pair "
-        "them; the differences of every pair with their intervals are in `ranking.md`, the "
-        "figures in `ranking_<preset>.png`.",
-        "",
-    ]
+    lines = ["## Ranking (paired bootstrap)", "", intro, ""]
     for _key, title, st in rankings:
         body = ranking_lines(st, title=title)
         cut = next((i for i, line in enumerate(body) if line.startswith("Paired differences")), len(body))
@@ -113,28 +128,31 @@ def ranking_summary_lines(rankings: Sequence[tuple[str, str, PairedStatistics]])
     return lines
 
 
-def write_rankings(rankings: Sequence[tuple[str, str, PairedStatistics]], out: Path) -> list[Path]:
-    """``ranking.json``, ``ranking.md`` and a figure per ranking in ``out``; the paths."""
+def write_rankings(
+    rankings: Sequence[tuple[str, str, PairedStatistics]],
+    out: Path,
+    *,
+    intro: str = BENCHMARK_REPORT_INTRO,
+    figures: Sequence[str] | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> list[Path]:
+    """``ranking.json`` (the rankings and the entries of ``extra``), ``ranking.md`` (``intro``,
+    then every ranking) and ``ranking_<key>.png`` for each ranking in ``figures`` (default:
+    all) in ``out``; the paths."""
     for stale in (out / RANKING_FILE, out / RANKING_REPORT, *out.glob("ranking_*.png")):
         if stale.is_file():
             stale.unlink()
     if not rankings:
         return []
     paths = [out / RANKING_FILE, out / RANKING_REPORT]
-    record = {"rankings": [ranking_record(k, t, st) for k, t, st in rankings]}
+    record = {"rankings": [ranking_record(k, t, st) for k, t, st in rankings], **(extra or {})}
     atomic_write_text(paths[0], json.dumps(record, indent=2) + "\n")
-    lines = [
-        "# Controller ranking",
-        "",
-        "Paired bootstrap statistics of the suppression (`agents/evaluation/benchmark/statistics.py`): "
-        "the units (plant, operating point, seed) resampled jointly for all controllers; a difference is "
-        "*resolved* when its interval excludes 0.",
-        "",
-    ]
+    lines = ["# Controller ranking", "", intro, ""]
     for key, title, st in rankings:
         lines += ranking_lines(st, title=title, level=2)
-        lines += [f"![ranking {key}](ranking_{key}.png)", ""]
-        paths.append(ranking_figure(st, title, out / f"ranking_{key}.png"))
+        if figures is None or key in figures:
+            lines += [f"![ranking {key}](ranking_{key}.png)", ""]
+            paths.append(ranking_figure(st, title, out / f"ranking_{key}.png"))
     atomic_write_text(paths[1], "\n".join(lines) + "\n")
     return paths
 
