@@ -253,7 +253,7 @@ def test_benchmark_markers_sit_at_their_runs_voltage_and_off_scale_runs_are_note
     y_lo, y_hi = ax.get_ylim()
     title = ax.get_title()
     # 2 V and 5 V, two seeds each: beyond the scale, written in the margin, not drawn across
-    assert "4 runs off scale (2-5 V)" in title and "x3 from -64.0 to 64.0 rad/s" in title
+    assert "4 runs off scale (2-5 V)" in title and "x3 -64.0 to 64.0 rad/s" in title
     edges = [line for line in ax.get_lines() if not line.get_clip_on()]  # on the frame
     assert {float(y) for line in edges for y in line.get_ydata()} == {y_lo, y_hi}
     for coll in ax.collections:
