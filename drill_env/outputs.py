@@ -58,6 +58,9 @@ __all__ = [
     "ResumeError",
     "check_command_folder",
     "command_folder",
+    "check_command_file",
+    "check_tree_files",
+    "command_files",
     "refuse_link",
     "save_figure",
     "atomic_write_json",
@@ -802,6 +805,123 @@ def command_folder(
             raise
         finally:
             with _HELD_GUARD:
+                _SESSIONS.remove(session)
+
+
+def _refuse_foreign_folder(
+    folder: Path, command: str, option: str, shown: Path, accepts: tuple[str, ...] = ()
+) -> None:
+    """Refuse a folder that holds a dataset or another command's outputs (its marker names a
+    command other than ``command`` and ``accepts``)."""
+    if not folder.is_dir():
+        return
+    marked = _marker_command(folder)
+    if marked is not None and marked != command and marked not in accepts:
+        raise OutputFolderError(
+            f"{option} {shown}: {folder} holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder "
+            f"holds one command's outputs, never mixed: choose another folder for `drill-env {command}`"
+        )
+    if (folder / "dataset.json").exists() or (folder / "dataset.json").is_symlink():
+        raise OutputFolderError(
+            f"{option} {shown}: {folder} holds a dataset (dataset.json); outputs are never written into a "
+            "dataset folder: choose another folder"
+        )
+
+
+def check_command_file(path: str | os.PathLike[str], command: str, option: str = "--out") -> Path:
+    """Check, before any work and writing nothing, that ``command`` may write the file ``path``
+    (a command whose output is named files, not a folder of its own): :func:`check_output_file`
+    (never a link, a folder or a special file; its folder creatable and writable), and its
+    folder must not hold a dataset or another command's outputs (a marker naming another command).
+    """
+    path = check_output_file(path, option)
+    _refuse_foreign_folder(path.parent, command, option, path)
+    return path
+
+
+def check_tree_files(
+    root: str | os.PathLike[str],
+    files: list[Path],
+    command: str,
+    option: str,
+    *,
+    accepts: tuple[str, ...] = (),
+) -> None:
+    """Check, before the first write, the files a command rewrites in place under the folder
+    ``root`` (policy cards beside trained policies, upgraded policy files): every file lies in
+    ``root`` by its real path (a linked folder that leads elsewhere is refused), no file is a
+    symbolic link, and neither ``root`` nor a file's folder holds a dataset or the outputs of a
+    command other than ``command`` and ``accepts`` (whose outputs it updates, e.g. ``train``).
+    Raises :class:`OutputFolderError` naming ``option``."""
+    root = Path(root)
+    real_root = os.path.realpath(root)
+    _refuse_foreign_folder(root, command, option, root, accepts)
+    for path in files:
+        real = os.path.realpath(path.parent)
+        if real != real_root and not real.startswith(real_root + os.sep):
+            raise OutputFolderError(
+                f"{option} {root}: {path.parent} leads outside it (to {real}, through a link); files are "
+                "written only inside the folder named: remove the link or name that folder itself"
+            )
+        if path.is_symlink():
+            raise OutputFolderError(
+                f"{option} {root}: {path} is a symbolic link (to {os.readlink(path)}); output files are "
+                "never written through links: remove the link"
+            )
+        if path.parent != root:
+            _refuse_foreign_folder(path.parent, command, option, root, accepts)
+
+
+@contextlib.contextmanager
+def command_files(
+    paths: list[str | os.PathLike[str]] | tuple[str | os.PathLike[str], ...],
+    command: str,
+    option: str = "--out",
+) -> Iterator[list[Path]]:
+    """The output files of one run of a command that writes named files: each checked
+    (:func:`check_command_file`), their folders created if missing; yields the paths.
+
+    Write them with this module's writers inside the block: on a write error (a full disk)
+    the files this run created are removed (a file of an earlier run being replaced is left as
+    it was; the error names the path), and on any error the folders made here are removed
+    again when left empty. Nothing is marked: the folder may hold other files (a config folder).
+    """
+    checked = [check_command_file(p, command, option) for p in paths]
+    made: list[Path] = []
+    for path in checked:
+        probe = path.parent
+        while not probe.exists() and not probe.is_symlink() and probe != probe.parent:
+            if probe not in made:
+                made.append(probe)
+            probe = probe.parent
+    made.sort(key=lambda p: len(p.parts), reverse=True)  # innermost first
+    sessions = [_Session(folder) for folder in dict.fromkeys(p.parent for p in checked)]
+    with _HELD_GUARD:
+        _SESSIONS.extend(sessions)
+    try:
+        for path in checked:
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise OutputFolderError(
+                    f"{option} {path}: cannot create {path.parent}: {_reason(exc)}"
+                ) from None
+        for session in sessions:  # the folders now exist: their real paths
+            session.folder = os.path.realpath(session.folder)
+        yield checked
+    except BaseException as exc:
+        if _is_write_error(exc):
+            for session in sessions:
+                for p in reversed(session.created):
+                    with contextlib.suppress(OSError):
+                        p.unlink()
+        for folder in made:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
+    finally:
+        with _HELD_GUARD:
+            for session in sessions:
                 _SESSIONS.remove(session)
 
 

@@ -21,7 +21,7 @@ from drill_env.agents.evaluation.scenarios import (
     scenario_trajectory,
 )
 from drill_env.envs.scenarios import SCENARIOS
-from drill_env.outputs import atomic_write_text
+from drill_env.outputs import atomic_write_text, save_figure
 
 __all__ = [
     "NOMINAL_TOP",
@@ -162,7 +162,7 @@ def scores_figure(runs: Any, out: Path) -> Path:
     fig.colorbar(im, ax=ax, label="score [-]")
     fig.tight_layout()
     path = out / "scores.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path
 
 
@@ -200,7 +200,7 @@ def set_point_figure(
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     path = out / f"set_point_steps_{preset}.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path
 
 
