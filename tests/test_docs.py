@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import json
 import os
 import re
 import shutil
@@ -69,7 +70,10 @@ def generated_files() -> set[str]:
     for folder in _results_pages_module().readme_sections(readme):
         names.add(f"results/readme_{folder}.md")
     for ranking in results.rglob("ranking.json"):
-        names.add("results/leaderboard_" + "_".join(ranking.parent.relative_to(results).parts) + ".md")
+        stem = "results/leaderboard_" + "_".join(ranking.parent.relative_to(results).parts)
+        names.add(stem + ".md")
+        if "headroom" in json.loads(ranking.read_text(encoding="utf-8")):  # a scenario suite's
+            names.add(stem + "_suite.md")
     names.add("results/leaderboard_ranks.md")
     spec = importlib.util.spec_from_file_location("headlines", DOCS / "_ext" / "headlines.py")
     headlines = importlib.util.module_from_spec(spec)

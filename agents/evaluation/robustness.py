@@ -306,7 +306,7 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
     fig, axes = subplots(
         len(regimes),
         len(METRICS),
-        figsize=(8.0, 1.0 + 0.24 * len(ctrls) * len(regimes) + 0.75 * len(regimes)),
+        figsize=(8.0, 1.3 + len(regimes) * (1.05 + 0.24 * len(ctrls))),
         squeeze=False,
         sharey=True,
     )

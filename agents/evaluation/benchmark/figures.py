@@ -405,42 +405,71 @@ def _plants_figure(df, preset: str, out: Path, plants: Sequence[str]) -> Path:
 
     ok = df[(df["preset"] == preset) & (df["error"] == "")]
     ctrls = ordered_controllers(ok["controller"])
-    ncol = 4
-    nrow = -(-(len(plants) + 1) // ncol)  # one slot for the legend
-    fig, axes = subplots(nrow, ncol, figsize=(16, 2.6 * nrow + 1.0), sharex=True, sharey=True, squeeze=False)
+    ncol = GRID_COLUMNS
+    n_legend_slots = 3
+    nrow = -(-(len(plants) + n_legend_slots) // ncol)  # the legend takes the last slots
+    fig, axes = subplots(
+        nrow, ncol, figsize=(FIGURE_WIDTH, 1.75 * nrow + 0.8), sharex=True, sharey=True, squeeze=False
+    )
     flat = [a for row in axes for a in row]
     for k, plant in enumerate(plants):
         ax = flat[k]
         _draw_suppression(ax, ok[ok["plant"] == plant], preset, ctrls, small=True)
-        ax.set_title(plant, fontsize=9)
+        ax.set_title(plant, fontsize=FONT, pad=3)
         ax.set_ylim(Y_FLOOR - 0.1, 1.1)
+        ax.tick_params(labelsize=FONT, length=2.5, pad=2)
         if k % ncol == 0:
-            ax.set_ylabel("suppression [-]")
+            ax.set_ylabel("suppression [-]", fontsize=FONT)
         if k + ncol >= len(plants):  # the lowest panel of its column
-            ax.set_xlabel("nominal voltage u [V]")
+            ax.set_xlabel("nominal u [V]", fontsize=FONT)
             ax.tick_params(labelbottom=True)
     for ax in flat[len(plants) :]:
         ax.axis("off")
-    handles, _ = flat[0].get_legend_handles_labels()
-    handles = [Line2D([], [], ls="none", label="mean over seeds, bar: min-max:"), *handles]
+    from matplotlib.patches import Patch
+
+    # every controller (a panel draws its leaders as one band: which ones differs by plant)
+    handles = [
+        Line2D(
+            [], [], marker=controller_style(c).marker, color=controller_style(c).colour, mfc="none", label=c
+        )
+        for c in ctrls
+    ]
+    handles.append(
+        Patch(
+            color=LEADERS_COLOUR,
+            alpha=0.5,
+            label=f"band: those at {LEADING:g}+ everywhere",
+        )
+    )
+    regimes = _regime_handles(preset)
+    for h in regimes:  # short: the legend fits the empty slots
+        h.set_label(h.get_label().replace("nominal model: ", "").replace(" without stick", ""))
     handles += [
-        Line2D([], [], color="gray", lw=0.8, ls=":", label="1: cycle removed"),
-        Line2D([], [], color="gray", lw=0.8, label="0: amplitude as open loop"),
-        Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="amplifier limit 5 V"),
-        *_regime_handles(preset),
+        Line2D([], [], color="gray", lw=0.8, ls=":", label="1: removed"),
+        Line2D([], [], color="gray", lw=0.8, label="0: as open loop"),
+        Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="5 V limit"),
+        *regimes,
     ]
     fig.suptitle(
-        f"{preset}: suppression on each plant, controllers designed on the nominal model "
+        f"{preset}: suppression on each plant, controllers designed on the nominal model\n"
         f"(reference: the open-loop run on the same plant; means below {Y_FLOOR:g} drawn at {Y_FLOOR:g})",
-        fontsize=10,
+        fontsize=FONT + 1,
     )
-    fig.tight_layout(rect=(0, 0, 1, 0.985))
-    # after the layout, which would otherwise shrink every panel to the legend's width
-    flat[len(plants)].legend(
-        handles=handles, loc="upper left", bbox_to_anchor=(0.05, 0.95), fontsize=8, frameon=False, ncol=3
-    )
+    fig.tight_layout(h_pad=0.6, w_pad=0.4)
+    # after the layout, which would otherwise shrink every panel to the legend's width: in the
+    # empty slots of the last rows
+    empty = flat[len(plants) :]
+    x0, x1 = min(a.get_position().x0 for a in empty), max(a.get_position().x1 for a in empty)
+    y0, y1 = min(a.get_position().y0 for a in empty), max(a.get_position().y1 for a in empty)
+    for h in handles:
+        h.set_label(textwrap.fill(h.get_label(), 22, break_on_hyphens=False))
+    fig.legend(
+        handles=handles, loc="center", bbox_to_anchor=(x0, y0 - 0.01, x1 - x0, y1 - y0), fontsize=FONT,
+        frameon=False, ncol=3, handlelength=1.4, columnspacing=0.8, labelspacing=0.25, borderaxespad=0.0,
+        title="mean over seeds (bar: seed range); shaded: the nominal model's regimes", title_fontsize=FONT,
+    )  # fmt: skip
     p = out / f"suppression_{preset}_plants.png"
-    save_figure(fig, p, dpi=100)
+    save_figure(fig, p, dpi=FIGURE_DPI)
     return p
 
 
