@@ -140,7 +140,15 @@ def test_supervisor_limits_outside_the_rigs_range(field, value, words):
 # -- the loop, lockstep with the emulated rig (no wire, no wall clock) ----------------------------
 
 
-def _lockstep(controller: str, voltage: float, warmup: float, duration: float, window: float = 5.0, **kw):
+def _lockstep(
+    controller: str,
+    voltage: float,
+    warmup: float,
+    duration: float,
+    window: float = 5.0,
+    limits: SupervisorLimits | None = None,
+    **kw,
+):
     from drill_env.agents.evaluation.rig_runs import resolve_controller
 
     rig = LockstepRig(EmulatedRig(*emulated_plant("brake", None)), **kw)
@@ -148,7 +156,8 @@ def _lockstep(controller: str, voltage: float, warmup: float, duration: float, w
     # checks (a call overrunning its period) never act on how this host schedules the test
     info = dataclasses.replace(rig.hello(), time_scale=1e-3)
     env, ctrl, name = resolve_controller(controller, "brake", info.counts_per_rev, info.sample_rate_hz)
-    res = run_loop(rig, info, env, ctrl, name, RunSettings("brake", voltage, duration, warmup, window))
+    run = RunSettings("brake", voltage, duration, warmup, window, limits or SupervisorLimits())
+    res = run_loop(rig, info, env, ctrl, name, run)
     return rig, res
 
 
@@ -182,7 +191,9 @@ def test_commands_the_rig_applied_late_are_missed_deadlines():
     its own wall-clock checks; the readings' last applied command show every deadline missed."""
     from drill_env.rig.loop import command_applied, timing_metrics
 
-    rig, res = _lockstep("lqi", 2.0, warmup=1.0, duration=2.0, late_commands=1)
+    rig, res = _lockstep(
+        "lqi", 2.0, warmup=1.0, duration=2.0, limits=SupervisorLimits(watchdog_periods=100), late_commands=1
+    )
     assert res.trip is None
     tm = timing_metrics(res)
     # the last period's command has no next reading to be judged by
@@ -191,6 +202,20 @@ def test_commands_the_rig_applied_late_are_missed_deadlines():
     assert command_applied(5, 5) and command_applied(6, 5) and not command_applied(4, 5)
     assert command_applied(2, 0xFFFFFFF0) and not command_applied(0xFFFFFFF0, 2)  # wrapping
     assert not command_applied(0xFFFFFFFF, 0)  # none applied yet
+
+
+def test_a_loop_behind_its_rig_for_the_watchdogs_periods_trips_it():
+    """As many late commands in a row as --watchdog-periods: the rig ran that long on old
+    voltages, as if no reading had come; the watchdog stops the run at 0 V."""
+    rig, res = _lockstep("lqi", 2.0, warmup=1.0, duration=2.0, limits=SupervisorLimits(watchdog_periods=4),
+                         late_commands=1)  # fmt: skip
+    assert res.trip_kind == "watchdog" and res.trip == (
+        "watchdog: the loop fell behind the rig: its commands reached the rig a period late 4 times in a row "
+        "(4 allowed: --watchdog-periods); 0 V written, run stopped"
+    )
+    # readings 0..5 recorded: the 6th showed the 4th late command in a row (the first is judged by the 2nd)
+    assert len(res.ticks) == 6 and len(res.log) == 5
+    assert rig.stopped and rig.writes[-1] == 0.0 and rig.rig.voltage == 0.0
 
 
 def test_a_raising_controller_trips_the_supervisor_at_0_volt():
@@ -387,6 +412,39 @@ def test_killing_the_emulator_trips_the_watchdog(tmp_path):
     events = (out / "events.csv").read_text()
     assert "0 V written, rig stopped" in events
     assert load_dataset(out / "recording").runs[0].duration >= 10.0
+
+
+def test_ctrl_c_writes_0_volt_and_exits_130(tmp_path):
+    """Ctrl-C (SIGINT) mid-run: 0 V written and STOP answered, one line, exit code 130, and
+    the run so far recorded: the recording readable by identify's loader, the report written."""
+    emu = Emulator(tmp_path)
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [*CLI, "run-controller", "lqi", "--rig", emu.address, "--voltage", "2", "--warmup", "5",
+         "--duration", "60", "--watchdog-periods", WATCHDOG, "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and proc.poll() is None and _seconds_driven(emu.truth) < 12.0:
+            time.sleep(0.2)
+        ended_before = proc.poll() is not None
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        u = emu.truth_voltages()
+    result = json.loads((out / "result.json").read_text())
+    if ended_before:  # the supervisor stopped it first: only this machine's scheduling may do that
+        reason = stopped_by_the_host(result, True)
+        assert reason is not None, (err, result["trip"])
+        pytest.skip(f"this machine's scheduling stopped the run before Ctrl-C: {reason}")
+    assert proc.returncode == 130, err
+    lines = [line for line in err.splitlines() if not line.startswith("run-controller:")]
+    assert lines == [f"interrupted (Ctrl-C): 0 V written; the run so far is recorded in {out}"]
+    assert result["ended_by"] == "interrupted" and result["stopped_ok"] and not result["completed"]
+    assert u[-1] == 0.0
+    assert load_dataset(out / "recording").runs[0].duration >= 12.0
+    assert (out / "report.md").is_file()
 
 
 def test_a_loop_that_falls_behind_reports_its_missed_deadlines(tmp_path):
