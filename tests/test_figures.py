@@ -428,3 +428,46 @@ def test_the_suite_figures_are_legible_at_the_docs_width(tmp_path, saved_figures
     assert len(saved_figures) == 2
     for f in saved_figures:
         assert legibility_problems(f) == []
+
+
+@pytest.mark.parametrize("gains", [(-2e4, 3e5), (-50.0, 2e2), (0.5, 1e9)])
+def test_the_gain_axis_decades_stay_apart(gains):
+    from drill_env._figures import legibility_problems, subplots
+    from drill_env.discrepancy.report import _decade_ticks
+
+    fig, ax = subplots(figsize=(7, 3))
+    ax.barh(["a", "b", "c"], [gains[0], 1.0, gains[1]])
+    ax.set_xscale("symlog", linthresh=1.0)
+    _decade_ticks(ax.xaxis, ax.get_xlim())
+    ax.tick_params(labelsize=9)
+    ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+    assert 0.0 in ticks and max(ticks) >= 10 ** np.floor(np.log10(gains[1]))  # the largest decade kept
+    assert len(ticks) <= 7
+    assert legibility_problems(fig) == []
+
+
+@pytest.mark.slow
+def test_the_discrepancy_reports_gain_and_equation_error_figures_are_legible(tmp_path, saved_figures):
+    from drill_env._figures import legibility_problems
+    from drill_env.discrepancy.report import _figures
+    from drill_env.discrepancy.scoring import DecisionRule
+    from drill_env.discrepancy.workflow import analyse
+    from drill_env.recordings.dataset import MeasuredDataset
+    from drill_env.recordings.synth import SynthConfig, make_dataset
+
+    cfg = SynthConfig(
+        voltages=(0.2, 0.5, 1.0, 2.0, 3.0),
+        random_runs=3,
+        duration_s=40.0,
+        pre_roll_s=20.0,
+        angle_noise_std=0.0,
+    )  # ten runs as the identification plan's, labelled like its (varying -5-5 V)
+    syn = make_dataset("position_friction_lower", seed=5, magnitude=0.12, config=cfg)
+    ds = MeasuredDataset(
+        preset="brake", encoder_counts_per_rev=cfg.encoder_counts_per_rev, runs=tuple(syn.runs)
+    )
+    res = analyse(ds, simulate_gaps=False, rule=DecisionRule(bootstrap=20))
+    names = [name for name, _ in _figures(res, tmp_path)]
+    assert {"candidates.png", "equation_error.png"} <= set(names)
+    for fig in saved_figures[: names.index("equation_error.png") + 1]:
+        assert legibility_problems(fig) == [], fig.axes[0].get_title()

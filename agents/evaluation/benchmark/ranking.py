@@ -238,10 +238,14 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
     # better to the right in both panels
     ax1.set_xlim(min(1.0, 2.0 * max(shortfalls)), max(SHORTFALL_FLOOR, min(shortfalls)) / 2.0)
     ax1.set_xlabel(f"shortfall 1 - mean {st.score} [-]\n(log; 0.99 -> 1e-2, 0.999 -> 1e-3)", fontsize=font)
-    # labelled ticks at each decade as numbers (0.001), unlabelled ones at 2 and 5 of it: labels
-    # that do not overlap at the docs' width
-    ax1.xaxis.set_major_locator(FixedLocator([10.0**e for e in range(-5, 1)]))
-    ax1.xaxis.set_minor_locator(FixedLocator([m * 10.0**e for e in range(-5, 1) for m in (2, 5)]))
+    # labelled ticks as numbers (0.001): at each decade, unlabelled ones at 2 and 5 of it (labels
+    # that do not overlap at the docs' width); on an axis of less than two decades at 1, 2 and 5
+    lo_x, hi_x = sorted(ax1.get_xlim())
+    narrow = np.log10(hi_x / lo_x) < 2.0
+    every = [m * 10.0**e for e in range(-5, 1) for m in (1, 2, 5)]
+    decades = [10.0**e for e in range(-5, 1)]
+    ax1.xaxis.set_major_locator(FixedLocator(every if narrow else decades))
+    ax1.xaxis.set_minor_locator(FixedLocator([] if narrow else [t for t in every if t not in decades]))
     ax1.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
     ax1.xaxis.set_minor_formatter(NullFormatter())
     ax1.grid(alpha=0.3, which="both")
