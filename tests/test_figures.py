@@ -468,6 +468,111 @@ def test_the_discrepancy_reports_gain_and_equation_error_figures_are_legible(tmp
     )
     res = analyse(ds, simulate_gaps=False, rule=DecisionRule(bootstrap=20))
     names = [name for name, _ in _figures(res, tmp_path)]
-    assert {"candidates.png", "equation_error.png"} <= set(names)
-    for fig in saved_figures[: names.index("equation_error.png") + 1]:
-        assert legibility_problems(fig) == [], fig.axes[0].get_title()
+    assert {"candidates.png", "equation_error.png", "spectra.png", "residual_spectra.png"} <= set(names)
+    assert len(saved_figures) == len(names)
+    for fig in saved_figures:  # every figure of the report
+        assert legibility_problems(fig) == [], fig.get_suptitle() or fig.axes[0].get_title()
+
+
+# -- every figure the docs show: legible at the width they are drawn -----------------------
+
+
+@pytest.mark.parametrize("kind", ["fig6", "fig8", "period", "fig9"])
+def test_the_bifurcation_figures_are_legible_at_the_docs_width(
+    kind, brake, no_brake, saved_figures, tmp_path
+):
+    from drill_env._figures import legibility_problems, offscreen
+    from drill_env.analysis.plots import save_figures
+
+    for diagram in (brake, no_brake):
+        with offscreen():
+            ax = diagram.plot(kind, **({"check": _Check(diagram)} if kind == "fig8" else {}))
+        fig = (ax[0] if isinstance(ax, np.ndarray | list | tuple) else ax).figure
+        assert legibility_problems(fig) == [], (diagram.preset, kind)
+        if kind == "fig6":
+            assert len(fig.legends) == 1 and not any(a.get_legend() for a in fig.axes)  # one legend
+        if kind == "fig9":  # the projections' units, the legend in the grid's fourth cell
+            assert [a.get_xlabel() for a in ax] == [
+                "x1 = twist [rad]",
+                "x1 = twist [rad]",
+                "x2 = upper speed [rad/s]",
+            ]
+            assert ax.legend_axes.get_legend() is not None and not ax.legend_axes.axison
+    save_figures(no_brake, tmp_path)  # what `drill-env bifurcation` writes
+    assert len(saved_figures) == 4
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.get_suptitle() or f.axes[0].get_title()
+
+
+def test_the_extended_diagram_with_its_enlarged_view_is_legible():
+    from drill_env._figures import legibility_problems, offscreen
+
+    diagram = bifurcation_diagram("brake", u_max=16.0)
+    with offscreen():
+        ax = diagram.plot("fig8")
+    assert ax.child_axes  # the enlarged view of the start of motion
+    assert legibility_problems(ax.figure) == []
+
+
+def test_the_sim_to_real_suppression_figure_is_legible_on_the_committed_results(tmp_path, saved_figures):
+    from pathlib import Path
+
+    from drill_env._figures import legibility_problems
+    from drill_env.agents.evaluation.sim_to_real import SimToRealConfig, _suppression_figure
+
+    df = pd.read_csv(Path(__file__).parents[1] / "results" / "sim_to_real" / "results.csv")
+    ctrls = tuple(c for c in dict.fromkeys(df["controller"]) if c != "open_loop")
+    assert len(ctrls) >= 3
+    cfg = SimToRealConfig(controllers=ctrls, seeds=tuple(sorted(set(df["seed"]))))
+    _suppression_figure(df, cfg, tmp_path)
+    (fig,) = saved_figures
+    assert legibility_problems(fig) == []
+    assert len(fig.legends) == 1
+    assert [ax.get_title(loc="left") for ax in fig.axes[::2]] == list(ctrls)  # a row per controller
+
+
+@pytest.mark.slow
+def test_the_sim_to_real_figures_are_legible(tmp_path, saved_figures):
+    from typer.testing import CliRunner
+
+    from drill_env._figures import legibility_problems
+    from drill_env.cli import app
+
+    r = CliRunner().invoke(app, ["sim-to-real", "--quick", "--out", str(tmp_path / "s2r")])
+    assert r.exit_code == 0, r.output
+    names = {p.name for p in (tmp_path / "s2r").rglob("*.png")}
+    assert {"suppression.png", "spectra.png", "residual_spectra.png"} <= names
+    assert any(n.startswith("timeseries_") for n in names)
+    assert len(saved_figures) >= len(names)
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.get_suptitle() or f.axes[0].get_title()
+
+
+@pytest.mark.slow
+def test_the_identification_reports_figures_are_legible(tmp_path, saved_figures):
+    from typer.testing import CliRunner
+
+    from drill_env._figures import legibility_problems
+    from drill_env.cli import app
+    from drill_env.identify import ExperimentPlan, draw_rig, synth_config
+    from drill_env.params import IDENTIFIED_PARAMETERS
+    from drill_env.recordings.synth import make_dataset, write_synthetic
+
+    plan = ExperimentPlan(
+        "small", (0.1, 0.3, 0.8, 2.0, 4.0), 2, (-5.0, 5.0), (0.5, 2.0), 40.0, 30.0, (250.0, 1000.0)
+    )
+    rig = draw_rig("brake", 7)
+    cfg = synth_config(plan, "brake", sample_rate_hz=500.0, angle_noise_std=0.0)
+    res = make_dataset(
+        "none", seed=7, config=cfg, truth_overrides={n: float(getattr(rig, n)) for n in IDENTIFIED_PARAMETERS}
+    )
+    write_synthetic(res, tmp_path / "data", tmp_path / "answer.json", preset="brake")
+    out = tmp_path / "id"
+    args = ["identify", str(tmp_path / "data"), "--out", str(out), "--no-effects"]
+    r = CliRunner().invoke(app, [*args, "--known", f"string_stiffness={rig.string_stiffness!r}"])
+    assert r.exit_code == 0, r.output
+    assert {p.name for p in out.glob("*.png")} == {"friction.png", "heldout.png", "bifurcation.png"}
+    assert len(saved_figures) == 3
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.axes[0].get_title()
+        assert len(f.legends) + sum(a.get_legend() is not None for a in f.axes) >= 1
