@@ -4,6 +4,7 @@ marker at its run's voltage."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import matplotlib.pyplot as plt
@@ -576,3 +577,36 @@ def test_the_identification_reports_figures_are_legible(tmp_path, saved_figures)
     for f in saved_figures:
         assert legibility_problems(f) == [], f.axes[0].get_title()
         assert len(f.legends) + sum(a.get_legend() is not None for a in f.axes) >= 1
+
+
+def test_a_resume_with_every_run_present_redraws_without_the_policies(tmp_path):
+    """The records of recipes not kept (results/robust_rl/distilled_brake) name an agents folder
+    that is not in the checkout: their figures are redrawn from the rows all the same, and a
+    resume with a run missing still needs the folder."""
+    import shutil
+    from pathlib import Path
+
+    from typer.testing import CliRunner
+
+    from drill_env.cli import app
+
+    src = Path(__file__).parents[1] / "results" / "robust_rl" / "distilled_brake"
+    out = tmp_path / "distilled_brake"
+    shutil.copytree(src, out)
+    for png in out.glob("*.png"):
+        png.unlink()
+    args = ["benchmark", "--quick", "--preset", "brake", "--plants", "family", "--controllers", "ppo_robust"]
+    args += ["--agents-dir", str(tmp_path / "not_here"), "--seeds", "3", "--no-timeseries", "--out", str(out)]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    assert "no policy loaded" in r.output
+    assert {"bifurcation_brake.png", "suppression_brake.png", "suppression_brake_plants.png"} <= {
+        p.name for p in out.glob("*.png")
+    }
+    record = json.loads((out / "benchmark_config.json").read_text())
+    assert record["policies"] == json.loads((src / "benchmark_config.json").read_text())["policies"]
+    lines = (out / "benchmark.csv").read_text().splitlines(keepends=True)
+    (out / "benchmark.csv").write_text("".join(lines[:-1]))  # one run missing: it must run
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 2
+    assert "--agents-dir" in r.output and "is not a folder" in r.output
