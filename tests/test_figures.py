@@ -610,3 +610,123 @@ def test_a_resume_with_every_run_present_redraws_without_the_policies(tmp_path):
     r = CliRunner().invoke(app, args)
     assert r.exit_code == 2
     assert "--agents-dir" in r.output and "is not a folder" in r.output
+
+
+# -- the committed figures the docs and the README show ------------------------------------
+
+_ROOT = __import__("pathlib").Path(__file__).parents[1]
+_IMAGE = __import__("re").compile(r"!\[[^\]]*\]\(([^)\s]+\.png)\)")
+_INCLUDE = __import__("re").compile(r"\{include\}\s*\.\./_generated/results/(\S+\.md)")
+
+
+def _png_size(path) -> tuple[int, float | None]:
+    """(width [px], dpi or None) from a PNG's header and its pHYs chunk."""
+    import struct
+
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path}: not a PNG"
+    width = struct.unpack(">I", data[16:20])[0]
+    pos = 8
+    while pos + 8 <= len(data):
+        length, kind = struct.unpack(">I4s", data[pos : pos + 8])
+        if kind == b"pHYs":
+            x, _, unit = struct.unpack(">IIB", data[pos + 8 : pos + 17])
+            return width, x * 0.0254 if unit == 1 else None
+        if kind in (b"IDAT", b"IEND"):
+            break
+        pos += 12 + length
+    return width, None
+
+
+def shown_figures() -> dict:
+    """Every PNG under results/ that a docs page or the README shows: the images of
+    docs/**/*.md, of README.md, of the renderers in docs/_ext, and of the result reports
+    (results/**/*.md) the docs pages include, each with where it is shown."""
+    import re
+
+    shown: dict = {}
+
+    def add(target: str, base, where: str) -> None:
+        if "://" in target:
+            return
+        path = (base / target).resolve()
+        if _ROOT / "results" in path.parents:
+            shown.setdefault(path, where)
+
+    included: set[str] = set()
+    for page in sorted((_ROOT / "docs").rglob("*.md")):
+        if "_generated" in page.parts or "_build" in page.parts:
+            continue
+        text = page.read_text(encoding="utf-8")
+        for target in _IMAGE.findall(text):
+            add(target, page.parent, str(page.relative_to(_ROOT)))
+        included |= set(_INCLUDE.findall(text))
+    for target in _IMAGE.findall((_ROOT / "README.md").read_text(encoding="utf-8")):
+        add(target, _ROOT, "README.md")
+    for ext in sorted((_ROOT / "docs" / "_ext").glob("*.py")):
+        for target in re.findall(r"results/[\w./-]+\.png", ext.read_text(encoding="utf-8")):
+            add(target, _ROOT, str(ext.relative_to(_ROOT)))
+    for md in sorted((_ROOT / "results").rglob("*.md")):
+        name = "_".join(md.relative_to(_ROOT / "results").with_suffix("").parts) + ".md"
+        if name in included:
+            for target in _IMAGE.findall(md.read_text(encoding="utf-8")):
+                add(target, md.parent, f"{md.relative_to(_ROOT)} (included by the docs)")
+    return shown
+
+
+def test_every_figure_the_docs_show_fits_the_docs_width():
+    """A committed figure the docs or the README show is at most MAX_WIDTH_IN wide at the dpi
+    it was saved with (its text then legible at the column's 724 px; the figure functions'
+    tests check the text itself)."""
+    from drill_env._figures import MAX_WIDTH_IN
+
+    shown = shown_figures()
+    assert len(shown) >= 30  # the results pages' figures, the README's and the reports'
+    assert _ROOT / "results" / "bifurcation" / "no_brake" / "fig8_bifurcation.png" in shown
+    assert _ROOT / "results" / "identify" / "discrepancy" / "spectra.png" in shown  # via a report
+    problems = []
+    for path, where in sorted(shown.items()):
+        if not path.is_file():
+            problems.append(f"{path.relative_to(_ROOT)} (shown in {where}) is missing")
+            continue
+        width, dpi = _png_size(path)
+        if dpi is None:
+            problems.append(f"{path.relative_to(_ROOT)}: no resolution recorded (pHYs)")
+        elif width > MAX_WIDTH_IN * dpi + 0.5:
+            problems.append(
+                f"{path.relative_to(_ROOT)} (shown in {where}): {width} px at {dpi:.0f} dpi = "
+                f"{width / dpi:.2f} in > {MAX_WIDTH_IN:g} in"
+            )
+    assert problems == []
+
+
+def test_the_width_scan_reads_a_figures_size_and_catches_a_wide_one(tmp_path):
+    from drill_env._figures import MAX_WIDTH_IN, subplots
+
+    for width_in, dpi in ((8.0, 110), (12.0, 130)):
+        fig, _ = subplots(figsize=(width_in, 3))
+        fig.savefig(tmp_path / "f.png", dpi=dpi)
+        width, got = _png_size(tmp_path / "f.png")
+        assert got == pytest.approx(dpi, abs=0.05) and width == round(width_in * dpi)
+        assert (width > MAX_WIDTH_IN * got + 0.5) == (width_in > MAX_WIDTH_IN)
+
+
+def test_policy_cards_redraws_each_learning_curve_legibly(tmp_path, saved_figures):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from drill_env._figures import legibility_problems
+    from drill_env.cli import app
+
+    for name in ("ppo", "sac_robust_no_brake"):
+        shutil.copytree(_ROOT / "results" / "agents" / name, tmp_path / name)
+        (tmp_path / name / "learning_curve.png").unlink()
+    r = CliRunner().invoke(app, ["policy-cards", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    for name in ("ppo", "sac_robust_no_brake"):
+        assert (tmp_path / name / "learning_curve.png").stat().st_size > 10_000
+    assert len(saved_figures) == 2
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.axes[0].get_title()
+        assert [a.get_xlabel() for a in f.axes] == ["environment steps"] * 2
