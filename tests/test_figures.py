@@ -730,3 +730,24 @@ def test_policy_cards_redraws_each_learning_curve_legibly(tmp_path, saved_figure
     for f in saved_figures:
         assert legibility_problems(f) == [], f.axes[0].get_title()
         assert [a.get_xlabel() for a in f.axes] == ["environment steps"] * 2
+
+
+def test_the_discrepancy_study_figures_are_redrawn_legibly_from_study_json(tmp_path, saved_figures):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from drill_env._figures import legibility_problems
+    from drill_env.cli import app
+
+    out = tmp_path / "study"
+    out.mkdir()
+    shutil.copy(_ROOT / "results" / "discrepancy" / "unseen_seeds" / "study.json", out / "study.json")
+    r = CliRunner().invoke(app, ["discrepancy-study", "--figures-only", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert {p.name for p in out.glob("*.png")} == {"confusion.png", "detection.png"}
+    assert len(saved_figures) == 2
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.axes[0].get_title()
+    r = CliRunner().invoke(app, ["discrepancy-study", "--figures-only", "--out", str(tmp_path / "none")])
+    assert r.exit_code == 2 and "no study.json" in r.output
