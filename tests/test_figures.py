@@ -79,8 +79,10 @@ def _horizontal_at(ax, y: float) -> bool:
 
 
 def _legend_texts(ax) -> list[str]:
-    leg = ax.get_legend()
-    return [t.get_text() for t in leg.get_texts()] if leg else []
+    """The entries of the legend of ``ax``, or of its figure's (a figure of its own has one
+    legend, below its axes)."""
+    legends = [ax.get_legend()] if ax.get_legend() else list(ax.figure.legends)
+    return [t.get_text() for leg in legends for t in leg.get_texts()]
 
 
 def test_the_limits_are_those_of_the_rest_of_the_package():
