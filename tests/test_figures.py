@@ -471,7 +471,7 @@ def test_the_discrepancy_reports_gain_and_equation_error_figures_are_legible(tmp
     )
     res = analyse(ds, simulate_gaps=False, rule=DecisionRule(bootstrap=20))
     names = [name for name, _ in _figures(res, tmp_path)]
-    assert {"candidates.png", "equation_error.png", "spectra.png", "residual_spectra.png"} <= set(names)
+    assert {"candidates.png", "equation_error.png"} <= set(names)  # held-out spectra: the sim-to-real test
     assert len(saved_figures) == len(names)
     for fig in saved_figures:  # every figure of the report
         assert legibility_problems(fig) == [], fig.get_suptitle() or fig.axes[0].get_title()
