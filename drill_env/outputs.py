@@ -691,16 +691,7 @@ def check_command_folder(
     marked = _marker_command(path)
     if marked == command:
         return path
-    if marked is not None:
-        raise OutputFolderError(
-            f"{option} {path}: holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder holds "
-            f"one command's outputs, never mixed: choose another folder for `drill-env {command}`"
-        )
-    if (path / "dataset.json").exists() or (path / "dataset.json").is_symlink():
-        raise OutputFolderError(
-            f"{option} {path}: holds a dataset (dataset.json); outputs are never written into a dataset "
-            "folder: choose another folder"
-        )
+    _refuse_foreign_folder(path, command, option, path)
     entries = sorted(p for p in path.iterdir() if p.name != LOCK_NAME)
     for p in entries:
         if p.is_symlink():
@@ -815,16 +806,17 @@ def _refuse_foreign_folder(
     command other than ``command`` and ``accepts``)."""
     if not folder.is_dir():
         return
+    where = f"{option} {shown}: " + ("" if folder == shown else f"{folder} ")
     marked = _marker_command(folder)
     if marked is not None and marked != command and marked not in accepts:
         raise OutputFolderError(
-            f"{option} {shown}: {folder} holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder "
-            f"holds one command's outputs, never mixed: choose another folder for `drill-env {command}`"
+            f"{where}holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder holds one command's "
+            f"outputs, never mixed: choose another folder for `drill-env {command}`"
         )
     if (folder / "dataset.json").exists() or (folder / "dataset.json").is_symlink():
         raise OutputFolderError(
-            f"{option} {shown}: {folder} holds a dataset (dataset.json); outputs are never written into a "
-            "dataset folder: choose another folder"
+            f"{where}holds a dataset (dataset.json); outputs are never written into a dataset folder: "
+            "choose another folder"
         )
 
 

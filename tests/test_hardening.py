@@ -515,6 +515,24 @@ def test_ctrl_c_stops_the_simulate_command_and_says_so():
     assert err.strip().splitlines()[-1] == "interrupted (Ctrl-C): the simulation was stopped; nothing written"
 
 
+def test_ctrl_c_stops_python_m_drill_env_within_2_s_and_exits_130():
+    """`python -m drill_env` ends a Ctrl-C as `drill-env` does (it called the app directly, without
+    the entry point's handling), and the process ends at once after it: the interpreter's
+    teardown (seconds with the compiled kernels loaded) is skipped."""
+    drill_env.simulate("brake", 2.0, 60.0)  # the kernels in the cache the command reads
+    args = [sys.executable, "-m", "drill_env", "simulate", "--duration", "1e7", "--dt", "10"]
+    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(8.0)  # started and in the run (hours long)
+    assert proc.poll() is None, proc.communicate()
+    t = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    took = time.perf_counter() - t
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "interrupted (Ctrl-C)" in err
+    assert took < 2.0, took
+
+
 # -- 6. time precision at a late start ---------------------------------------------------------------------
 
 

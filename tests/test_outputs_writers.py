@@ -11,13 +11,13 @@ the run created.
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
 import shutil
 from pathlib import Path
 
 import pytest
+from file_tree import one_error_line, tree
 from typer.testing import CliRunner
 
 from drill_env.cli import app
@@ -30,27 +30,6 @@ KEPT = "the user's own file\n"
 @pytest.fixture
 def runner() -> CliRunner:
     return CliRunner()
-
-
-def _tree(folder: Path) -> dict[str, str]:
-    out = {}
-    for p in sorted(folder.rglob("*")):
-        rel = p.relative_to(folder).as_posix()
-        if p.is_symlink():
-            out[rel] = "link -> " + os.readlink(p)
-        elif p.is_file():
-            out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
-        else:
-            out[rel] = "folder"
-    return out
-
-
-def _one_error_line(res) -> str:
-    assert res.exit_code == 2, res.output
-    assert "Traceback" not in res.output
-    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
-    assert len(lines) == 1, res.stderr
-    return lines[0]
 
 
 # the commands whose output is one or two named files: their arguments with the file {out}
@@ -84,12 +63,12 @@ def _folder_of(kind: str, where: Path) -> Path:
 @pytest.mark.parametrize("command", sorted(FILE_COMMANDS))
 def test_a_file_command_refuses_a_folder_of_another_command_or_a_dataset(tmp_path, runner, command, kind):
     folder = _folder_of(kind, tmp_path / "there")
-    before = _tree(folder)
+    before = tree(folder)
     out = folder / FILE_NAMES[command]
-    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    line = one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
     assert str(folder) in line
     assert ("`drill-env benchmark`" if kind == "benchmark-outputs" else "holds a dataset") in line
-    assert _tree(folder) == before  # nothing written, nothing replaced
+    assert tree(folder) == before  # nothing written, nothing replaced
 
 
 @pytest.mark.parametrize("command", sorted(FILE_COMMANDS))
@@ -100,10 +79,10 @@ def test_a_file_command_refuses_a_planted_link_and_leaves_its_target(tmp_path, r
     out = tmp_path / "o" / FILE_NAMES[command]
     out.parent.mkdir()
     out.symlink_to(victim)
-    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    line = one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
     assert "symbolic link" in line and str(out) in line
     assert victim.read_text() == KEPT
-    assert _tree(out.parent) == {out.name: f"link -> {victim}"}
+    assert tree(out.parent) == {out.name: f"link -> {victim}"}
 
 
 def _enospc(monkeypatch) -> None:
@@ -119,7 +98,7 @@ def _enospc(monkeypatch) -> None:
 def test_a_write_error_of_a_file_command_leaves_nothing_behind(tmp_path, runner, monkeypatch, command):
     _enospc(monkeypatch)
     out = tmp_path / "new" / "deeper" / FILE_NAMES[command]
-    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    line = one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
     assert str(out) in line and "No space left on device" in line
     assert list(tmp_path.iterdir()) == []  # the folders it made are gone, no temporary, no 0-byte file
 
@@ -150,10 +129,10 @@ def test_scenarios_refuses_another_command_s_folder_a_dataset_and_a_link(tmp_pat
         (folder / "summary.md").symlink_to(tmp_path / "victim.txt")
     else:
         folder = _folder_of(kind, tmp_path / "there")
-    before = _tree(folder)
-    line = _one_error_line(runner.invoke(app, [*SCENARIOS, "--out", str(folder)]))
+    before = tree(folder)
+    line = one_error_line(runner.invoke(app, [*SCENARIOS, "--out", str(folder)]))
     assert "--out" in line and str(folder) in line
-    assert _tree(folder) == before
+    assert tree(folder) == before
     if kind == "link":
         assert "symbolic link" in line and (tmp_path / "victim.txt").read_text() == KEPT
 
@@ -204,10 +183,10 @@ def test_policy_commands_refuse_a_planted_link_before_writing_anything(
         victim.write_text(KEPT)
     target.symlink_to(victim)
     kept = victim.read_bytes()
-    before = _tree(policies)
-    line = _one_error_line(runner.invoke(app, [*command, str(policies)]))
+    before = tree(policies)
+    line = one_error_line(runner.invoke(app, [*command, str(policies)]))
     assert "symbolic link" in line and str(target) in line
-    assert _tree(policies) == before  # not one card written before the refusal
+    assert tree(policies) == before  # not one card written before the refusal
     assert victim.read_bytes() == kept
 
 
@@ -223,10 +202,10 @@ def test_policy_commands_refuse_a_dataset_or_another_command_s_folder(
         marker = {"command": "benchmark", "written_by": "drill-env"}
         (policies / "ppo" / MARKER_NAME).write_text(json.dumps(marker))
         words = "`drill-env benchmark`"
-    before = _tree(policies)
-    line = _one_error_line(runner.invoke(app, [*command, str(policies)]))
+    before = tree(policies)
+    line = one_error_line(runner.invoke(app, [*command, str(policies)]))
     assert words in line
-    assert _tree(policies) == before
+    assert tree(policies) == before
 
 
 def test_policy_cards_accept_a_folder_train_wrote(tmp_path, runner, policies):
