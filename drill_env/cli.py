@@ -175,13 +175,13 @@ def simulate(
         )
 
     from drill_env.metrics import stick_slip_metrics
-    from drill_env.outputs import atomic_file, check_output_file
+    from drill_env.outputs import atomic_file, check_command_file, command_files
     from drill_env.params import RIG_VOLTAGE_LIMIT, resolve_params, validity_warnings
     from drill_env.simulator import simulate as run_simulation
 
     params = resolve_params(preset)
     if out is not None:
-        check_output_file(out, "--out")  # before the run, not after it
+        check_command_file(out, "simulate", "--out")  # before the run, not after it
     applied = voltage
     if not no_voltage_limit and abs(voltage) > RIG_VOLTAGE_LIMIT:
         applied = math.copysign(RIG_VOLTAGE_LIMIT, voltage)
@@ -212,8 +212,7 @@ def simulate(
         df = res.to_pandas()
         df["stick_u"] = df["stick_u"].astype(int)
         df["stick_l"] = df["stick_l"].astype(int)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_file(out, "w", newline="") as f:
+        with command_files([out], "simulate", "--out"), atomic_file(out, "w", newline="") as f:
             df.to_csv(f, index=False, float_format="%.10g")
     win = res.window(min(summary_window, duration))
     m = stick_slip_metrics(win.t, win.x3, win.stick_l)

@@ -58,6 +58,9 @@ __all__ = [
     "ResumeError",
     "check_command_folder",
     "command_folder",
+    "check_command_file",
+    "check_tree_files",
+    "command_files",
     "refuse_link",
     "save_figure",
     "atomic_write_json",
@@ -235,11 +238,13 @@ def refuse_links(folder: str | os.PathLike[str], names: tuple[str, ...], option:
             )
 
 
-def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
-    """Open ``path`` for appending text, never through a symbolic link (``O_NOFOLLOW``)."""
-    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+def _open_no_link(
+    path: str | os.PathLike[str], flags: int, mode: str, open_kwargs: dict[str, Any]
+) -> IO[Any]:
+    """Open ``path`` as text with ``os.open`` ``flags``, never through a symbolic link
+    (``O_NOFOLLOW``; a link is refused in one line)."""
     try:
-        fd = os.open(path, flags, 0o666)
+        fd = os.open(path, flags | os.O_WRONLY | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
     except OSError:
         if Path(path).is_symlink():
             raise OutputFolderError(
@@ -247,23 +252,18 @@ def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
             ) from None
         raise
     open_kwargs.setdefault("encoding", "utf-8")
-    return os.fdopen(fd, "a", **open_kwargs)
+    return os.fdopen(fd, mode, **open_kwargs)
+
+
+def open_append(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
+    """Open ``path`` for appending text, never through a symbolic link (``O_NOFOLLOW``)."""
+    return _open_no_link(path, os.O_APPEND, "a", open_kwargs)
 
 
 def open_new(path: str | os.PathLike[str], **open_kwargs: Any) -> IO[Any]:
     """Open ``path`` for writing text from its start (a log written as it runs), never through
     a symbolic link (``O_NOFOLLOW``)."""
-    flags = os.O_WRONLY | os.O_TRUNC | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
-    try:
-        fd = os.open(path, flags, 0o666)
-    except OSError:
-        if Path(path).is_symlink():
-            raise OutputFolderError(
-                f"{path}: is a symbolic link; output files are never written through links"
-            ) from None
-        raise
-    open_kwargs.setdefault("encoding", "utf-8")
-    return os.fdopen(fd, "w", **open_kwargs)
+    return _open_no_link(path, os.O_TRUNC, "w", open_kwargs)
 
 
 # -- one writer per folder -------------------------------------------------------------------------
@@ -566,46 +566,26 @@ def atomic_file(path: str | os.PathLike[str], mode: str = "w", **open_kwargs: An
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"mode: expected 'w' or 'wb', got {mode!r}")
+    if mode == "w":
+        open_kwargs.setdefault("encoding", "utf-8")
+    with atomic_path(path) as tmp, open(tmp, mode, **open_kwargs) as f:  # f.name: the temporary file
+        yield f
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str], suffix: str = ".tmp") -> Iterator[Path]:
+    """A unique temporary file name beside ``path`` (for a library that writes by file name, as
+    stable-baselines3's ``model.save``); on success it is synced and replaces ``path`` in one
+    step, keeping the permissions of the file it replaces. On an error it is removed and
+    ``path`` is left as it was; a write error (a full disk) is raised as
+    :class:`OutputWriteError` naming ``path``. ``path`` must not be a link (refused, never
+    followed, also when one is planted while the file is written)."""
     path = refuse_link(path)
     existed = path.exists()
     try:
         perms = path.stat().st_mode & 0o7777
     except OSError:
         perms = 0o666 & ~_UMASK
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise OutputWriteError(f"cannot write {path}: {_reason(exc)}") from None
-    try:
-        if mode == "w":
-            open_kwargs.setdefault("encoding", "utf-8")
-        os.close(fd)
-        with open(tmp, mode, **open_kwargs) as f:  # f.name: the temporary file
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, perms)
-        refuse_link(path)  # a link planted while the file was written
-        os.replace(tmp, path)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(exc, OSError) and not isinstance(exc, ValueError):
-            raise OutputWriteError(
-                f"cannot write {path}: {_reason(exc)}; {path} was left as it was"
-            ) from None
-        raise
-    if not existed:
-        _created(path)
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike[str], suffix: str = ".tmp") -> Iterator[Path]:
-    """A unique temporary file name beside ``path`` for a library that writes by file name
-    (stable-baselines3's ``model.save``); on success it replaces ``path`` in one step, on an
-    error it is removed and ``path`` is left as it was. ``path`` must not be a link."""
-    path = refuse_link(path)
-    existed = path.exists()
     try:
         fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
         os.close(fd)
@@ -614,10 +594,10 @@ def atomic_path(path: str | os.PathLike[str], suffix: str = ".tmp") -> Iterator[
     tmp = Path(name)
     try:
         yield tmp
-        refuse_link(path)
-        with open(tmp, "rb+") as f:
+        with open(tmp, "rb+") as f:  # what was written (and closed) reaches the disk
             os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_UMASK)
+        os.chmod(tmp, perms)
+        refuse_link(path)  # a link planted while the file was written
         os.replace(tmp, path)
     except BaseException as exc:
         with contextlib.suppress(OSError):
@@ -825,6 +805,123 @@ def command_folder(
             raise
         finally:
             with _HELD_GUARD:
+                _SESSIONS.remove(session)
+
+
+def _refuse_foreign_folder(
+    folder: Path, command: str, option: str, shown: Path, accepts: tuple[str, ...] = ()
+) -> None:
+    """Refuse a folder that holds a dataset or another command's outputs (its marker names a
+    command other than ``command`` and ``accepts``)."""
+    if not folder.is_dir():
+        return
+    marked = _marker_command(folder)
+    if marked is not None and marked != command and marked not in accepts:
+        raise OutputFolderError(
+            f"{option} {shown}: {folder} holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder "
+            f"holds one command's outputs, never mixed: choose another folder for `drill-env {command}`"
+        )
+    if (folder / "dataset.json").exists() or (folder / "dataset.json").is_symlink():
+        raise OutputFolderError(
+            f"{option} {shown}: {folder} holds a dataset (dataset.json); outputs are never written into a "
+            "dataset folder: choose another folder"
+        )
+
+
+def check_command_file(path: str | os.PathLike[str], command: str, option: str = "--out") -> Path:
+    """Check, before any work and writing nothing, that ``command`` may write the file ``path``
+    (a command whose output is named files, not a folder of its own): :func:`check_output_file`
+    (never a link, a folder or a special file; its folder creatable and writable), and its
+    folder must not hold a dataset or another command's outputs (a marker naming another command).
+    """
+    path = check_output_file(path, option)
+    _refuse_foreign_folder(path.parent, command, option, path)
+    return path
+
+
+def check_tree_files(
+    root: str | os.PathLike[str],
+    files: list[Path],
+    command: str,
+    option: str,
+    *,
+    accepts: tuple[str, ...] = (),
+) -> None:
+    """Check, before the first write, the files a command rewrites in place under the folder
+    ``root`` (policy cards beside trained policies, upgraded policy files): every file lies in
+    ``root`` by its real path (a linked folder that leads elsewhere is refused), no file is a
+    symbolic link, and neither ``root`` nor a file's folder holds a dataset or the outputs of a
+    command other than ``command`` and ``accepts`` (whose outputs it updates, e.g. ``train``).
+    Raises :class:`OutputFolderError` naming ``option``."""
+    root = Path(root)
+    real_root = os.path.realpath(root)
+    _refuse_foreign_folder(root, command, option, root, accepts)
+    for path in files:
+        real = os.path.realpath(path.parent)
+        if real != real_root and not real.startswith(real_root + os.sep):
+            raise OutputFolderError(
+                f"{option} {root}: {path.parent} leads outside it (to {real}, through a link); files are "
+                "written only inside the folder named: remove the link or name that folder itself"
+            )
+        if path.is_symlink():
+            raise OutputFolderError(
+                f"{option} {root}: {path} is a symbolic link (to {os.readlink(path)}); output files are "
+                "never written through links: remove the link"
+            )
+        if path.parent != root:
+            _refuse_foreign_folder(path.parent, command, option, root, accepts)
+
+
+@contextlib.contextmanager
+def command_files(
+    paths: list[str | os.PathLike[str]] | tuple[str | os.PathLike[str], ...],
+    command: str,
+    option: str = "--out",
+) -> Iterator[list[Path]]:
+    """The output files of one run of a command that writes named files: each checked
+    (:func:`check_command_file`), their folders created if missing; yields the paths.
+
+    Write them with this module's writers inside the block: on a write error (a full disk)
+    the files this run created are removed (a file of an earlier run being replaced is left as
+    it was; the error names the path), and on any error the folders made here are removed
+    again when left empty. Nothing is marked: the folder may hold other files (a config folder).
+    """
+    checked = [check_command_file(p, command, option) for p in paths]
+    made: list[Path] = []
+    for path in checked:
+        probe = path.parent
+        while not probe.exists() and not probe.is_symlink() and probe != probe.parent:
+            if probe not in made:
+                made.append(probe)
+            probe = probe.parent
+    made.sort(key=lambda p: len(p.parts), reverse=True)  # innermost first
+    sessions = [_Session(folder) for folder in dict.fromkeys(p.parent for p in checked)]
+    with _HELD_GUARD:
+        _SESSIONS.extend(sessions)
+    try:
+        for path in checked:
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise OutputFolderError(
+                    f"{option} {path}: cannot create {path.parent}: {_reason(exc)}"
+                ) from None
+        for session in sessions:  # the folders now exist: their real paths
+            session.folder = os.path.realpath(session.folder)
+        yield checked
+    except BaseException as exc:
+        if _is_write_error(exc):
+            for session in sessions:
+                for p in reversed(session.created):
+                    with contextlib.suppress(OSError):
+                        p.unlink()
+        for folder in made:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
+    finally:
+        with _HELD_GUARD:
+            for session in sessions:
                 _SESSIONS.remove(session)
 
 

@@ -683,3 +683,41 @@ def test_ctrl_c_in_synth_exits_130_and_leaves_no_dataset(tmp_path):
     assert "Traceback" not in err
     assert not (tmp_path / "d" / "dataset.json").exists()
     assert not (tmp_path / "a.json").exists()
+
+
+# -- a motionless dataset: what the data lack, in one line ------------------------------------------
+
+
+def _hand_written_run(path: Path, volts: float, speed: float) -> None:
+    """A run in the data format, written by hand: 12 s at 100 Hz, both disks at ``speed``
+    [rad/s] (0: standing still), the angles whole encoder counts."""
+    step = 2 * np.pi / 2000
+    t = 5.0 + 0.01 * np.arange(1201)
+    theta = np.floor((1.0 + speed * (t - t[0])) / step) * step
+    rows = [f"{ti:.2f},{volts:g},{th + 40 * step:.12g},{th:.12g}" for ti, th in zip(t, theta, strict=True)]
+    path.write_text("t,u,theta_u,theta_l\n" + "\n".join(rows) + "\n")
+
+
+@pytest.mark.parametrize(
+    ("moving", "words"),
+    [
+        ((), ["no run in which the rig turns", "run01 (0 V)", "run02 (0 V)"]),
+        (("run02",), ["1 of 2 runs never turn", "run01 (0 V)", "move them out"]),
+    ],
+    ids=["every-run-still", "one-run-still"],
+)
+def test_discrepancy_on_a_motionless_dataset_names_the_runs_and_what_they_lack(tmp_path, moving, words):
+    data = tmp_path / "still"
+    data.mkdir()
+    (data / "dataset.json").write_text('{"preset": "brake", "encoder_counts_per_rev": 2000}')
+    for name in ("run01", "run02"):
+        turning = name in moving
+        _hand_written_run(data / f"{name}.csv", 2.0 if turning else 0.0, 0.7 if turning else 0.0)
+    res = runner.invoke(app, ["discrepancy", str(data), "--out", str(tmp_path / "o"), "--no-figures"])
+    line = _one_error_line(res)
+    for w in words:
+        assert w in line, line
+    assert "neither disk turns" in line and "between 0 and 1" not in line
+    if moving:
+        assert "run02" not in line  # the run that turns is not named
+    assert not (tmp_path / "o").exists()  # refused before anything was written

@@ -324,7 +324,7 @@ def test_a_full_disk_in_a_command_names_the_path_and_leaves_no_file(tmp_path, ru
     res = runner.invoke(app, ["simulate", "--duration", "2", "--out", str(out)])
     line = _one_error_line(res)
     assert str(out) in line and "No space left on device" in line
-    assert list(tmp_path.rglob("*")) in ([], [tmp_path / "sim"])
+    assert list(tmp_path.rglob("*")) == []  # the folder it made is gone too
     assert not out.exists()
 
 
@@ -485,6 +485,165 @@ def test_a_ray_address_that_does_not_answer_is_named_with_the_wait(monkeypatch):
     ):
         rc.check_ray_address("ray://10.0.0.9:6379")
     assert waited == [rc.CONNECT_TIMEOUT_S] and rc.CONNECT_TIMEOUT_S <= 30
+
+
+class _DeafRayAddress:
+    """A local address where no Ray cluster answers, as a user meets one: ``blackhole`` (an
+    unreachable host: the connection is never accepted -- a listening socket whose backlog is
+    full drops every new SYN) or ``silent`` (a host that accepts and never says anything)."""
+
+    def __init__(self, kind: str):
+        import threading
+
+        self.kind = kind
+        self.accepted = 0
+        self._server = socket.socket()
+        self._server.bind(("127.0.0.1", 0))
+        self.port = self._server.getsockname()[1]
+        self._held: list[socket.socket] = []
+        if kind == "blackhole":
+            self._server.listen(0)
+            filler = socket.socket()
+            filler.connect(("127.0.0.1", self.port))  # fills the backlog; never accepted
+            self._held.append(filler)
+        else:
+            self._server.listen(8)
+            threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                conn, _ = self._server.accept()
+            except OSError:
+                return
+            self._held.append(conn)
+            self.accepted += 1
+
+    def waiting(self) -> bool:
+        """True once the command waits on this address (connected, or trying to connect)."""
+        if self.kind == "silent":
+            return self.accepted >= 2  # the connection check, then Ray's request
+        try:
+            table = Path("/proc/net/tcp").read_text()
+        except OSError:
+            pytest.skip("no /proc/net/tcp to see a connection being tried")
+        port = f":{self.port:04X}"
+        return any(
+            line.split()[2].endswith(port) and line.split()[3] == "02"  # SYN_SENT
+            for line in table.splitlines()[1:]
+        )
+
+    def close(self) -> None:
+        for c in self._held:
+            c.close()
+        self._server.close()
+
+
+def _ray_command(command: str, address: str, out: Path) -> list[str]:
+    args = [sys.executable, "-m", "drill_env", command, "--out", str(out), "--backend", "ray"]
+    args += ["--ray-address", address]
+    if command == "benchmark":
+        args += ["--quick", "--controllers", "open_loop"]
+    else:
+        args += ["--skip-paper-case"]
+    return args
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("kind", ["blackhole", "silent"])
+@pytest.mark.parametrize("command", ["discrepancy-study", "benchmark"])
+def test_a_ray_address_that_never_answers_fails_within_30_s_in_one_line(tmp_path, command, kind):
+    import time
+
+    deaf = _DeafRayAddress(kind)
+    try:
+        address = f"127.0.0.1:{deaf.port}"
+        proc = subprocess.Popen(
+            _ray_command(command, address, tmp_path / "o"),
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        deadline = time.monotonic() + 120  # the start of the command (imports) on a loaded machine
+        while not deaf.waiting() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        t0 = time.monotonic()
+        _, err = proc.communicate(timeout=120)
+        waited = time.monotonic() - t0
+    finally:
+        deaf.close()
+    assert proc.returncode == 2, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: --ray-address:"), err
+    assert address in lines[0]
+    assert ("no answer within 10 s" if kind == "blackhole" else "does not answer Ray's request") in lines[0]
+    assert waited < 30.0, waited  # about 10 s (Ray's own wait: ~14 min)
+    assert not (tmp_path / "o").exists()  # checked before the output folder is touched
+
+
+@pytest.mark.parametrize(("command", "kind"), [("discrepancy-study", "blackhole"), ("benchmark", "silent")])
+def test_ctrl_c_while_waiting_for_a_ray_address_exits_130_within_2_s(tmp_path, command, kind):
+    import signal
+    import time
+
+    deaf = _DeafRayAddress(kind)
+    try:
+        proc = subprocess.Popen(
+            _ray_command(command, f"127.0.0.1:{deaf.port}", tmp_path / "o"),
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        deadline = time.monotonic() + 120
+        while not deaf.waiting() and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.02)
+        time.sleep(0.5)  # well inside the wait
+        assert proc.poll() is None
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        deaf.close()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "interrupted (Ctrl-C)" in err
+    assert took < 2.0, took
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("answers", [True, False], ids=["ray-cluster", "other-grpc-service"])
+def test_a_ray_address_is_accepted_only_where_a_ray_cluster_answers(answers):
+    """What answers Ray's first request (the cluster id) is taken as a cluster; a gRPC server
+    that does not know it (a proxy, another service) is refused naming what answered."""
+    grpc = pytest.importorskip("grpc")
+    pytest.importorskip("ray.core.generated.gcs_service_pb2_grpc")
+    from concurrent import futures
+
+    import drill_env.ray_cluster as rc
+
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=2))
+    if answers:
+        handler = grpc.unary_unary_rpc_method_handler(lambda request, context: b"")
+        server.add_generic_rpc_handlers(
+            (grpc.method_handlers_generic_handler("ray.rpc.NodeInfoGcsService", {"GetClusterId": handler}),)
+        )
+    port = server.add_insecure_port("127.0.0.1:0")
+    server.start()
+    try:
+        if answers:
+            rc.check_ray_address(f"127.0.0.1:{port}", timeout=10)
+        else:
+            with pytest.raises(
+                ValueError, match=r"no Ray cluster answers at 127\.0\.0\.1:\d+ \(what answers is not"
+            ):
+                rc.check_ray_address(f"127.0.0.1:{port}", timeout=10)
+    finally:
+        server.stop(0)
 
 
 # -- a duplicate key ----------------------------------------------------------------------------------

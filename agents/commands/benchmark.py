@@ -171,6 +171,14 @@ def register(app: typer.Typer) -> None:
             _fail(
                 f"--preset: {next(n for n in names if names.count(n) > 1)!r} is given twice; name each preset once"
             )
+        if ray_address and backend == "ray":  # an address nothing answers at: said within seconds,
+            # before the heavy imports (a Ctrl-C in the wait ends a light process at once)
+            from drill_env.ray_cluster import check_ray_address
+
+            try:
+                check_ray_address(ray_address)
+            except ValueError as exc:
+                _fail(f"--{str(exc).replace('_', '-', 1)}")
         from rich.console import Console
         from rich.progress import (
             BarColumn,
@@ -195,13 +203,6 @@ def register(app: typer.Typer) -> None:
             _fail(f"--backend must be one of {list(BACKENDS)}, got {backend!r}")
         if ray_address is not None and backend != "ray":
             _fail(f"--ray-address: only with --backend ray (the {backend} backend runs on this machine)")
-        if ray_address and backend == "ray":  # an address nothing answers at: said within seconds
-            from drill_env.ray_cluster import check_ray_address
-
-            try:
-                check_ray_address(ray_address)
-            except ValueError as exc:
-                _fail(f"--{str(exc).replace('_', '-', 1)}")
         presets = RIG_PRESETS if "all" in names else tuple(dict.fromkeys(names))
         ctrls = CONTROLLERS
         if controllers is not None:

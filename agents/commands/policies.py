@@ -71,6 +71,16 @@ def register(app: typer.Typer) -> None:
             _fail(
                 f"AGENTS_DIR: no policy folder (policy.zip, config.yaml, training_summary.json) under {agents_dir}"
             )
+        from drill_env.outputs import check_tree_files
+
+        # every file it may rewrite, before the first: inside AGENTS_DIR, never through a link
+        check_tree_files(
+            agents_dir,
+            [f / "policy.zip" for f in folders],
+            "upgrade-policies",
+            "AGENTS_DIR",
+            accepts=("train",),
+        )
         for folder in folders:  # a zip bomb is refused even when trusted, before any rewrite
             try:
                 check_policy_zip(folder / "policy.zip")

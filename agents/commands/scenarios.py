@@ -37,6 +37,10 @@ def _code_version() -> str:
     return f"{__version__} ({rev})" if rev else __version__
 
 
+# what `drill-env scenarios` writes (a folder of these from before folders had markers is its own)
+SCENARIO_FILES = ("runs.csv", "scenarios.csv", "summary.md", "ranking.json", "ranking.md", "*.png")
+
+
 def register(app: typer.Typer) -> None:
     from drill_env.agents.registry import CONTROLLERS as KNOWN_CONTROLLERS
     from drill_env.envs.scenarios import SCENARIO_NAMES
@@ -76,7 +80,7 @@ def register(app: typer.Typer) -> None:
         import sys
 
         from drill_env.envs.scenarios import resolve_scenarios
-        from drill_env.outputs import check_output_folder
+        from drill_env.outputs import check_command_folder, command_folder
         from drill_env.params import PRESETS
 
         try:
@@ -97,8 +101,8 @@ def register(app: typer.Typer) -> None:
             _fail(f"--seeds: {seeds!r}; allowed: an integer from 1 to {MAX_SEEDS}")
         if workers is not None and not 1 <= workers <= MAX_WORKERS:
             _fail(f"--workers: {workers!r}; allowed: an integer from 1 to {MAX_WORKERS}")
-        try:
-            folder = check_output_folder(out)
+        try:  # a folder of another command's outputs or a dataset is refused before any run
+            folder = check_command_folder(out, "scenarios", "--out", own=SCENARIO_FILES)
         except ValueError as exc:
             _fail(str(exc))
         nominal = None
@@ -126,15 +130,16 @@ def register(app: typer.Typer) -> None:
             if done % 25 == 0 or done == total:
                 typer.echo(f"  {done}/{total} runs, {time.perf_counter() - t0:.0f} s")
 
-        runs = run_suite(cfg, workers=n_workers, progress=progress)
-        wall = time.perf_counter() - t0
-        meta = {
-            "command": "drill-env " + shlex.join(sys.argv[1:]) if sys.argv[1:] else "drill-env scenarios",
-            "wall_time_s": wall,
-            "workers": n_workers,
-            "version": _code_version(),
-        }
-        paths = write_report(runs, folder, meta, presets=presets, nominal=nominal)
+        with command_folder(folder, "scenarios", "--out", own=SCENARIO_FILES):  # OUT is this run's alone
+            runs = run_suite(cfg, workers=n_workers, progress=progress)
+            wall = time.perf_counter() - t0
+            meta = {
+                "command": "drill-env " + shlex.join(sys.argv[1:]) if sys.argv[1:] else "drill-env scenarios",
+                "wall_time_s": wall,
+                "workers": n_workers,
+                "version": _code_version(),
+            }
+            paths = write_report(runs, folder, meta, presets=presets, nominal=nominal)
         import json
 
         from drill_env.agents.evaluation.benchmark.ranking import RANKING_FILE

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -112,30 +113,40 @@ def register(app: typer.Typer) -> None:
         def progress(p: str, kind: str) -> None:
             typer.echo(f"tuning {kind} on {p} ...", err=True)
 
-        from drill_env.outputs import OutputFolderError, atomic_write_text, fresh_run_folder
+        from drill_env.outputs import (
+            OutputFolderError,
+            atomic_write_text,
+            check_command_file,
+            command_files,
+            fresh_run_folder,
+        )
 
         if out is not None and out.is_dir():
             _fail(f"--out {out} is a directory; expected a YAML file path")
         if out is not None:
-            from drill_env.outputs import check_output_file
-
-            check_output_file(out, "--out")  # before the tuning, not after it
+            check_command_file(out, "tune", "--out")  # before the tuning, not after it
         data = (
             tune_all(presets=presets, control_dt=control_dt, progress=progress)
             if model is None
             else tune_on_model(model, str(params), presets[0], control_dt, progress=progress)
         )
-        try:
-            if out is None:
-                out = fresh_run_folder(Path("runs") / "tune", "controllers") / "controllers.yaml"
-            out.parent.mkdir(parents=True, exist_ok=True)
-        except (OutputFolderError, OSError) as exc:
-            _fail(f"--out: {exc}")
         header = (
             "# Tuned gains of the classical controllers, written by `drill-env tune` (agents/controllers/tuning.py).\n"
             "# Regenerate, never edit by hand: decay rates [1/s], noise [V], gains in SI units.\n"
         )
-        atomic_write_text(out, header + yaml.safe_dump(data, sort_keys=False, width=100))
+        text = header + yaml.safe_dump(data, sort_keys=False, width=100)
+        run_folder = None
+        try:
+            if out is None:
+                run_folder = fresh_run_folder(Path("runs") / "tune", "controllers")
+                out = run_folder / "controllers.yaml"
+            with command_files([out], "tune", "--out"):
+                atomic_write_text(out, text)
+        except OutputFolderError as exc:
+            if run_folder is not None:  # the run folder made for this file: not left empty
+                with contextlib.suppress(OSError):
+                    run_folder.rmdir()
+            _fail(f"--out: {exc}" if not str(exc).startswith("--out") else str(exc))
         for p, kinds in data["presets"].items():
             for kind, rec in kinds.items():
                 gains = ", ".join(f"{k}={v:.4g}" for k, v in rec["gains"].items())

@@ -21,7 +21,7 @@ from drill_env.agents.evaluation.scenarios import (
     scenario_trajectory,
 )
 from drill_env.envs.scenarios import SCENARIOS
-from drill_env.outputs import atomic_write_text
+from drill_env.outputs import atomic_write_text, save_figure
 
 __all__ = [
     "NOMINAL_TOP",
@@ -167,7 +167,7 @@ def scores_figure(runs: Any, out: Path) -> Path:
     bar.ax.tick_params(labelsize=FONT)
     fig.tight_layout()
     path = out / "scores.png"
-    fig.savefig(path, dpi=FIGURE_DPI)
+    save_figure(fig, path, dpi=FIGURE_DPI)
     return path
 
 
@@ -206,7 +206,7 @@ def set_point_figure(
     ax.legend(loc="upper left", fontsize=FONT)
     fig.tight_layout()
     path = out / f"set_point_steps_{preset}.png"
-    fig.savefig(path, dpi=FIGURE_DPI)
+    save_figure(fig, path, dpi=FIGURE_DPI)
     return path
 
 

@@ -342,19 +342,23 @@ def _relative_name(d: PolicyDescription, root: Path) -> str:
 def write_policy_cards(agents_dir: str | Path) -> list[Path]:
     """Write ``policy.md`` in every policy folder under ``agents_dir`` and ``README.md`` (the
     table of them) in ``agents_dir``; returns the files written."""
-    from drill_env.outputs import atomic_write_text
+    from drill_env.outputs import atomic_write_text, check_tree_files
 
     folders = policy_folders(agents_dir)
     if not folders:
         raise ValueError(
             f"agents_dir: no policy folder (policy.zip, config.yaml, training_summary.json) under {agents_dir}"
         )
+    readme = Path(agents_dir) / "README.md"
+    # every file it will write, before the first: inside agents_dir, never through a link
+    check_tree_files(
+        agents_dir, [*(f / CARD for f in folders), readme], "policy-cards", "AGENTS_DIR", accepts=("train",)
+    )
     descriptions = [describe_policy(f) for f in folders]
     written = []
     for folder, d in zip(folders, descriptions, strict=True):
         path = folder / CARD
         atomic_write_text(path, policy_card(d))
         written.append(path)
-    readme = Path(agents_dir) / "README.md"
     atomic_write_text(readme, policies_table(descriptions, agents_dir))
     return [*written, readme]

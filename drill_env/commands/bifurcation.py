@@ -167,13 +167,13 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Compare the model's steady states with the measurements quoted in the paper (Sec. 4)."""
         from drill_env.analysis import rig_comparison
-        from drill_env.outputs import check_output_file
+        from drill_env.outputs import check_command_file, command_files
 
         if out is not None:
             if out.suffix.lower() == ".json":
                 _fail(f"--out {out}: the Markdown file; its .json goes beside it")
-            check_output_file(out, "--out")
-            check_output_file(out.with_suffix(".json"), "--out")
+            check_command_file(out, "rig-comparison", "--out")
+            check_command_file(out.with_suffix(".json"), "rig-comparison", "--out")
         model: Any = preset
         if params is not None:
             from drill_env.params import ParameterError, load_params
@@ -190,8 +190,8 @@ def register(app: typer.Typer) -> None:
             _fail(str(exc))
         text = comp.to_markdown()
         if out is not None:
-            out.parent.mkdir(parents=True, exist_ok=True)
-            comp.save(out)
+            with command_files([out, out.with_suffix(".json")], "rig-comparison", "--out"):
+                comp.save(out)  # both files, or (a write error) neither new one
         typer.echo(text)
         if out is not None:
             typer.echo(f"wrote {out} and {out.with_suffix('.json')}")

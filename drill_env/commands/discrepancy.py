@@ -61,8 +61,9 @@ def synth(
         help="Record this truth plant instead of the preset with a drawn effect: a plant file (rig "
         "YAML with effects, optionally actuator_delay [s], sensors: (whose counts_per_rev and "
         "angle_noise_std replace --counts and --angle-noise) and measurement: (encoder eccentricity, "
-        "applied to the recorded angles), e.g. a model.yaml of drill-env discrepancy). Its preset "
-        "(friction family) is --preset.",
+        "applied to the recorded angles) and amplifier: (gain, offset_v [V]: the amplifier applies "
+        "gain u + offset_v for the recorded u), e.g. a model.yaml of drill-env discrepancy). Its "
+        "preset (friction family) is --preset.",
     ),
     magnitude: float | None = typer.Option(
         None,
@@ -234,6 +235,8 @@ def synth(
                         delay_s=truth_file.actuator_delay,
                         source=str(plant),
                         measurement=truth_file.measurement,
+                        amplifier_gain=truth_file.amplifier_gain,
+                        amplifier_offset_v=truth_file.amplifier_offset_v,
                         progress=lambda i, n: prog.update(task, completed=i),
                     )
                 else:
@@ -366,6 +369,18 @@ def discrepancy_study(
     alarms, interval coverage, detection vs magnitude) and the paper's case."""
     import os
 
+    if backend not in ("process", "ray"):
+        _fail(f"--backend: {backend!r} is not a backend; allowed: process, ray")
+    if ray_address is not None and backend != "ray":
+        _fail("--ray-address: only with --backend ray")
+    if ray_address:  # an address nothing answers at: said within seconds, not after minutes,
+        # before the heavy imports (a Ctrl-C in the wait ends a light process at once)
+        from drill_env.ray_cluster import check_ray_address
+
+        try:
+            check_ray_address(ray_address)
+        except ValueError as exc:
+            _fail(f"--{str(exc).replace('_', '-', 1)}")
     from drill_env.discrepancy.study import MAX_SEEDS, paper_case, run_study
     from drill_env.outputs import OutputFolderError, check_command_folder, command_folder
 
@@ -381,17 +396,6 @@ def discrepancy_study(
     if not 0 <= workers <= 256:
         _fail(f"--workers must be an integer from 0 (one per CPU core) to 256, got {workers!r}")
     workers = workers or (os.cpu_count() or 1)
-    if backend not in ("process", "ray"):
-        _fail(f"--backend: {backend!r} is not a backend; allowed: process, ray")
-    if ray_address is not None and backend != "ray":
-        _fail("--ray-address: only with --backend ray")
-    if ray_address:  # an address nothing answers at: said within seconds, not after minutes
-        from drill_env.ray_cluster import check_ray_address
-
-        try:
-            check_ray_address(ray_address)
-        except ValueError as exc:
-            _fail(f"--{str(exc).replace('_', '-', 1)}")
     if paper_case_only and skip_paper_case:
         _fail("--paper-case-only and --skip-paper-case together leave nothing to do; give at most one")
     if out is not None and out.exists() and not out.is_dir():

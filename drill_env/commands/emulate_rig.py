@@ -41,9 +41,9 @@ def register(app: typer.Typer) -> None:
         if not (math.isfinite(time_scale) and 0.1 <= time_scale <= MAX_TIME_SCALE):
             _fail(f"--time-scale: {time_scale!r}; allowed: [0.1, {MAX_TIME_SCALE:g}]")
         if truth is not None:
-            from drill_env.outputs import check_output_file
+            from drill_env.outputs import check_command_file
 
-            check_output_file(truth, "--truth")
+            check_command_file(truth, "emulate-rig", "--truth")
         from drill_env.params import ParameterError
         from drill_env.rig.emulator import EmulatedRig, emulated_plant, serve
 

@@ -56,7 +56,7 @@ from drill_env.measurement import MeasurementModel, write_model_yaml
 from drill_env.outputs import atomic_write_text, output_lock
 from drill_env.params import ParameterError, RigParams, load_params, validity_warnings
 from drill_env.recordings.compare import CompareConfig, RunComparison, aggregate, compare_run
-from drill_env.recordings.dataset import MeasuredDataset, load_dataset
+from drill_env.recordings.dataset import DatasetError, MeasuredDataset, load_dataset
 from drill_env.recordings.effects import CANDIDATES
 from drill_env.recordings.equation_error import (
     AngleNoise,
@@ -315,6 +315,41 @@ def _measurement(decision: Decision, second: dict[str, Any] | None = None) -> Me
     return MeasurementModel(**fields_) if fields_ else None
 
 
+def refuse_still_runs(dataset: MeasuredDataset, eqs: list[RunEquations]) -> None:
+    """Refuse, in one line naming them, the runs in which neither disk ever turns (0 V, or a
+    voltage below the break-away: stuck throughout): they hold no equation-error window, so
+    there is nothing in them to compare with the model (their statistics would be empty and
+    every score undefined). Raises :class:`DatasetError`."""
+    still = [eq for eq in eqs if len(eq.upper) == 0 and len(eq.lower) == 0]
+    if not still:
+        return
+    eq0 = still[0]
+    window = eq0.stride * eq0.dt
+    vmin = eq0.config.min_speed_rad_s
+
+    def turned(eq: RunEquations) -> str:
+        counts = max(float(np.ptp(eq.run.theta_u)), float(np.ptp(eq.run.theta_l))) / dataset.encoder_step
+        return f"{eq.run.label}, {counts:.0f} encoder counts at most"
+
+    named = ", ".join(turned(eq) for eq in still[:6]) + (
+        f" and {len(still) - 6} more" if len(still) > 6 else ""
+    )
+    where = f"dataset {dataset.path}" if dataset.path is not None else "dataset"
+    lack = (
+        f"neither disk turns one way at {vmin:g} rad/s or more for a whole {window:.2g} s window (stuck "
+        "throughout), so they hold nothing to compare with the model"
+    )
+    if len(still) == len(eqs):
+        raise DatasetError(
+            f"{where}: no run in which the rig turns ({named}): {lack}; record runs at voltages that "
+            "turn the rig (above its break-away voltage)"
+        )
+    raise DatasetError(
+        f"{where}: {len(still)} of {len(eqs)} runs never turn ({named}): {lack}; move them out of the "
+        "dataset folder (or record them at a voltage that turns the rig)"
+    )
+
+
 def analyse(
     dataset: MeasuredDataset,
     *,
@@ -350,6 +385,7 @@ def analyse(
         if progress:
             progress("equation error", i + 1, len(dataset.runs))
     timings["equation_error"] = time.perf_counter() - t0
+    refuse_still_runs(dataset, eqs)
     if heldout is None:
         train, held = split_runs(dataset.runs)
     else:

@@ -170,6 +170,16 @@ class EmulatedRig:
         self.truth = truth[-1]
         return counts, truth
 
+    def warm(self) -> None:
+        """Load (or compile) the simulator's code by integrating a copy of the state for one
+        sample period: the rig itself does not move. An emulator that serves before this has
+        its first answers late by the seconds this takes."""
+        st = {k: v.copy() for k, v in self._state.items()}
+        _advance(
+            st["p"], st["y"], st["modes"], st["ep"], st["ecfg"], st["scfg"], st["sst"], st["rng"],
+            self.voltage, 1, np.empty((1, 2), dtype=np.int64), np.empty((1, 6)),
+        )  # fmt: skip
+
     def apply(self, voltage: float) -> float:
         """Set the voltage applied from now on, within the amplifier's range; the voltage set."""
         self.voltage = min(max(float(voltage), -self.voltage_limit), self.voltage_limit)
@@ -181,9 +191,13 @@ class LockstepRig:
     advanced by the loop itself: each :meth:`read` integrates the next block of samples at the
     voltage written last, so a command takes effect at the tick of the reading it answers, as
     in the environment's ``step`` (no wire, no wall clock, no latency). The loop's code runs as
-    against a rig; what the benchmark's episode does is what it does."""
+    against a rig; what the benchmark's episode does is what it does.
 
-    def __init__(self, rig: EmulatedRig, fail_after: int | None = None):
+    ``late_commands``: how many readings a command takes to arrive (0: in time; 1: each is
+    applied only after the next reading was sent, a missed deadline every period, as a loop
+    that runs a period behind its rig)."""
+
+    def __init__(self, rig: EmulatedRig, fail_after: int | None = None, late_commands: int = 0):
         self.rig = rig
         self.n = 0
         self.seq = 0
@@ -191,6 +205,10 @@ class LockstepRig:
         self.stopped = False
         self.fail_after = fail_after  # readings before it stops answering (a rig that died)
         self.truth: list[tuple] = []
+        self.late_commands = int(late_commands)
+        self._pending: list[tuple[int, float]] = []  # commands written, not yet applied
+        self._command_seq = 0
+        self.last_command = NO_COMMAND
 
     def hello(self) -> RigInfo:
         r = self.rig
@@ -203,19 +221,36 @@ class LockstepRig:
         if self.fail_after is not None and self.seq >= self.fail_after:
             return None
         r = self.rig
+        while len(self._pending) > self.late_commands:  # the commands that have arrived by now
+            self.last_command, v = self._pending.pop(0)
+            r.apply(v)
         first = r.tick + 1  # samples at ticks tick + 1 .. tick + n, as the environment's step
         u = r.voltage
         counts, truth = r.advance(self.n)
         self.truth.append((first, u, truth))
         self.seq += 1
-        return Reading(self.seq - 1, first, counts[:, 0].copy(), counts[:, 1].copy(), np.full(self.n, u))
+        return Reading(
+            self.seq - 1,
+            first,
+            counts[:, 0].copy(),
+            counts[:, 1].copy(),
+            np.full(self.n, u),
+            self.last_command,
+        )
 
-    def write(self, voltage: float) -> None:
+    def write(self, voltage: float) -> int:
         self.writes.append(float(voltage))
-        self.rig.apply(voltage)
+        seq = self._command_seq
+        self._command_seq += 1
+        self._pending.append((seq, float(voltage)))
+        if self.late_commands == 0:
+            self.last_command, v = self._pending.pop()
+            self.rig.apply(v)
+        return seq
 
     def stop(self) -> bool:
         self.writes.append(0.0)
+        self._pending.clear()
         self.rig.apply(0.0)
         self.stopped = True
         return True
@@ -344,6 +379,7 @@ def serve(
     def _term(signum, frame):  # noqa: ANN001
         raise KeyboardInterrupt
 
+    rig.warm()  # before the address is announced: the first HELLO is answered at once
     old = signal.signal(signal.SIGTERM, _term)
     bound = sock.getsockname()
     announce(f"emulate-rig: listening on udp {bound[0]}:{bound[1]}")

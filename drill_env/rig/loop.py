@@ -12,14 +12,15 @@ and slew-limits it before it is written.
 A run: an open-loop warm-up at the set point's nominal voltage (``warmup`` s, as the
 benchmark's episodes start on the open-loop behaviour), then the controller for
 ``duration`` s. It always ends at 0 V: at the end, on a supervisor trip (watchdog: no
-reading for ``watchdog_periods`` periods, or a controller call longer than its period;
-speed limit), on Ctrl-C and on any error.
+reading for ``watchdog_periods`` periods, as many commands in a row that the rig applied
+only after its next reading, or a controller call longer than its period; speed limit), on
+Ctrl-C and on any error.
 
 Every run writes into its output folder: ``recording/`` (the measured-data format of
 :mod:`drill_env.recordings.dataset`: ``dataset.json`` and one CSV ``t,u,theta_u,theta_l`` at
 the rig's sample rate, readable by ``drill-env identify`` and ``drill-env discrepancy`` as
 it is), ``controller_log.csv`` (per period: requested and applied voltage, what the
-controller saw, call time, reading arrival), ``events.csv`` (the supervisor's), ``result.json``,
+controller saw, call time, reading arrival, whether the command met its deadline), ``events.csv`` (the supervisor's), ``result.json``,
 ``report.md`` and the figures ``run.png`` and ``timing.png``.
 """
 
@@ -34,10 +35,18 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.rig.protocol import RigInfo, RigIO
+from drill_env.rig.protocol import NO_COMMAND, RigInfo, RigIO
 from drill_env.rig.supervisor import Supervisor, SupervisorLimits, Trip
 
-__all__ = ["LoopResult", "RunSettings", "call_time", "requested_voltage", "run_loop", "write_outputs"]
+__all__ = [
+    "LoopResult",
+    "RunSettings",
+    "call_time",
+    "command_applied",
+    "requested_voltage",
+    "run_loop",
+    "write_outputs",
+]
 
 # a controller whose call takes more than this share of the period cannot hold the rate
 MAX_CALL_SHARE = 0.5
@@ -105,6 +114,15 @@ def requested_voltage(action: Any, settings: Any, nominal_voltage: float) -> flo
     return u
 
 
+def command_applied(last_applied: int, command_seq: int) -> bool:
+    """Whether a READING whose last applied COMMAND is ``last_applied`` (its wire field:
+    :data:`~drill_env.rig.protocol.NO_COMMAND` for none) shows the command numbered
+    ``command_seq`` applied, or a later one (sequence numbers wrap at 2^32)."""
+    if last_applied == NO_COMMAND:
+        return False
+    return ((int(last_applied) - int(command_seq)) & 0xFFFFFFFF) < 0x80000000
+
+
 def call_time(controller: Any, observation: np.ndarray, calls: int = 6) -> float:
     """The controller's time per call [s]: the median of ``calls - 1`` calls on ``observation``
     after a first one (which may load or compile what the controller needs), each from a fresh
@@ -150,6 +168,7 @@ def run_loop(
     state = None
     start = np.ones((1,), dtype=bool)
     last_arrival = None
+    behind = 0  # periods in a row whose command the rig applied late
     ts = info.sample_period
 
     def event(t: float, kind: str, text: str) -> None:
@@ -186,19 +205,35 @@ def run_loop(
                 )
             if reading.timed_out:
                 raise Trip("rig_timeout", "rig: its own command timeout set 0 V (commands arrived too late)")
+            if res.log and res.log[-1]["command_seq"] >= 0:
+                # the rig's side of the deadline: the command answering the last reading must be
+                # applied before this one was sent (its block is the period the command is for)
+                late = not command_applied(reading.last_command, res.log[-1]["command_seq"])
+                res.log[-1]["late_at_rig"] = late
+                res.log[-1]["missed_deadline"] = bool(res.log[-1]["missed_deadline"] or late)
+                behind = behind + 1 if late else 0
             res.ticks.append(reading.first_tick + np.arange(reading.n))
             res.counts_u.append(reading.counts_upper)
             res.counts_l.append(reading.counts_lower)
             res.voltage.append(reading.voltage)
+            if behind >= run.limits.watchdog_periods:
+                # the rig ran on old voltages for that long: as if no reading had come (a loop
+                # descheduled with readings waiting in its socket never waits for one)
+                raise Trip(
+                    "watchdog",
+                    f"watchdog: the loop fell behind the rig: its commands reached the rig a period late "
+                    f"{behind} times in a row ({run.limits.watchdog_periods} allowed: --watchdog-periods); "
+                    "0 V written, run stopped",
+                )
             t = (reading.first_tick + reading.n - 1) * ts  # the rig time of the last sample
             obs = obs_chain.update(
                 reading.first_tick, reading.counts_upper, reading.counts_lower, float(reading.voltage[-1])
             )
             control = k >= n_warm
             sup.check_speed(obs_chain.lower_speed, t)
-            call = 0.0
+            call = call_cpu = 0.0
             if control:
-                c0 = time.perf_counter()
+                c0, cpu0 = time.perf_counter(), time.thread_time()
                 try:
                     action, state = controller.predict(
                         obs, state=state, episode_start=start, deterministic=True
@@ -208,18 +243,26 @@ def run_loop(
                         "controller", f"controller: {name} raised {type(exc).__name__}: {exc}"
                     ) from exc
                 call = time.perf_counter() - c0
+                call_cpu = time.thread_time() - cpu0
                 start = np.zeros((1,), dtype=bool)
                 if call > period:
+                    # the CPU time tells a slow controller from a computer that descheduled the loop
+                    why = (
+                        "the computer ran other work meanwhile"
+                        if call_cpu < 0.5 * call
+                        else "the controller computed for most of it"
+                    )
                     raise Trip(
                         "overrun",
                         f"watchdog: the controller call took {call * 1e3:.1f} ms, longer than its period "
-                        f"({period * 1e3:g} ms of wall-clock time); 0 V written, run stopped",
+                        f"({period * 1e3:g} ms of wall-clock time; {call_cpu * 1e3:.1f} ms of CPU: {why}); "
+                        "0 V written, run stopped",
                     )
                 u_req = requested_voltage(action, settings, point.nominal_voltage)
             else:
                 u_req = point.nominal_voltage
             u = sup.apply(u_req, t)
-            rig.write(u)
+            seq = rig.write(u)
             written = time.perf_counter()
             res.log.append(
                 {
@@ -231,12 +274,15 @@ def run_loop(
                     "lower_speed": obs_chain.lower_speed,
                     "lower_speed_mean": obs_chain.lower_speed_mean,
                     "call_ms": call * 1e3,
+                    "call_cpu_ms": call_cpu * 1e3,
                     "arrival_interval_ms": math.nan
                     if last_arrival is None
                     else (arrival - last_arrival) * 1e3,
                     "latency_ms": (written - arrival) * 1e3,
                     "missed_deadline": bool(written - arrival > period),
+                    "late_at_rig": False,
                     "reading_seq": reading.seq,
+                    "command_seq": -1 if seq is None else int(seq),
                 }
             )
             last_arrival = arrival
@@ -305,7 +351,10 @@ def write_recording(res: LoopResult, folder: Path, run_name: str) -> Path | None
 def timing_metrics(res: LoopResult) -> dict[str, Any]:
     """Loop timing in wall-clock ms: reading interval (its jitter: the standard deviation and
     the largest deviation from the period), reading-to-write latency, controller call time,
-    missed deadlines (a write later than one period after its reading)."""
+    missed deadlines: a period whose command was written later than one period after its
+    reading arrived, or was not yet applied when the rig sent the next reading (its
+    ``last_command`` field: this sees what the loop's own clock cannot, a reading that waited
+    in the socket while the loop was descheduled; ``late_at_rig`` counts these)."""
     period_ms = res.control_dt / res.info.time_scale * 1e3
     iv = np.array([r["arrival_interval_ms"] for r in res.log], dtype=float)
     iv = iv[np.isfinite(iv)]
@@ -323,6 +372,7 @@ def timing_metrics(res: LoopResult) -> dict[str, Any]:
     if calls.size:
         out.update(call_median_ms=float(np.median(calls)), call_max_ms=float(calls.max()))
     out["missed_deadlines"] = int(sum(bool(r["missed_deadline"]) for r in res.log))
+    out["late_at_rig"] = int(sum(bool(r.get("late_at_rig", False)) for r in res.log))
     out["readings_lost"] = int(res.gaps)
     return out
 
@@ -517,6 +567,7 @@ def _report(r: dict[str, Any], figs: list[Path]) -> str:
         "call_median_ms",
         "call_max_ms",
         "missed_deadlines",
+        "late_at_rig",
         "readings_lost",
     ):
         if key in tm:

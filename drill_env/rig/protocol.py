@@ -280,8 +280,9 @@ class RigIO(Protocol):
         """The next reading, or None when none arrived within ``timeout`` wall-clock seconds."""
         ...
 
-    def write(self, voltage: float) -> None:
-        """Apply ``voltage`` [V] from the next sensor sample on."""
+    def write(self, voltage: float) -> int | None:
+        """Apply ``voltage`` [V] from the next sensor sample on; the COMMAND's sequence number
+        (which later READINGs report as applied), or None for a rig that does not number them."""
         ...
 
     def stop(self) -> bool:

@@ -110,11 +110,12 @@ class UdpRig:
             self.ignored += msg is not False
         return None
 
-    def write(self, voltage: float) -> None:
+    def write(self, voltage: float) -> int:
         if not math.isfinite(voltage):
             raise ValueError(f"voltage: {voltage!r} is not finite")
-        self._send(Command, float(voltage))
+        seq = self._send(Command, float(voltage))
         self.sent_commands += 1
+        return seq
 
     def stop(self, timeout: float = 0.2) -> bool:
         """0 V and stop; True when the rig answered STOPPED within ``timeout`` s."""

@@ -1,0 +1,254 @@
+"""Every command that writes files goes through the one output rule, command by command:
+`tune`, `rig-comparison`, `simulate`, `emulate-rig --truth` (named files), `scenarios` (a folder
+of its own), `policy-cards` and `upgrade-policies` (files rewritten in a policy folder).
+
+Each is run as a user runs it (the CLI) and the file system is looked at afterwards: a folder
+holding another command's outputs or a dataset is refused, a planted link is refused and its
+target left alone, nothing is created when a run is refused, and a write error removes what
+the run created.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from drill_env.cli import app
+from drill_env.outputs import MARKER_NAME, OutputFolderError, check_tree_files
+
+ROOT = Path(__file__).resolve().parents[1]
+KEPT = "the user's own file\n"
+
+
+@pytest.fixture
+def runner() -> CliRunner:
+    return CliRunner()
+
+
+def _tree(folder: Path) -> dict[str, str]:
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        rel = p.relative_to(folder).as_posix()
+        if p.is_symlink():
+            out[rel] = "link -> " + os.readlink(p)
+        elif p.is_file():
+            out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
+        else:
+            out[rel] = "folder"
+    return out
+
+
+def _one_error_line(res) -> str:
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1, res.stderr
+    return lines[0]
+
+
+# the commands whose output is one or two named files: their arguments with the file {out}
+FILE_COMMANDS = {
+    "tune": ["tune", "--preset", "brake", "--out", "{out}"],
+    "rig-comparison": ["rig-comparison", "--out", "{out}"],
+    "simulate": ["simulate", "--duration", "2", "--out", "{out}"],
+    "emulate-rig": ["emulate-rig", "--port", "0", "--truth", "{out}"],
+}
+FILE_NAMES = {
+    "tune": "gains.yaml",
+    "rig-comparison": "rc.md",
+    "simulate": "run.csv",
+    "emulate-rig": "truth.csv",
+}
+
+
+def _folder_of(kind: str, where: Path) -> Path:
+    """A folder a file command must not write into: another command's outputs or a dataset."""
+    where.mkdir()
+    if kind == "benchmark-outputs":
+        (where / MARKER_NAME).write_text(json.dumps({"command": "benchmark", "written_by": "drill-env"}))
+        (where / "summary.md").write_text("# a benchmark\n")
+    else:
+        (where / "dataset.json").write_text('{"preset": "brake", "encoder_counts_per_rev": 2000}\n')
+        (where / "run01.csv").write_text("t,u,theta_u,theta_l\n")
+    return where
+
+
+@pytest.mark.parametrize("kind", ["benchmark-outputs", "dataset"])
+@pytest.mark.parametrize("command", sorted(FILE_COMMANDS))
+def test_a_file_command_refuses_a_folder_of_another_command_or_a_dataset(tmp_path, runner, command, kind):
+    folder = _folder_of(kind, tmp_path / "there")
+    before = _tree(folder)
+    out = folder / FILE_NAMES[command]
+    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    assert str(folder) in line
+    assert ("`drill-env benchmark`" if kind == "benchmark-outputs" else "holds a dataset") in line
+    assert _tree(folder) == before  # nothing written, nothing replaced
+
+
+@pytest.mark.parametrize("command", sorted(FILE_COMMANDS))
+def test_a_file_command_refuses_a_planted_link_and_leaves_its_target(tmp_path, runner, command):
+    victim = tmp_path / "elsewhere" / "victim.txt"
+    victim.parent.mkdir()
+    victim.write_text(KEPT)
+    out = tmp_path / "o" / FILE_NAMES[command]
+    out.parent.mkdir()
+    out.symlink_to(victim)
+    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    assert "symbolic link" in line and str(out) in line
+    assert victim.read_text() == KEPT
+    assert _tree(out.parent) == {out.name: f"link -> {victim}"}
+
+
+def _enospc(monkeypatch) -> None:
+    import drill_env.outputs as outputs
+
+    def fsync(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(outputs.os, "fsync", fsync)
+
+
+@pytest.mark.parametrize("command", ["rig-comparison", "simulate"])
+def test_a_write_error_of_a_file_command_leaves_nothing_behind(tmp_path, runner, monkeypatch, command):
+    _enospc(monkeypatch)
+    out = tmp_path / "new" / "deeper" / FILE_NAMES[command]
+    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    assert str(out) in line and "No space left on device" in line
+    assert list(tmp_path.iterdir()) == []  # the folders it made are gone, no temporary, no 0-byte file
+
+
+def test_rig_comparison_replaces_its_two_files_and_keeps_the_folder_s_other_files(tmp_path, runner):
+    folder = tmp_path / "results"
+    folder.mkdir()
+    (folder / "notes.txt").write_text(KEPT)  # a folder of a user's files: a named file may go there
+    res = runner.invoke(app, ["rig-comparison", "--out", str(folder / "rc.md")])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt", "rc.json", "rc.md"]
+    assert json.loads((folder / "rc.json").read_text())  # a whole JSON file
+    assert (folder / "notes.txt").read_text() == KEPT
+
+
+# -- scenarios: a folder of its own ------------------------------------------------------------------
+
+SCENARIOS = ["scenarios", "--scenarios", "start_up", "--controllers", "open_loop", "--preset", "brake"]
+SCENARIOS += ["--seeds", "1", "--workers", "1"]
+
+
+@pytest.mark.parametrize("kind", ["benchmark-outputs", "dataset", "link"])
+def test_scenarios_refuses_another_command_s_folder_a_dataset_and_a_link(tmp_path, runner, kind):
+    if kind == "link":
+        folder = tmp_path / "there"
+        folder.mkdir()
+        (tmp_path / "victim.txt").write_text(KEPT)
+        (folder / "summary.md").symlink_to(tmp_path / "victim.txt")
+    else:
+        folder = _folder_of(kind, tmp_path / "there")
+    before = _tree(folder)
+    line = _one_error_line(runner.invoke(app, [*SCENARIOS, "--out", str(folder)]))
+    assert "--out" in line and str(folder) in line
+    assert _tree(folder) == before
+    if kind == "link":
+        assert "symbolic link" in line and (tmp_path / "victim.txt").read_text() == KEPT
+
+
+def test_the_committed_scenarios_folder_is_accepted_by_scenarios_only():
+    from drill_env.agents.commands.scenarios import SCENARIO_FILES
+    from drill_env.outputs import check_command_folder
+
+    folder = ROOT / "results" / "scenarios"
+    if not folder.is_dir():
+        pytest.skip("no committed results/scenarios")
+    check_command_folder(folder, "scenarios", own=SCENARIO_FILES)
+    with pytest.raises(OutputFolderError, match="does not write"):
+        check_command_folder(folder, "identify", own=("report.md",))
+
+
+# -- policy-cards and upgrade-policies: files rewritten in a policy folder ---------------------------
+
+
+@pytest.fixture
+def policies(tmp_path) -> Path:
+    """A folder of one trained policy, copied from the committed results (as train writes one)."""
+    source = ROOT / "results" / "agents" / "ppo"
+    if not (source / "policy.zip").is_file():
+        pytest.skip("no committed results/agents/ppo")
+    root = tmp_path / "agents"
+    shutil.copytree(source, root / "ppo")
+    return root
+
+
+@pytest.mark.parametrize(
+    ("command", "planted"),
+    [
+        (["policy-cards"], "README.md"),
+        (["policy-cards"], "ppo/policy.md"),
+        (["upgrade-policies", "--trusted"], "ppo/policy.zip"),
+    ],
+    ids=["cards-readme", "cards-card", "upgrade-zip"],
+)
+def test_policy_commands_refuse_a_planted_link_before_writing_anything(
+    tmp_path, runner, policies, command, planted
+):
+    victim = tmp_path / "victim"
+    target = policies / planted
+    if target.exists():
+        shutil.move(target, victim)  # the link leads to what was there (a real policy for the zip)
+    else:
+        victim.write_text(KEPT)
+    target.symlink_to(victim)
+    kept = victim.read_bytes()
+    before = _tree(policies)
+    line = _one_error_line(runner.invoke(app, [*command, str(policies)]))
+    assert "symbolic link" in line and str(target) in line
+    assert _tree(policies) == before  # not one card written before the refusal
+    assert victim.read_bytes() == kept
+
+
+@pytest.mark.parametrize("command", [["policy-cards"], ["upgrade-policies", "--trusted"]])
+@pytest.mark.parametrize("kind", ["benchmark-outputs", "dataset"])
+def test_policy_commands_refuse_a_dataset_or_another_command_s_folder(
+    tmp_path, runner, policies, command, kind
+):
+    if kind == "dataset":
+        (policies / "dataset.json").write_text('{"preset": "brake", "encoder_counts_per_rev": 2000}\n')
+        words = "holds a dataset"
+    else:
+        marker = {"command": "benchmark", "written_by": "drill-env"}
+        (policies / "ppo" / MARKER_NAME).write_text(json.dumps(marker))
+        words = "`drill-env benchmark`"
+    before = _tree(policies)
+    line = _one_error_line(runner.invoke(app, [*command, str(policies)]))
+    assert words in line
+    assert _tree(policies) == before
+
+
+def test_policy_cards_accept_a_folder_train_wrote(tmp_path, runner, policies):
+    marker = {"command": "train", "written_by": "drill-env"}
+    (policies / "ppo" / MARKER_NAME).write_text(json.dumps(marker))
+    (policies / "ppo" / "policy.md").unlink()
+    res = runner.invoke(app, ["policy-cards", str(policies)])
+    assert res.exit_code == 0, res.output
+    assert (policies / "ppo" / "policy.md").read_text().startswith("#")
+    assert (policies / "README.md").is_file()
+
+
+def test_a_policy_folder_reached_through_a_link_is_never_written(tmp_path):
+    """A linked folder inside the folder named that leads elsewhere is refused (whatever lists
+    the policy folders, a link is never a way out of the folder)."""
+    root = tmp_path / "agents"
+    (root / "own").mkdir(parents=True)
+    outside = tmp_path / "outside" / "evil"
+    outside.mkdir(parents=True)
+    (root / "linked").symlink_to(outside)
+    with pytest.raises(OutputFolderError, match=r"leads outside it \(to .*outside/evil, through a link\)"):
+        check_tree_files(
+            root, [root / "own" / "policy.md", root / "linked" / "policy.md"], "policy-cards", "X"
+        )
+    check_tree_files(root, [root / "own" / "policy.md", root / "README.md"], "policy-cards", "X")
