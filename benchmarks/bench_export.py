@@ -11,7 +11,9 @@ and ``run-controller`` call it), the ONNX file through ONNX Runtime and the nump
 (:class:`drill_env.rig.numpy_policy.NumpyPolicy`). The observations: half from closed-loop
 rollouts of the policy itself on its environment (set points 0.6 V to 4 V, seeds 0, 1, ...),
 a quarter drawn uniformly over the environment's observation space, a quarter drawn around
-the rig's operating range (speeds and angles within a few of their scales). A residual
+the rig's operating range (speeds and angles within a few of their scales); in the drawn ones
+the set point's entries (target speed, nominal voltage) are those of one of the rollouts' set
+points (a rig runs at a set point). A residual
 policy's action is its classical base's combined with the exported correction by the
 documented rule (``NumpyPolicy.combine``: ``clip(base + scale * correction, -1, 1)``).
 
@@ -70,7 +72,7 @@ def _rollouts(env, policy, n: int) -> np.ndarray:  # noqa: ANN001
     return np.stack(rows)[:n]
 
 
-def _space_draws(env, n: int, seed: int) -> np.ndarray:  # noqa: ANN001
+def _space_draws(env, n: int, seed: int, set_points: np.ndarray) -> np.ndarray:  # noqa: ANN001
     """``n // 2`` normalised observations uniform over the observation space and ``n - n // 2``
     around the rig's operating range (the scales of the observation table)."""
     from drill_env.envs import _core as C
@@ -85,9 +87,14 @@ def _space_draws(env, n: int, seed: int) -> np.ndarray:  # noqa: ANN001
     scales = np.asarray(s.ecfg[C.EC_SCALE : C.EC_SCALE + s.n_obs])
     z = rng.normal(size=(m, s.n_obs)) * np.where(scales > 1.5, 0.6, 0.7)
     z[:, C.OB_VOLTAGE] = rng.uniform(0, 1, m)
-    z[:, C.OB_UNOM] = rng.uniform(0.1, 1, m)
-    z[:, C.OB_TARGET] = rng.uniform(0.05, 1.2, m)
-    return np.concatenate([uniform, z]).astype(np.float32)
+    out = np.concatenate([uniform, z])
+    # a rig runs at a set point: the entries that give it (target speed, nominal voltage) are
+    # those of one of the rollouts' set points (a residual policy's classical base designs
+    # itself, once, for each set point it meets)
+    pick = rng.integers(0, len(set_points), size=len(out))
+    out[:, C.OB_TARGET] = set_points[pick, 0]
+    out[:, C.OB_UNOM] = set_points[pick, 1]
+    return out.astype(np.float32)
 
 
 def _median_time(fn, inputs: list) -> float:  # noqa: ANN001
@@ -115,7 +122,9 @@ def check_policy(folder: Path, agents: Path, n: int, seed: int, work: Path) -> d
     s = env.unwrapped.settings
     scales = np.asarray(s.ecfg[C.EC_SCALE : C.EC_SCALE + s.n_obs], dtype=np.float32)
     n_roll = n // 2
-    normalised = np.concatenate([_rollouts(env, policy, n_roll), _space_draws(env, n - n_roll, seed)])
+    rolled = _rollouts(env, policy, n_roll)
+    set_points = np.unique(rolled[:, [C.OB_TARGET, C.OB_UNOM]], axis=0)
+    normalised = np.concatenate([rolled, _space_draws(env, n - n_roll, seed, set_points)])
     physical = (normalised * scales).astype(np.float32)
     normalised = (physical / scales).astype(np.float32)  # what the exported networks compute from it
     session = ort.InferenceSession(

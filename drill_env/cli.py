@@ -264,9 +264,10 @@ def _register_commands() -> None:
 _register_commands()
 
 
-def main() -> None:  # entry point
+def main(prog_name: str | None = None) -> None:  # entry point (``drill-env``, ``python -m drill_env``)
     """Run the command; a Ctrl-C at any moment ends it with exit code 130, also one that
-    arrived where Python cannot raise it (a finaliser, a cleanup: "Exception ignored")."""
+    arrived where Python cannot raise it (a finaliser, a cleanup: "Exception ignored"), and
+    also in a process started with SIGINT ignored (a shell script's background job)."""
     import signal
     import sys
 
@@ -281,7 +282,7 @@ def main() -> None:  # entry point
     except ValueError:  # not the main thread: leave Python's handler
         pass
     try:
-        app()
+        app(prog_name=prog_name)
     except SystemExit as exc:
         if seen and exc.code in (0, None):
             typer.secho(
