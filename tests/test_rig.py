@@ -522,6 +522,29 @@ def test_bad_limits_are_one_line_and_exit_2(emulator, tmp_path, args, words):
     assert np.all(emulator.truth_voltages() == 0.0)  # the motor never ran
 
 
+@pytest.mark.parametrize(
+    "controller, run",
+    [("lqi", "lqi_2V"), (str(ROOT / "results" / "agents" / "ppo" / "policy.zip"), "ppo_2V")],
+)
+def test_a_recorded_run_is_never_replaced(tmp_path, controller, run):
+    """A dataset folder that holds a run of the name this one would get: refused in one line
+    before the rig is asked anything (the name of a policy file's run is its folder's)."""
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "dataset.json").write_text('{"preset": "brake", "encoder_counts_per_rev": 2000}')
+    (data / f"{run}.csv").write_text("t,u,theta_u,theta_l\n")
+    p = run_cli(
+        "run-controller", controller, "--rig", "127.0.0.1:9", "--voltage", "2", "--out",
+        str(tmp_path / "o"), "--record", str(data),
+    )  # fmt: skip
+    assert p.returncode == 2
+    assert p.stderr.strip() == (
+        f"error: --record {data}: already holds a run named {run!r}; give another --run-name (the recorded "
+        "run is kept)"
+    )
+    assert (data / f"{run}.csv").read_text() == "t,u,theta_u,theta_l\n"
+
+
 def test_an_address_that_does_not_answer(tmp_path):
     import socket
 
