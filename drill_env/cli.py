@@ -265,7 +265,8 @@ _register_commands()
 
 def main(prog_name: str | None = None) -> None:  # entry point (``drill-env``, ``python -m drill_env``)
     """Run the command; a Ctrl-C at any moment ends it with exit code 130, also one that
-    arrived where Python cannot raise it (a finaliser, a cleanup: "Exception ignored")."""
+    arrived where Python cannot raise it (a finaliser, a cleanup: "Exception ignored"), and
+    also in a process started with SIGINT ignored (a shell script's background job)."""
     import signal
 
     seen: list[int] = []
