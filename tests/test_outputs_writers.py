@@ -231,3 +231,36 @@ def test_a_policy_folder_reached_through_a_link_is_never_written(tmp_path):
             root, [root / "own" / "policy.md", root / "linked" / "policy.md"], "policy-cards", "X"
         )
     check_tree_files(root, [root / "own" / "policy.md", root / "README.md"], "policy-cards", "X")
+
+
+# -- a stale lock, taken over as a user sees it ------------------------------------------------------
+
+
+@pytest.mark.parametrize("content", ["dead-pid", "empty"])
+def test_a_stale_lock_is_taken_over_with_one_warning_line(tmp_path, content):
+    """The lock of a run that is gone (a dead pid on this host, or a 0-byte lock no process
+    holds) is taken over by the next run, which says so in one `warning:` line, and leaves no
+    lock behind."""
+    import socket
+    import subprocess
+    import sys
+
+    out = tmp_path / "rc"
+    out.mkdir()
+    lock = out / ".drill-env.lock"
+    if content == "empty":
+        lock.write_bytes(b"")
+    else:
+        record = {"pid": 2**22 + 12345, "host": socket.gethostname(), "command": "drill-env x", "what": "x"}
+        lock.write_text(json.dumps(record))
+    code = (
+        "import warnings, sys; from drill_env.cli import _one_line_warnings; _one_line_warnings()\n"
+        "from drill_env.outputs import output_lock\n"
+        f"with output_lock({str(out)!r}, 'probe'): print('held', flush=True)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "held"
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("warning: ") and "taking over the lock" in lines[0], lines
+    assert not lock.exists()
