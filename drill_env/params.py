@@ -276,6 +276,13 @@ class RigParams:
                 "drill_env.plant_file.read_plant_file) applies it to the readings; to use the plant "
                 "alone, delete the measurement section"
             )
+        if "amplifier" in data:
+            raise ParameterError(
+                f"{source}: amplifier: the file holds amplifier errors (how the voltage asked for is "
+                "applied, not how the rig moves), which a rig parameter file has not; allowed: a plant "
+                "file reader (drill-env synth --plant, drill_env.plant_file.read_plant_file) applies "
+                "them; to use the plant alone, delete the amplifier section"
+            )
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:

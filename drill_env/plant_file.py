@@ -5,8 +5,9 @@ hold the measurement chain of that rig: ``actuator_delay`` [s] and a ``sensors:`
 ``sample_rate_hz`` [Hz]) and a ``measurement:`` mapping of its encoders' reading errors
 (:class:`~drill_env.measurement.MeasurementModel`: ``lower_encoder_eccentricity`` [rad],
 ``lower_encoder_phase`` [rad], the same for the upper encoder; the discrepancy workflow writes
-it when it finds an eccentric encoder). Everything a rig of the standard plant family varies
-fits in one.
+it when it finds an eccentric encoder) and an ``amplifier:`` mapping of its amplifier's errors
+(``gain`` [1], ``offset_v`` [V]: it applies ``gain u + offset_v`` when ``u`` is asked for, and
+the recording holds ``u``). Everything a rig of the standard plant family varies fits in one.
 
 ``actuator_delay`` becomes the sensors' ``delay_samples`` (a whole number of sensor samples):
 the environment delays the measurements, which in a loop with constant set points is the
@@ -25,10 +26,18 @@ from typing import Any
 from drill_env.measurement import MeasurementModel
 from drill_env.params import ParameterError, RigParams, load_yaml
 
-__all__ = ["MAX_ACTUATOR_DELAY", "PLANT_FILE_KEYS", "PlantFile", "read_plant_file", "without_measurement"]
+__all__ = [
+    "AMPLIFIER_RANGES",
+    "MAX_ACTUATOR_DELAY",
+    "PLANT_FILE_KEYS",
+    "PlantFile",
+    "read_plant_file",
+    "without_measurement",
+]
 
-PLANT_FILE_KEYS = ("actuator_delay", "sensors", "measurement")  # beside the rig's parameters
+PLANT_FILE_KEYS = ("actuator_delay", "sensors", "measurement", "amplifier")  # beside the rig's parameters
 MAX_ACTUATOR_DELAY = 1.0  # [s]
+AMPLIFIER_RANGES = {"gain": (0.5, 2.0), "offset_v": (-1.0, 1.0)}  # [1], [V]
 
 
 @dataclass(frozen=True)
@@ -39,6 +48,12 @@ class PlantFile:
     sensors: dict[str, Any] = field(default_factory=dict)  # SensorConfig fields, delay_samples included
     source: str = ""
     measurement: MeasurementModel = field(default_factory=MeasurementModel)  # the encoders' reading errors
+    amplifier_gain: float = 1.0  # [1] applied voltage per asked-for volt
+    amplifier_offset_v: float = 0.0  # [V] applied at 0 V asked for
+
+    @property
+    def amplifier_exact(self) -> bool:
+        return self.amplifier_gain == 1.0 and self.amplifier_offset_v == 0.0
 
     @property
     def actuator_delay(self) -> float:
@@ -89,6 +104,27 @@ def _sensors(data: dict[str, Any], where: str) -> dict[str, Any]:
     return sensors
 
 
+def _amplifier(data: dict[str, Any], where: str) -> tuple[float, float]:
+    amp = data.pop("amplifier", None) or {}
+    allowed = sorted(AMPLIFIER_RANGES)
+    if not isinstance(amp, Mapping):
+        raise ParameterError(f"{where}: amplifier: expected a mapping of {allowed}, got {amp!r}")
+    unknown = sorted(set(amp) - set(allowed))
+    if unknown:
+        raise ParameterError(f"{where}: amplifier: unknown field(s) {unknown}; allowed: {allowed}")
+    out = {"gain": 1.0, "offset_v": 0.0}
+    for key, value in amp.items():
+        lo, hi = AMPLIFIER_RANGES[key]
+        ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+        if not (ok and lo <= value <= hi):
+            unit = " V" if key == "offset_v" else ""
+            raise ParameterError(
+                f"{where}: amplifier.{key}: {value!r} is outside the allowed range [{lo:g}, {hi:g}]{unit}"
+            )
+        out[key] = float(value)
+    return out["gain"], out["offset_v"]
+
+
 def read_plant_file(path: str | Path) -> PlantFile:
     """Read and validate a plant file (module docstring)."""
     p = Path(path)
@@ -101,6 +137,7 @@ def read_plant_file(path: str | Path) -> PlantFile:
         raise ParameterError(f"{p.name}: expected a mapping of parameter names to values")
     data = dict(data)
     sensors = _sensors(data, p.name)
+    gain, offset = _amplifier(data, p.name)
     measurement = MeasurementModel()
     if "measurement" in data:
         try:
@@ -112,12 +149,22 @@ def read_plant_file(path: str | Path) -> PlantFile:
         sensors=sensors,
         source=str(p),
         measurement=measurement,
+        amplifier_gain=gain,
+        amplifier_offset_v=offset,
     )
 
 
 def without_measurement(plant: PlantFile, reader: str) -> PlantFile:
-    """``plant`` when it has no measurement model; else a ParameterError: ``reader`` (a command
-    whose sensor model has no encoder eccentricity) would drop it."""
+    """``plant`` when it has no measurement model and an exact amplifier; else a ParameterError:
+    ``reader`` (a command whose sensor model has no encoder eccentricity and whose voltage is
+    the one applied) would drop them."""
+    if not plant.amplifier_exact:
+        name = Path(plant.source).name or "plant"
+        raise ParameterError(
+            f"{name}: amplifier: {reader} applies the voltage asked for and cannot apply this file's "
+            f"amplifier errors (gain {plant.amplifier_gain:g}, offset {plant.amplifier_offset_v:g} V); "
+            "allowed: a plant file without an amplifier section (drill-env synth --plant records through it)"
+        )
     if plant.measurement.active:
         from drill_env.measurement import measurement_text
 

@@ -214,6 +214,7 @@ def identify_structure(
             heldout=held,
             seed=seed,
             simulate_gaps=simulate_gaps,
+            simulate_training_runs=False,  # the tests use the held-out runs' gaps alone
             progress=progress,
         )
         named = list(d.effects)

@@ -253,7 +253,7 @@ def test_benchmark_markers_sit_at_their_runs_voltage_and_off_scale_runs_are_note
     y_lo, y_hi = ax.get_ylim()
     title = ax.get_title()
     # 2 V and 5 V, two seeds each: beyond the scale, written in the margin, not drawn across
-    assert "4 runs off scale (2-5 V)" in title and "x3 from -64.0 to 64.0 rad/s" in title
+    assert "4 runs off scale (2-5 V)" in title and "x3 -64.0 to 64.0 rad/s" in title
     edges = [line for line in ax.get_lines() if not line.get_clip_on()]  # on the frame
     assert {float(y) for line in edges for y in line.get_ydata()} == {y_lo, y_hi}
     for coll in ax.collections:
@@ -334,3 +334,139 @@ def test_a_saved_figure_leaves_pyplot_alone(tmp_path, no_brake):
         "fig9_limit_cycles.png",
     ]
     assert all(p.stat().st_size > 10_000 for p in paths)
+
+
+# -- legible at the docs' width ---------------------------------------------------------------
+
+
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """Every matplotlib figure saved while the test runs (saved as usual)."""
+    from matplotlib.figure import Figure
+
+    figures = []
+    original = Figure.savefig
+
+    def record(self, *args, **kwargs):
+        figures.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", record)
+    return figures
+
+
+def test_the_size_rule_catches_wide_figures_small_text_and_overlapping_ticks():
+    from drill_env._figures import legibility_problems, shown_points, subplots
+
+    fig, ax = subplots(figsize=(17, 4))  # the old benchmark grid's width
+    ax.plot([0, 1], [0, 1])
+    problems = legibility_problems(fig)
+    assert "width 17 in > 10 in" in problems
+    assert any("shows at 4.4 pt < 8 pt" in p for p in problems)  # 10 pt * 724 / (96 * 17)
+    assert shown_points(fig, 10.0) == pytest.approx(10 * 724 / (96 * 17))
+    fig, ax = subplots(figsize=(4, 3))
+    ax.set_xticks([0, 0.005, 0.01, 0.015, 0.02], ["a long label", "another long label", "x", "y", "z"])
+    ax.set_xlim(0, 0.02)
+    for t in ax.get_xticklabels() + ax.get_yticklabels():
+        t.set_fontsize(9)
+    assert legibility_problems(fig) == ["x tick labels 'a long label' and 'another long label' overlap"]
+    fig, ax = subplots(figsize=(8, 3))
+    ax.tick_params(labelsize=9)
+    assert legibility_problems(fig) == []
+
+
+@pytest.mark.parametrize("n_controllers", [3, 13])
+def test_the_benchmark_figures_are_legible_at_the_docs_width(tmp_path, brake, saved_figures, n_controllers):
+    from drill_env._figures import legibility_problems
+    from drill_env.agents.evaluation.benchmark import figures as bf
+    from drill_env.agents.evaluation.benchmark.ranking import benchmark_rankings, ranking_figure
+    from drill_env.agents.evaluation.robustness import ordered_controllers, robustness_figure
+    from drill_env.agents.registry import CONTROLLERS
+
+    ctrls = ("open_loop", "lqi", "pi_lower") if n_controllers == 3 else CONTROLLERS
+    assert len(ctrls) == n_controllers
+    volts = (0.3, 0.55, 1.0, 2.0, 5.0)
+    df = _frame("brake", volts, ctrls)
+    fam = pd.concat(
+        [df, df.assign(plant="km_x1.05", suppression=df["suppression"] - 0.01)], ignore_index=True
+    )
+    fig = bf.draw_bifurcation_figure(df, "brake", diagram=brake)
+    assert legibility_problems(fig) == []
+    names = ordered_controllers(df["controller"])
+    bf._suppression_figure(df, "brake", tmp_path, "nominal", names)
+    bf._plants_figure(fam, "brake", tmp_path, ["km_x1.05"])
+    bf.worst_case_figure(fam, "brake", tmp_path)
+    robustness_figure(fam, "brake", tmp_path)
+    for key, title, st in benchmark_rankings(df):
+        ranking_figure(st, title, tmp_path / f"ranking_{key}.png")
+    assert len(saved_figures) >= 5
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.get_suptitle() or f.axes[0].get_title()
+    plt.close("all")
+
+
+def test_the_suite_figures_are_legible_at_the_docs_width(tmp_path, saved_figures):
+    from drill_env._figures import legibility_problems
+    from drill_env.agents.evaluation.benchmark.ranking import ranking_figure
+    from drill_env.agents.evaluation.scenario_report import scores_figure, suite_rankings
+    from drill_env.agents.registry import CONTROLLERS
+    from drill_env.envs.scenarios import SCENARIO_NAMES
+
+    rng = np.random.default_rng(0)
+    runs = pd.DataFrame(
+        [
+            {"controller": c, "scenario": s, "preset": p, "seed": k, "score": rng.uniform(-1, 1), "error": ""}
+            for c in CONTROLLERS
+            for s in SCENARIO_NAMES
+            for p in ("brake", "no_brake")
+            for k in range(2)
+        ]
+    )
+    scores_figure(runs, tmp_path)
+    key, title, st = suite_rankings(runs)[0]
+    ranking_figure(st, title, tmp_path / f"ranking_{key}.png")
+    assert len(saved_figures) == 2
+    for f in saved_figures:
+        assert legibility_problems(f) == []
+
+
+@pytest.mark.parametrize("gains", [(-2e4, 3e5), (-50.0, 2e2), (0.5, 1e9)])
+def test_the_gain_axis_decades_stay_apart(gains):
+    from drill_env._figures import legibility_problems, subplots
+    from drill_env.discrepancy.report import _decade_ticks
+
+    fig, ax = subplots(figsize=(7, 3))
+    ax.barh(["a", "b", "c"], [gains[0], 1.0, gains[1]])
+    ax.set_xscale("symlog", linthresh=1.0)
+    _decade_ticks(ax.xaxis, ax.get_xlim())
+    ax.tick_params(labelsize=9)
+    ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+    assert 0.0 in ticks and max(ticks) >= 10 ** np.floor(np.log10(gains[1]))  # the largest decade kept
+    assert len(ticks) <= 7
+    assert legibility_problems(fig) == []
+
+
+def test_the_discrepancy_reports_gain_and_equation_error_figures_are_legible(tmp_path, saved_figures):
+    from drill_env._figures import legibility_problems
+    from drill_env.discrepancy.report import _figures
+    from drill_env.discrepancy.scoring import DecisionRule
+    from drill_env.discrepancy.workflow import analyse
+    from drill_env.recordings.dataset import MeasuredDataset
+    from drill_env.recordings.synth import SynthConfig, make_dataset
+
+    cfg = SynthConfig(
+        voltages=(0.2, 0.5, 1.0, 2.0, 3.0),
+        random_runs=3,
+        duration_s=40.0,
+        pre_roll_s=20.0,
+        angle_noise_std=0.0,
+    )  # ten runs as the identification plan's, labelled like its (varying -5-5 V)
+    syn = make_dataset("position_friction_lower", seed=5, magnitude=0.12, config=cfg)
+    ds = MeasuredDataset(
+        preset="brake", encoder_counts_per_rev=cfg.encoder_counts_per_rev, runs=tuple(syn.runs)
+    )
+    res = analyse(ds, simulate_gaps=False, rule=DecisionRule(bootstrap=20))
+    names = [name for name, _ in _figures(res, tmp_path)]
+    assert {"candidates.png", "equation_error.png"} <= set(names)
+    for fig in saved_figures[: names.index("equation_error.png") + 1]:
+        assert legibility_problems(fig) == [], fig.axes[0].get_title()

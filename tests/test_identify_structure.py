@@ -169,6 +169,59 @@ def test_amplifier_offset_and_gain_fold_into_the_upper_friction_and_the_motor_co
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("amplifier", [{"offset_v": 0.05}, {"gain": 1.05}], ids=["offset", "gain"])
+def test_cli_amplifier_errors_are_none_or_recalibrated_never_unexplained(tmp_path, amplifier):
+    """A plant file's amplifier with only an offset (+0.05 V) or only a gain error (x1.05):
+    synth --plant records the asked-for voltage; identify folds the offset into the upper
+    friction levels and the gain into k_m, and neither identify's structure search nor
+    discrepancy on the identified rig says unexplained or names an effect."""
+    import json
+
+    import yaml
+
+    rig = draw_rig("brake", 34, low=0.35, high=3.0)
+    plant = {k: v for k, v in rig.to_dict().items() if k not in ("name", "description")}
+    plant["amplifier"] = amplifier
+    (tmp_path / "plant.yaml").write_text(yaml.safe_dump(plant, sort_keys=False))
+    data, ident_dir = tmp_path / "data", tmp_path / "id"
+    r = CliRunner().invoke(
+        app,
+        ["synth", "--plant", str(tmp_path / "plant.yaml"), "--out", str(data), "--answer",
+         str(tmp_path / "answer.json"), "--voltages", "0.3,0.8,2,4", "--random-runs", "2",
+         "--duration", "40", "--seed", "3"],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    answer = json.loads((tmp_path / "answer.json").read_text())
+    assert answer["amplifier"] == {"gain": 1.0, "offset_v": 0.0, **amplifier}
+    r = CliRunner().invoke(
+        app,
+        ["identify", str(data), "--out", str(ident_dir), "--no-figures",
+         "--known", f"string_stiffness={rig.string_stiffness!r}"],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    ident = json.loads((ident_dir / "identification.json").read_text())
+    assert ident["structure_search"]["verdict"] in ("none", "recalibrated"), ident["structure_search"]
+    assert not ident["effects"]
+    p = ident["parameters"]
+    gain, offset = amplifier.get("gain", 1.0), amplifier.get("offset_v", 0.0)
+    km = rig.motor_constant
+    # within the issue's 3 % for an excited parameter (the folded values are exact: a gain scales
+    # k_m, an offset is a constant torque k_m u0 the positive-side level absorbs)
+    assert p["motor_constant"]["value"] == pytest.approx(km * gain, rel=0.03)
+    assert p["upper_static_pos"]["value"] == pytest.approx(rig.upper_static_pos - km * offset, rel=0.03)
+    assert p["upper_viscous_pos"]["value"] == pytest.approx(rig.upper_viscous_pos, rel=0.03)
+    r = CliRunner().invoke(
+        app,
+        ["discrepancy", str(data), "--params", str(ident_dir / "rig.yaml"), "--out",
+         str(tmp_path / "disc"), "--no-figures"],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    res = json.loads((tmp_path / "disc" / "result.json").read_text())
+    assert res["effect"] in ("none", "recalibrated"), res["effect"]
+    assert "verdict: unexplained" not in r.output
+
+
+@pytest.mark.slow
 def test_cli_finds_the_effect_and_writes_one_model(tmp_path):
     """drill-env identify on data with a hidden library effect: the rounds in the report, the
     effect in rig.yaml, which every entry point reads."""
@@ -313,6 +366,16 @@ def test_study_on_lab_protocols():
         )  # fmt: skip
         ident = s.identification
         case = f"{structure}-{seed}-{protocol}"
+        errors = {
+            n: ident.parameters[n].value / float(getattr(rig, n)) - 1.0
+            for n in EXCITED
+            if ident.parameters[n].identified
+        }
+        worst = max(errors, key=lambda n: abs(errors[n])) if errors else None
+        print(
+            f"{case} hidden {effect}: verdict {s.verdict}; largest excited error "
+            + (f"{errors[worst]:+.2%} ({worst})" if worst else "-")
+        )
         if effect is None:
             assert s.verdict in ("none", "recalibrated"), (case, s.as_dict())  # no false discovery
         elif effect == "outside":
@@ -336,4 +399,7 @@ def test_study_on_lab_protocols():
                 if k in fields_:
                     total += 1
                     inside += lo <= fields_[k] <= hi
+                    if not lo <= fields_[k] <= hi:
+                        missed.append(f"{case}:{k}")
+    print(f"truths inside their 95 % intervals: {inside}/{total} = {inside / total:.1%}; outside: {missed}")
     assert inside >= 0.9 * total, (inside, total, missed)

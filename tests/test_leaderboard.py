@@ -66,3 +66,46 @@ def test_leaderboard_ranks_lists_every_controller_in_every_ranking():
     text = pages.leaderboard_ranks({"benchmark": record, "plant_family": record})
     assert text.splitlines()[0] == "| controller | `benchmark` brake | `plant_family` brake |"
     assert "| weak | 4 (4) | 4 (4) |" in text
+
+
+def test_a_scenario_suite_shows_its_suite_ranking_headroom_ranks_and_the_nominal_leaders(tmp_path):
+    from drill_env.agents.evaluation.scenario_report import nominal_leaders, suite_rankings
+
+    rng = np.random.default_rng(2)
+    rows = []
+    for s in ("start_up", "effort"):
+        for p in ("brake", "no_brake"):
+            for k in range(3):
+                base = rng.uniform(0.6, 0.9)
+                for c, off in (("open_loop", None), ("good", 0.05), ("fair", 0.0), ("same", 0.0)):
+                    v = 0.0 if off is None else base + off + rng.normal(0, 1e-3)
+                    rows.append({"controller": c, "scenario": s, "preset": p, "seed": k, "score": v})
+    runs = pd.DataFrame(rows)
+    rankings = suite_rankings(runs)
+    nominal = {"source": "b/ranking.json", "key": "all", "score": "suppression",
+               "scores": {"good": 0.999, "fair": 0.995, "same": 0.994, "open_loop": 0.0}}  # fmt: skip
+    lead = nominal_leaders(rankings[0][2], nominal)
+    record = json.loads(json.dumps({
+        "rankings": [ranking_record(k, t, st) for k, t, st in rankings],
+        "headroom": [{"scenario": "start_up", "best_controller": "good", "best_score": 0.9, "low": 0.85,
+                      "high": 0.95, "room": 0.1}],
+        "nominal_leaders": lead,
+    }))  # fmt: skip
+    pages = _pages()
+    # the leaderboard's tables and ranks: the suite score's ranking only
+    text = pages.leaderboard_tables(record, "scenarios")
+    assert text.count("### `scenarios`") == 1 and "scenario suite: every scenario, preset and seed" in text
+    ranks = pages.leaderboard_ranks({"scenarios": record})
+    assert ranks.splitlines()[0] == "| controller | `scenarios` suite |"
+    suite = pages.suite_tables(record, "scenarios")
+    assert "| start_up | good | 0.900 | [0.850, 0.950] | 0.100 |" in suite
+    # good beats fair and same by 0.05 on every unit; fair and same differ by noise
+    assert lead["n_pairs"] == 3 and lead["resolved"] == 2
+    assert "Of their 3 pairs the suite's paired intervals resolve **2**" in suite
+    import re
+
+    for other in ("fair", "same"):
+        (by,) = re.findall(rf"good > {other} by (-?[0-9]+\.[0-9]+)", suite)
+        assert abs(float(by) - 0.05) < 0.003
+    row = next(line for line in suite.splitlines() if line.startswith("| good |"))
+    assert row == "| good | 1 (1) | 1 (1) | 1 (1) |"

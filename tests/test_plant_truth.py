@@ -159,6 +159,11 @@ def test_a_plant_file_holds_its_delay_and_sensors(tmp_path):
         ({"sensors": {"noise": 1}}, "sensors"),
         ({"sensors": [1, 2]}, "sensors"),
         ({"lower_inertia": -1.0}, "lower_inertia"),
+        ({"amplifier": {"gain": 3.0}}, "amplifier.gain"),
+        ({"amplifier": {"offset_v": "0.1 V"}}, "amplifier.offset_v"),
+        ({"amplifier": {"offset": 0.1}}, "amplifier"),
+        # a valid amplifier the benchmark cannot apply (it applies the voltage asked for)
+        ({"amplifier": {"offset_v": 0.05}}, "amplifier"),
     ],
 )
 def test_a_bad_plant_file_is_one_line_naming_the_field(tmp_path, changes, field):

@@ -20,6 +20,7 @@ as a failure, min(., 0), so a disk that stops never ranks as a suppressed one.
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -293,21 +294,21 @@ RMS_FLOOR = 1e-4  # [rad/s] log axis floor
 def robustness_figure(df, preset: str, out: str | Path) -> Path:
     """``robustness_<preset>.png``: per regime (rows) and metric (columns), each controller's
     per-plant means (dots), their mean (bar), the nominal plant (diamond) and the worst run
-    (cross, labelled with its plant)."""
+    (cross; its plant and voltage are in the robustness table of ``summary.md``). Drawn 8 in
+    wide with 9 pt text: legible at the docs' width (:mod:`drill_env._figures`)."""
     from drill_env._figures import subplots
 
     rows = robustness_rows(df, preset)
     regimes = [g for g in REGIMES if any(r["regime"] == g for r in rows)]
     ctrls = ordered_controllers({r["controller"] for r in rows})
     n_plants = max((r["n_plants"] for r in rows), default=0)
-    from drill_env.analysis.plots import Label, place_labels
-
-    pending: dict[int, tuple[Any, list]] = {}
+    font = 9.0
     fig, axes = subplots(
         len(regimes),
         len(METRICS),
-        figsize=(15, 1.2 + 0.42 * len(ctrls) * len(regimes) + 0.6 * len(regimes)),
+        figsize=(8.0, 1.3 + len(regimes) * (1.05 + 0.24 * len(ctrls))),
         squeeze=False,
+        sharey=True,
     )
     for i, regime in enumerate(regimes):
         for j, (col, label, unit, _, scale) in enumerate(METRICS):
@@ -317,7 +318,7 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
                 ax.text(0.5, 0.5, "no cycle to suppress", ha="center", va="center", transform=ax.transAxes)
                 ax.set_yticks([])
                 ax.set_xticks([])
-                ax.set_title(f"{REGIMES[regime]}: {label}", fontsize=9)
+                ax.set_title(f"{REGIMES[regime]}:\n{label}", fontsize=font)
                 continue
 
             def shown(x: float, col: str = col, scale: float = scale) -> float:
@@ -334,34 +335,32 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
                     continue
                 col_c = controller_style(c).colour
                 vals = [shown(v) for v in r["per_plant"].values()]
-                ax.plot(vals, [y] * len(vals), "o", color="0.55", ms=3, alpha=0.7, zorder=2)
-                ax.plot([shown(r["mean"])] * 2, [y - 0.3, y + 0.3], "-", color=col_c, lw=2.5, zorder=3)
+                ax.plot(vals, [y] * len(vals), "o", color="0.55", ms=2.5, alpha=0.7, zorder=2)
+                ax.plot([shown(r["mean"])] * 2, [y - 0.35, y + 0.35], "-", color=col_c, lw=2.0, zorder=3)
                 if math.isfinite(r["nominal"]):
-                    ax.plot(shown(r["nominal"]), y, "D", color=col_c, ms=6, mec="black", zorder=4)
+                    ax.plot(shown(r["nominal"]), y, "D", color=col_c, ms=4.5, mec="black", mew=0.6, zorder=4)
                 if not r["spread"] or r["worst_plant"] == NOMINAL:
                     continue  # the worst run is on the nominal plant, or all alike
-                ax.plot(shown(r["worst"]), y, "x", color="tab:red", ms=7, mew=2, zorder=5)
-                pending.setdefault(id(ax), (ax, []))[1].append(
-                    Label(f"{r['worst_plant']} {r['worst_voltage']:g} V", shown(r["worst"]), y, "tab:red", 6)
-                )
+                ax.plot(shown(r["worst"]), y, "x", color="tab:red", ms=5, mew=1.5, zorder=5)
             ax.set_yticks(range(len(ctrls)))
-            ax.set_yticklabels(ctrls[::-1], fontsize=8)
+            ax.set_yticklabels(ctrls[::-1], fontsize=font)
+            ax.tick_params(labelsize=font)
             ax.set_ylim(-0.8, len(ctrls) - 0.4)
             u = "" if unit == "-" else f" [{unit}]"
             if col == "suppression":
                 ax.set_xlim(SUPPRESSION_FLOOR - 0.05, 1.05)
                 ax.axvline(1.0, color="gray", lw=0.8, ls=":")
                 ax.axvline(0.0, color="gray", lw=0.8)
-                xl = f"suppression{u} (below {SUPPRESSION_FLOOR:g} drawn at {SUPPRESSION_FLOOR:g})"
+                xl = f"suppression{u}\n(below {SUPPRESSION_FLOOR:g} drawn at it)"
             elif col == "rms_error":
                 ax.set_xscale("log")
-                xl = f"RMS speed error of x3{u} (log; below {RMS_FLOOR:g} drawn at it)"
+                xl = f"RMS error of x3{u}\n(log; below {RMS_FLOOR:g} at it)"
             else:
                 top = max([5.0] + [scale * r["worst"] for r in reg.values()])
                 ax.set_xlim(-0.03 * top, 1.1 * top)
-                xl = f"time with the lower disk stuck{u}"
-            ax.set_xlabel(xl, fontsize=8)
-            ax.set_title(f"{REGIMES[regime]}: {label}", fontsize=9)
+                xl = f"lower disk stuck{u}"
+            ax.set_xlabel(xl, fontsize=font)
+            ax.set_title(f"{REGIMES[regime]}:\n{label}", fontsize=font)
             ax.grid(alpha=0.3, axis="x")
     from matplotlib.lines import Line2D
 
@@ -395,18 +394,18 @@ def robustness_figure(df, preset: str, out: str | Path) -> Path:
             ls="none",
             ms=7,
             mew=2,
-            label="worst single run, with its plant and voltage (not drawn when on the nominal plant)",
+            label="worst single run (not on the nominal plant; its plant and voltage: summary.md)",
         ),
     ]
-    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    for h in handles:
+        h.set_label(textwrap.fill(h.get_label(), 44, break_on_hyphens=False))
+    fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=font, frameon=False)
     fig.suptitle(
-        f"{preset}: every controller on {n_plants} plants, designed on the nominal model "
+        f"{preset}: every controller on {n_plants} plants, designed on the nominal model\n"
         "(per regime of the nominal model; colour: controller)",
-        fontsize=10,
+        fontsize=font + 1,
     )
-    fig.tight_layout(rect=(0, 0.4 / fig.get_figheight(), 1, 1))
-    for ax, labels in pending.values():  # once the layout is final: clear of every marker
-        place_labels(ax, labels)
+    fig.tight_layout(rect=(0, 0.85 / fig.get_figheight(), 1, 1), h_pad=0.8, w_pad=0.3)
     path = Path(out) / f"robustness_{preset}.png"
-    save_figure(fig, path, dpi=110)
+    save_figure(fig, path, dpi=150)
     return path

@@ -34,6 +34,7 @@ __all__ = [
 ]
 
 N_LEADERS = 3  # controllers drawn beside the open loop in the set-point figure
+FIGURE_WIDTH, FIGURE_DPI, FONT = 8.0, 150, 9.0  # legible at the docs' width (drill_env._figures)
 SUITE = "suite"  # the key of the suite's ranking (units: scenario, preset, seed)
 SUITE_UNITS = ("scenario", "preset", "seed")
 NOMINAL_TOP = 0.99  # the nominal benchmark's leaders: mean suppression at least this
@@ -146,23 +147,27 @@ def scores_figure(runs: Any, out: Path) -> Path:
 
     table = scenario_table(runs)
     values = table.to_numpy(dtype=float)
-    fig = Figure(figsize=(1.25 * values.shape[1] + 3.0, 0.42 * values.shape[0] + 1.8))
+    fig = Figure(figsize=(FIGURE_WIDTH, 0.36 * values.shape[0] + 2.0))
     _canvas(fig)
     ax = fig.add_subplot()
     im = ax.imshow(np.clip(values, -1.0, 1.0), cmap="RdYlGn", vmin=-1.0, vmax=1.0, aspect="auto")
     for i in range(values.shape[0]):
         for j in range(values.shape[1]):
             v = values[i, j]
-            ax.text(j, i, "-" if not np.isfinite(v) else f"{v:.3f}", ha="center", va="center", fontsize=8)
-    ax.set_xticks(
-        range(values.shape[1]), [c.replace("_", " ") for c in table.columns], rotation=30, ha="right"
-    )
+            ax.text(j, i, "-" if not np.isfinite(v) else f"{v:.3f}", ha="center", va="center", fontsize=FONT)
+    # two short lines per column name ("set point\nsteps"): horizontal, clear of each other
+    ax.set_xticks(range(values.shape[1]), [c.replace("_", "\n", 1).replace("_", " ") for c in table.columns])
     ax.set_yticks(range(values.shape[0]), list(table.index))
-    ax.set_title("scenario suite: mean score over presets and seeds (1 = perfect, 0 = open loop)")
-    fig.colorbar(im, ax=ax, label="score [-]")
+    ax.tick_params(labelsize=FONT)
+    ax.set_title(
+        "scenario suite: mean score over presets and seeds\n(1 = perfect, 0 = open loop)", fontsize=FONT + 1
+    )
+    bar = fig.colorbar(im, ax=ax, fraction=0.04, pad=0.02)
+    bar.set_label("score [-]", fontsize=FONT)
+    bar.ax.tick_params(labelsize=FONT)
     fig.tight_layout()
     path = out / "scores.png"
-    save_figure(fig, path, dpi=110)
+    save_figure(fig, path, dpi=FIGURE_DPI)
     return path
 
 
@@ -181,7 +186,7 @@ def set_point_figure(
         return None
     order = [c for c in scenario_table(runs).index if c != REFERENCE]
     names = [REFERENCE, *order[:N_LEADERS]]
-    fig = Figure(figsize=(10.0, 4.8))
+    fig = Figure(figsize=(FIGURE_WIDTH, 4.4))
     _canvas(fig)
     ax = fig.add_subplot()
     target = None
@@ -193,14 +198,15 @@ def set_point_figure(
         target = rec
     assert target is not None
     ax.step(target["t"], target["target"], where="pre", color="black", ls="--", lw=1.0, label="target speed")
-    ax.set_xlabel("time since switch-on [s]")
-    ax.set_ylabel("lower-disk speed x3 [rad/s]")
+    ax.set_xlabel("time since switch-on [s]", fontsize=FONT)
+    ax.set_ylabel("lower-disk speed x3 [rad/s]", fontsize=FONT)
+    ax.tick_params(labelsize=FONT)
     volts = " -> ".join(f"{v:g} V" for v in SCENARIOS["set_point_steps"].set_point_voltages(preset))
-    ax.set_title(f"set-point steps, {preset} ({volts}), seed {seed}")
-    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(f"set-point steps, {preset} ({volts}), seed {seed}", fontsize=FONT + 1)
+    ax.legend(loc="upper left", fontsize=FONT)
     fig.tight_layout()
     path = out / f"set_point_steps_{preset}.png"
-    save_figure(fig, path, dpi=110)
+    save_figure(fig, path, dpi=FIGURE_DPI)
     return path
 
 

@@ -11,9 +11,12 @@ are read, this writes Markdown copies of the result files the pages include into
 * each section of ``results/README.md`` (``## benchmark/`` -> ``readme_benchmark.md``): the
   command that regenerates that folder and what it writes;
 * the leaderboard, from every ``results/**/ranking.json`` (the paired statistics the
-  benchmark writes): ``leaderboard_<folder>.md`` with each ranking's scores, intervals,
-  ranks and differences to the leader, and ``leaderboard_ranks.md``, every controller's
-  rank in every ranking side by side.
+  benchmark and the scenario suite write): ``leaderboard_<folder>.md`` with each ranking's
+  scores, intervals, ranks and differences to the leader (of a scenario suite, the suite
+  score's ranking), ``leaderboard_ranks.md``, every controller's rank in every ranking side
+  by side, and for a scenario suite ``leaderboard_<folder>_suite.md``: the headroom, every
+  controller's rank on every scenario and which pairs of the nominal benchmark's leaders the
+  suite resolves.
 
 The pages of ``results/`` include them with MyST's ``{include}``, so a rebuilt site shows
 the numbers of the files as committed.
@@ -87,11 +90,79 @@ def _span(r: dict) -> str:
     return str(r["best_rank"]) if r["best_rank"] == r["worst_rank"] else f"{r['best_rank']}-{r['worst_rank']}"
 
 
+SUITE_KEY = "suite"  # the suite score's ranking in a scenario suite's ranking.json
+LEADERBOARD = ("benchmark", "plant_family", "scenarios")  # the folders the leaderboard page ranks
+
+
+def _shown(record: dict) -> list[dict]:
+    """The rankings of ``record`` the leaderboard shows: a scenario suite's suite score only
+    (its scenarios' rankings are in its rank table), every ranking of a benchmark."""
+    rankings = record["rankings"]
+    suite = [rk for rk in rankings if rk["key"] == SUITE_KEY]
+    return suite if "headroom" in record and suite else rankings
+
+
+def suite_tables(record: dict, folder: str) -> str:
+    """A scenario suite's ``ranking.json`` as the leaderboard shows it: the headroom (the best
+    controller on each scenario with its interval), the pairs of the nominal benchmark's leaders
+    the suite resolves, and every controller's rank on every scenario."""
+    lines = [
+        f"Headroom (`{folder}/ranking.json`): the best controller on each scenario, its mean score "
+        "with its 95 % paired interval and the room left, 1 - score.",
+        "",
+        "| scenario | best controller | score | 95 % interval | room left |",
+        "|---|---|---|---|---|",
+    ]
+    for h in record.get("headroom", []):
+        lines.append(
+            f"| {h['scenario']} | {h['best_controller']} | {_num(h['best_score'], 3)} | "
+            f"[{_num(h['low'], 3)}, {_num(h['high'], 3)}] | {_num(h['room'], 3)} |"
+        )
+    lead = record.get("nominal_leaders")
+    if lead:
+        names = ", ".join(f"{c} ({_num(v)})" for c, v in lead["controllers"].items())
+        res = [q for q in lead["pairs"] if q["resolved"]]
+        lines += [
+            "",
+            f"The nominal benchmark's leaders at {lead['threshold']:g} or more mean {lead['score']} "
+            f"(`{lead['source']}`, ranking `{lead['ranking']}`): {names}. Of their {lead['n_pairs']} pairs "
+            f"the suite's paired intervals resolve **{lead['resolved']}** ({lead['resolved_holm']} with Holm's "
+            "correction over all the suite's pairs)"
+            + (
+                ": " + "; ".join(f"{q['a']} > {q['b']} by {_num(q['difference'], 3)}" for q in res)
+                if res
+                else ""
+            )
+            + ".",
+        ]
+    by_key = {rk["key"]: rk for rk in record["rankings"]}
+    suite = by_key.get(SUITE_KEY)
+    scenarios = [rk["key"] for rk in record["rankings"] if rk["key"] != SUITE_KEY]
+    if suite and scenarios:
+        lines += [
+            "",
+            "Rank on each scenario (in brackets the range its paired intervals allow; units: preset, seed).",
+            "",
+            "| controller | suite | " + " | ".join(scenarios) + " |",
+            "|---|---|" + "---|" * len(scenarios),
+        ]
+        ranks = {k: {r["controller"]: r for r in by_key[k]["scores"]} for k in [SUITE_KEY, *scenarios]}
+        for r in suite["scores"]:
+            cells = [
+                f"{ranks[k][r['controller']]['rank']} ({_span(ranks[k][r['controller']])})"
+                if r["controller"] in ranks[k]
+                else "-"
+                for k in [SUITE_KEY, *scenarios]
+            ]
+            lines.append(f"| {r['controller']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def leaderboard_tables(record: dict, folder: str) -> str:
     """The leaderboard section of one ``ranking.json``: per ranking, the controllers by rank with
     their score, interval, range of ranks and paired difference to the leader."""
     lines = []
-    for rk in record["rankings"]:
+    for rk in _shown(record):
         pct = f"{100 * rk['confidence']:g} %"
         lines += [
             f"### `{folder}`: {rk['title']}",
@@ -146,7 +217,7 @@ def leaderboard_tables(record: dict, folder: str) -> str:
 
 def leaderboard_ranks(records: dict[str, dict]) -> str:
     """Every controller's rank (and the range the resolved differences allow) in every ranking."""
-    columns = [(folder, rk) for folder, rec in records.items() for rk in rec["rankings"]]
+    columns = [(folder, rk) for folder, rec in records.items() for rk in _shown(rec)]
     if not columns:
         return "No ranking has been committed.\n"
     names: list[str] = []
@@ -192,7 +263,15 @@ def write_results_pages(app) -> None:  # noqa: ANN001 (Sphinx application)
         folder = path.parent.relative_to(results).as_posix()
         records[folder] = json.loads(path.read_text(encoding="utf-8"))
         written[f"leaderboard_{folder.replace('/', '_')}.md"] = leaderboard_tables(records[folder], folder)
-    written["leaderboard_ranks.md"] = leaderboard_ranks(records)
+        if "headroom" in records[folder]:
+            written[f"leaderboard_{folder.replace('/', '_')}_suite.md"] = suite_tables(
+                records[folder], folder
+            )
+    # the ranks table of the leaderboard page: the rankings it shows (the other folders' are on
+    # their own pages)
+    written["leaderboard_ranks.md"] = leaderboard_ranks(
+        {f: r for f, r in records.items() if f in LEADERBOARD}
+    )
     for name, text in written.items():
         path = out / name
         if not path.is_file() or path.read_text(encoding="utf-8") != text:

@@ -128,6 +128,12 @@ _POINT_COLOR = "tab:red"
 _LIMIT_COLOR = "tab:purple"
 _SIM_COLOR = "tab:orange"
 
+# The figures' size: drawn 724 px wide in the documentation (drill_env._figures' size rule),
+# FIGURE_WIDTH inches show FONT-point text at 8.5 pt.
+FIGURE_WIDTH = 8.0  # [in]
+FONT = 9.0  # [pt] the smallest text of the figures (legends, labels, tick labels)
+FIGURE_DPI = 130
+
 AMPLIFIER_LIMIT_V = RIG_VOLTAGE_LIMIT  # [V] the rig's amplifier takes inputs in [-5, 5] V (Sec. 2.1)
 
 POINT_MEANINGS = "A: start of motion, B, C: Hopf, D, E: stick-slip begins, ends, F: fold of cycles"
@@ -410,43 +416,74 @@ def _finish(
     legend_loc: str = "right",
     title: str | None = None,
 ) -> None:
-    """Legend (beside or below the axes), layout, then the labels placed clear of the data."""
+    """Legend (below the figure on a figure of its own, else beside or below the axes),
+    layout, then the labels placed clear of the data."""
     fig = ax.figure
-    if handles:
+    if handles and own_figure:
+        legend_below(fig, handles, title=title)
+    elif handles:
         if legend_loc == "right":
             ax.legend(
                 handles=handles,
-                fontsize=8,
+                fontsize=FONT,
                 loc="upper left",
                 bbox_to_anchor=(1.01, 1.0),
                 borderaxespad=0.0,
                 title=title,
-                title_fontsize=8,
+                title_fontsize=FONT,
             )
         else:
             ax.legend(
                 handles=handles,
-                fontsize=8,
+                fontsize=FONT,
                 loc="upper center",
                 bbox_to_anchor=(0.5, -0.13),
                 ncol=2,
                 title=title,
-                title_fontsize=8,
+                title_fontsize=FONT,
             )
-    if own_figure:
+    elif own_figure:
         fig.tight_layout()
     place_labels(ax, labels)
+
+
+def legend_below(fig, handles: list, *, ncol: int = 2, title: str | None = None) -> Any:  # noqa: ANN401
+    """One legend for the whole figure, centred below its axes, and the axes laid out above
+    it (the legend's height measured, so that no entry covers an axis label)."""
+    from drill_env._figures import renderer as figure_renderer
+
+    leg = fig.legend(
+        handles=handles,
+        loc="lower center",
+        bbox_to_anchor=(0.5, 0.005),
+        ncol=min(ncol, len(handles)),
+        fontsize=FONT,
+        title=title,
+        title_fontsize=FONT,
+        frameon=False,
+    )
+    height = leg.get_window_extent(figure_renderer(fig)).height / (fig.dpi * fig.get_figheight())
+    fig.tight_layout(rect=(0, min(0.6, height + 0.01), 1, 0.99 if fig.get_suptitle() else 1))
+    return leg
+
+
+def _own_figure(nrows: int, ncols: int, height: float, **kwargs: Any) -> Any:  # noqa: ANN401
+    """Axes of a new figure FIGURE_WIDTH wide, their tick labels at FONT."""
+    from drill_env._figures import user_subplots
+
+    _, ax = user_subplots(nrows, ncols, figsize=(FIGURE_WIDTH, height), **kwargs)
+    for a in np.atleast_1d(ax).flat:
+        a.tick_params(labelsize=FONT)
+    return ax
 
 
 def plot_equilibria(diagram: BifurcationDiagram, ax=None):
     """Fig. 6: the equilibrium branches, twist x1 (a) and lower-disk speed x3 (b) against u."""
     from matplotlib.patches import Patch
 
-    from drill_env._figures import user_subplots
-
     own = ax is None
     if own:
-        _, ax = user_subplots(1, 2, figsize=(12, 5.2))
+        ax = _own_figure(2, 1, 8.4)
     ax_a, ax_b = ax
     labels_a: list[Label] = []
     labels_b: list[Label] = []
@@ -516,11 +553,9 @@ def plot_equilibria(diagram: BifurcationDiagram, ax=None):
         a.grid(alpha=0.3)
         _room_for_labels(a)
     if own:
-        fig = ax_a.figure
-        fig.legend(handles=handles, fontsize=8, loc="lower center", ncol=3)
-        fig.tight_layout(rect=(0, 0.07 + 0.035 * ((len(handles) - 1) // 3), 1, 1))
+        legend_below(ax_a.figure, handles)
     else:
-        ax_b.legend(handles=handles, fontsize=8, loc="best")
+        ax_b.legend(handles=handles, fontsize=FONT, loc="best")
     place_labels(ax_a, labels_a)
     place_labels(ax_b, labels_b)
     return ax
@@ -552,12 +587,11 @@ def plot_bifurcation(
     reaches them; ``alpha``: opacity of the curves (below other data drawn on them). Returns the axes; the legend handles are in ``ax.diagram_handles``.
     """
     from matplotlib.lines import Line2D
-
-    from drill_env._figures import user_subplots
+    from matplotlib.ticker import MaxNLocator
 
     own = ax is None
     if own:
-        _, ax = user_subplots(figsize=(11, 5.5))
+        ax = _own_figure(1, 1, 6.4)
     runs = _check_runs(check)
     labels, eq_styles, cyc_styles, y_top = _draw_x3(ax, diagram, runs, lw, alpha)
     handles = _style_handles(eq_styles, cyc_styles, False)
@@ -590,9 +624,11 @@ def plot_bifurcation(
         in_labels, *_ = _draw_x3(inset, diagram, runs, 1.0)
         inset.set_xlim(*zoom[0])
         inset.set_ylim(*zoom[1])
-        inset.tick_params(labelsize=7)
+        inset.tick_params(labelsize=FONT)
+        inset.xaxis.set_major_locator(MaxNLocator(3))
+        inset.yaxis.set_major_locator(MaxNLocator(4))
         inset.grid(alpha=0.3)
-        inset.set_title(f"enlarged: u = {zoom[0][0]:g} to {zoom[0][1]:g} V", fontsize=8)
+        inset.set_title(f"enlarged: u = {zoom[0][0]:g} to {zoom[0][1]:g} V", fontsize=FONT)
         ax.indicate_inset_zoom(inset, edgecolor="0.4")
         names = {"A", "B", "D", "e1", "e2", "p1"}
         labels = [lab for lab in labels if not (lab.text in names and lab.x <= zoom[0][1])]
@@ -690,11 +726,9 @@ def plot_period(diagram: BifurcationDiagram, ax=None):
     """Period of the periodic orbits against u, with the linear period at the Hopf points."""
     from matplotlib.lines import Line2D
 
-    from drill_env._figures import user_subplots
-
     own = ax is None
     if own:
-        _, ax = user_subplots(figsize=(11, 4.5))
+        ax = _own_figure(1, 1, 5.0)
     labels: list[Label] = []
     styles: set[bool] = set()
     for seg in diagram.periodic_segments:
@@ -735,11 +769,13 @@ def plot_period(diagram: BifurcationDiagram, ax=None):
 
 
 def plot_limit_cycles(cycles: Sequence[LimitCycle], axes=None, labels: Sequence[str] | None = None):
-    """Projections of orbits on the planes x3 = 0 (x1, x2), x2 = 0 (x1, x3) and x1 = 0 (x2, x3)."""
-    from drill_env._figures import user_subplots
+    """Projections of orbits on the planes x3 = 0 (x1, x2), x2 = 0 (x1, x3) and x1 = 0 (x2, x3).
 
-    if axes is None:
-        _, axes = user_subplots(1, 3, figsize=(13, 4))
+    Without ``axes``: a figure of its own, the three projections in a 2 x 2 grid whose fourth
+    cell holds the legend; returns the three axes."""
+    own = axes is None
+    if own:
+        axes = _limit_cycle_axes()
     pairs = (("x1", "x2"), ("x1", "x3"), ("x2", "x3"))
     units = {"x1": "x1 = twist [rad]", "x2": "x2 = upper speed [rad/s]", "x3": "x3 = lower speed [rad/s]"}
     for i, c in enumerate(cycles):
@@ -755,9 +791,28 @@ def plot_limit_cycles(cycles: Sequence[LimitCycle], axes=None, labels: Sequence[
     for a, (px, py), t in zip(axes, pairs, titles, strict=True):
         a.set_xlabel(units[px])
         a.set_ylabel(units[py])
-        a.set_title(t)
+        a.set_title(t, fontsize=FONT + 1)
         a.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
+    if own:
+        handles, texts = axes[0].get_legend_handles_labels()
+        axes.legend_axes.legend(handles, texts, loc="center", fontsize=FONT, frameon=False)
+        axes[0].figure.tight_layout()
+    else:
+        axes[0].legend(fontsize=FONT)
+    return axes
+
+
+class _CycleAxes(list):
+    """The three projection axes of a limit-cycle figure, and the cell that holds its legend."""
+
+    legend_axes: Any = None
+
+
+def _limit_cycle_axes() -> _CycleAxes:
+    grid = _own_figure(2, 2, 6.6)
+    axes = _CycleAxes(grid.flat[:3])
+    axes.legend_axes = grid[1, 1]
+    axes.legend_axes.set_axis_off()
     return axes
 
 
@@ -773,17 +828,18 @@ def plot_fig9(diagram: BifurcationDiagram, ax=None, voltages: Sequence[float] = 
             kind = "stick-slip" if c.stick_slip else "no stick-slip"
             labels.append(f"u = {u:g} V, {kind}, {'stable' if c.stable else 'unstable'}")
     if not cycles:
-        from drill_env._figures import user_subplots
-
         if ax is None:
-            _, ax = user_subplots(1, 3, figsize=(13, 4))
-        ax[1].set_title(f"no limit cycle at u = {', '.join(f'{v:g}' for v in voltages)} V")
+            ax = _limit_cycle_axes()
+        ax[1].set_title(f"no limit cycle at u = {', '.join(f'{v:g}' for v in voltages)} V", fontsize=FONT + 1)
         return ax
     axes = plot_limit_cycles(cycles, axes=ax, labels=labels)
     title = f"limit cycles in state space, {diagram.preset}"
     if none_at:
-        title += f" (no limit cycle at u = {', '.join(f'{v:g}' for v in none_at)} V)"
-    axes[1].figure.suptitle(title)
+        title += f"\n(no limit cycle at u = {', '.join(f'{v:g}' for v in none_at)} V)"
+    fig = axes[1].figure
+    fig.suptitle(title, fontsize=FONT + 2)
+    if ax is None:
+        fig.tight_layout()
     return axes
 
 
@@ -804,8 +860,6 @@ def save_figures(diagram: BifurcationDiagram, out_dir, check: BruteForceCheck | 
         with offscreen():
             ax = diagram.plot(kind, **kw)
         fig = (ax[0] if isinstance(ax, np.ndarray | list | tuple) else ax).figure
-        if kind == "fig9":  # the others lay themselves out before placing their labels
-            fig.tight_layout()
-        save_figure(fig, out / name, dpi=130)
+        save_figure(fig, out / name, dpi=FIGURE_DPI)
         paths.append(out / name)
     return paths

@@ -61,8 +61,9 @@ def synth(
         help="Record this truth plant instead of the preset with a drawn effect: a plant file (rig "
         "YAML with effects, optionally actuator_delay [s], sensors: (whose counts_per_rev and "
         "angle_noise_std replace --counts and --angle-noise) and measurement: (encoder eccentricity, "
-        "applied to the recorded angles), e.g. a model.yaml of drill-env discrepancy). Its preset "
-        "(friction family) is --preset.",
+        "applied to the recorded angles) and amplifier: (gain, offset_v [V]: the amplifier applies "
+        "gain u + offset_v for the recorded u), e.g. a model.yaml of drill-env discrepancy). Its "
+        "preset (friction family) is --preset.",
     ),
     magnitude: float | None = typer.Option(
         None,
@@ -234,6 +235,8 @@ def synth(
                         delay_s=truth_file.actuator_delay,
                         source=str(plant),
                         measurement=truth_file.measurement,
+                        amplifier_gain=truth_file.amplifier_gain,
+                        amplifier_offset_v=truth_file.amplifier_offset_v,
                         progress=lambda i, n: prog.update(task, completed=i),
                     )
                 else:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -44,18 +45,17 @@ def plot_spectra(ax, comp_nominal, comp_after=None, title=""):
 
 
 def _decade_ticks(axis, limits: tuple[float, float]) -> None:  # noqa: ANN001
-    """Ticks of a symmetric-log axis (linear within +-1) at 0 and at whole decades from 10 on,
-    every other decade where there are more than six: 10^0 would sit on 0's label."""
+    """Ticks of a symmetric-log axis (linear within +-1) at 0 and at whole decades from 10 on
+    (10^0 would sit on 0's label), every k-th decade of each side so that at most seven are
+    labelled: labels clear of each other at the size the figure is drawn."""
     lo, hi = limits
     top = max(abs(lo), abs(hi), 10.0)
     decades = list(range(1, int(np.floor(np.log10(top))) + 1))
-    if len(decades) > 6:
-        decades = decades[::2]
-    ticks = (
-        [0.0]
-        + [10.0**k for k in decades if 10.0**k <= hi]
-        + [-(10.0**k) for k in decades if -(10.0**k) >= lo]
-    )
+    pos = [k for k in decades if 10.0**k <= hi]
+    neg = [k for k in decades if -(10.0**k) >= lo]
+    step = max(1, -(-(len(pos) + len(neg)) // 6))
+    pos, neg = pos[::-1][::step], neg[::-1][::step]  # the largest decade of each side kept
+    ticks = [0.0] + [10.0**k for k in pos] + [-(10.0**k) for k in neg]
     axis.set_ticks(sorted(ticks))
     axis.set_ticklabels(
         [
@@ -78,7 +78,8 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     # candidate gains
     from matplotlib.patches import Patch
 
-    fig, ax = subplots(figsize=(7, 3.2))
+    # 7 in wide, 9 pt text: legible where the docs draw a figure (724 px; drill_env._figures)
+    fig, ax = subplots(figsize=(7, 0.32 * len(d.scores) + 1.6))
     names = [s.name for s in d.scores]
     # A candidate can make the held-out fit worse (gain <= 0): a symmetric-log axis draws
     # those as bars to the left of zero instead of stubs at an arbitrary floor.
@@ -89,8 +90,9 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     ax.axvline(0.0, color="k", lw=0.6)
     ax.set_xscale("symlog", linthresh=1.0)
     _decade_ticks(ax.xaxis, ax.get_xlim())
-    ax.set_xlabel("held-out gain: drop of the sum of squares [noise units] (< 0: worse)")
-    ax.set_title("Candidate effects on the held-out runs", fontsize=9)
+    ax.set_xlabel("held-out gain: drop of the sum of squares\n[noise units] (< 0: worse)", fontsize=9)
+    ax.set_title("Candidate effects on the held-out runs", fontsize=10)
+    ax.tick_params(labelsize=9)
     ax.legend(
         handles=[
             Patch(color="tab:green", label="significant"),
@@ -99,15 +101,15 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         ],
         loc="upper left",
         bbox_to_anchor=(1.01, 1.0),
-        fontsize=7,
+        fontsize=9,
     )
     fig.tight_layout()
-    save_figure(fig, out / "candidates.png", dpi=110)
+    save_figure(fig, out / "candidates.png", dpi=150)
     figs.append(("candidates.png", "Held-out gain of each candidate against its significance threshold."))
 
     # equation error per run
     eqs = res.equations
-    fig, axes = subplots(2, 1, figsize=(9, 5), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(8, 5.6), sharex=True)
     for disk, ax in zip(("upper", "lower"), axes, strict=False):
         for i, eq in enumerate(eqs):
             w = getattr(eq, disk)
@@ -117,21 +119,34 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             ax.plot(x, w.z, ".", ms=2)
         ax.axhline(3, color="k", lw=0.5, ls=":", label="+-3 noise floors")
         ax.axhline(-3, color="k", lw=0.5, ls=":")
-        ax.set_ylabel(f"{disk} disk: residual torque\n/ its noise floor [-]", fontsize=8)
+        ax.set_ylabel(f"{disk} disk: residual torque\n/ its noise floor [-]", fontsize=9)
         ax.set_yscale("symlog", linthresh=3)
         # decades only: +-3 (the dotted lines) and 30 sit too close to their neighbours on
         # this axis for their labels to stay apart at the size the figure is drawn
         lim = max(10.0, float(np.max(np.abs(ax.get_ylim()))))
         ticks = [t for t in (1000, 100, 10) if t <= lim]
         ax.set_yticks([-t for t in ticks] + [0] + ticks[::-1])
-        ax.set_yticklabels([f"{-t:g}" for t in ticks] + ["0"] + [f"{t:g}" for t in ticks[::-1]], fontsize=8)
-    axes[0].legend(loc="upper right", fontsize=7)
-    axes[0].set_title("Nominal equation error per window (each run's windows in time order)", fontsize=9)
+        ax.set_yticklabels([f"{-t:g}" for t in ticks] + ["0"] + [f"{t:g}" for t in ticks[::-1]], fontsize=9)
+    axes[0].legend(loc="upper right", fontsize=9)
+    axes[0].set_title("Nominal equation error per window (each run's windows in time order)", fontsize=10)
     axes[1].set_xticks(np.arange(len(eqs)) + 0.45)
-    axes[1].set_xticklabels([eq.run.label.replace(" (", "\n(") for eq in eqs], fontsize=6)
-    axes[1].set_xlabel("run (windows from the start to the end of each recording)")
+    # the run's name, then what it is on short lines ("(varying\n-5-5 V)"): labels clear of
+    # their neighbours at 9 pt with ten runs
+    width = max(6, int(80 / max(len(eqs), 1)))
+    axes[1].set_xticklabels(
+        [
+            eq.run.label.split(" (")[0]
+            + "".join(
+                "\n" + w
+                for w in textwrap.wrap(eq.run.label[len(eq.run.label.split(" (")[0]) :].strip(), width)
+            )
+            for eq in eqs
+        ],
+        fontsize=9,
+    )
+    axes[1].set_xlabel("run (windows from the start to the end of each recording)", fontsize=9)
     fig.tight_layout()
-    save_figure(fig, out / "equation_error.png", dpi=110)
+    save_figure(fig, out / "equation_error.png", dpi=150)
     figs.append(
         (
             "equation_error.png",

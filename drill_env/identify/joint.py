@@ -46,6 +46,9 @@ LINEAR: tuple[str, ...] = tuple(p for p in IDENTIFIED_PARAMETERS if p not in HUM
 BETA_GRID = np.geomspace(0.02, 60.0, 26)  # [s/rad] Stribeck rates tried before refining
 BETA_BOUNDS = (1e-3, 500.0)  # [s/rad]
 HUMP_ALPHA = 1e-4  # level at which a hump term is kept
+SANDWICH_BLOCK = 10  # neighbouring windows per block of the sandwich covariance
+MERGED_RATES = 0.02  # two rates this close in log are one (see _merged)
+GRID_STARTS = 3  # best grid points refined (of those with linear parameters >= 0, and of all)
 NEGATIVE_MIN_WINDOWS = 10  # upper-disk windows turning backwards needed for T_sun, b_un
 
 
@@ -66,6 +69,7 @@ class RunRows:
     # (the residual of the model with the effects is x_lin p + humps + x_eff c); none: base only
     x_eff: np.ndarray | None = None  # (windows, len(effect_names))
     effect_names: tuple[str, ...] = ()
+    backward_upper: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # their row indices
 
     def hump(self, beta: float) -> np.ndarray:
         """H(beta) on every row (zero on the upper disk's) [N m per N m of T]."""
@@ -109,6 +113,7 @@ def run_rows(eq: RunEquations) -> RunRows:
         speed_l=speed,
         kernel=eq.w_tri / h2,
         negative_upper=int(np.sum(eq.upper.sign < 0)),
+        backward_upper=np.flatnonzero(eq.upper.sign < 0),
     )
 
 
@@ -121,6 +126,7 @@ class JointFit:
     cov: np.ndarray  # covariance of the free parameters (interval scale)
     sd_model: np.ndarray  # standard deviations from the window noise alone
     sd_jackknife: np.ndarray  # one-step jackknife over the runs
+    sd_sandwich: np.ndarray  # block sandwich: SANDWICH_BLOCK neighbouring windows of a run per block
     sd_information: np.ndarray  # from the window noise alone, unscaled by the misfit: what the data excite
     hump_terms: int  # 0, 1 or 2
     hump_tests: dict[str, float]  # chi2 of each added hump term, and the threshold
@@ -159,11 +165,6 @@ def _effect_names(rows: list[RunRows]) -> tuple[str, ...]:
     return names.pop() if names else ()
 
 
-def _stack(rows: list[RunRows]):
-    x = np.vstack([r.x_lin / r.sigma[:, None] for r in rows])
-    return x
-
-
 def _free_linear(scale: str, negative: bool) -> list[str]:
     out = [p for p in LINEAR if p != scale]
     if not negative:
@@ -178,17 +179,28 @@ class _Problem:
         self.rows = rows
         self.scale = scale
         self.free_lin = free_lin
-        x = _stack(rows)
+        # too few backward windows to fit the negative side of the upper friction: the windows
+        # that do turn backwards are left out (the negative side is reported as the positive
+        # side's, an assumption); fitted with the negative side held at zero they would pull
+        # every other parameter off
+        keep = []
+        for r in rows:
+            k_ = np.ones(r.sigma.size, dtype=bool)
+            if "upper_static_neg" not in free_lin:
+                k_[r.backward_upper] = False
+            keep.append(k_)
+        self.keep = keep
+        x = np.vstack([(r.x_lin / r.sigma[:, None])[k_] for r, k_ in zip(rows, keep, strict=True)])
         idx = [LINEAR.index(p) for p in free_lin]
         self.k_lin = len(idx)  # the base parameters (>= 0); the effects' coefficients follow (free)
         self.effect_names = _effect_names(rows)
         self.a = x[:, idx]
         if self.effect_names:
-            x_eff = np.vstack([r.x_eff / r.sigma[:, None] for r in rows])
+            x_eff = np.vstack([(r.x_eff / r.sigma[:, None])[k_] for r, k_ in zip(rows, keep, strict=True)])
             self.a = np.column_stack([self.a, x_eff])
         self.y = -x[:, LINEAR.index(scale[0])] * scale[1]
-        self.inv_sigma = np.concatenate([1.0 / r.sigma for r in rows])
-        self.run_of_row = np.concatenate([np.full(r.sigma.size, i) for i, r in enumerate(rows)])
+        self.inv_sigma = np.concatenate([1.0 / r.sigma[k_] for r, k_ in zip(rows, keep, strict=True)])
+        self.run_of_row = np.concatenate([np.full(int(k_.sum()), i) for i, k_ in enumerate(keep)])
         self._h: dict[float, np.ndarray] = {}
 
     @property
@@ -198,13 +210,16 @@ class _Problem:
     def hump(self, beta: float) -> np.ndarray:
         key = float(beta)
         if key not in self._h:
-            self._h[key] = np.concatenate([r.hump(beta) for r in self.rows]) * self.inv_sigma
+            self._h[key] = self._stacked([r.hump(beta) for r in self.rows])
             if len(self._h) > 200:
                 self._h.pop(next(iter(self._h)))
         return self._h[key]
 
     def hump_rate(self, beta: float) -> np.ndarray:
-        return np.concatenate([r.hump_rate(beta) for r in self.rows]) * self.inv_sigma
+        return self._stacked([r.hump_rate(beta) for r in self.rows])
+
+    def _stacked(self, cols: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate([c[k_] for c, k_ in zip(cols, self.keep, strict=True)]) * self.inv_sigma
 
     def lstsq(self, extra: list[np.ndarray]) -> tuple[np.ndarray, float]:
         a = np.column_stack([self.a, *extra]) if extra else self.a
@@ -215,18 +230,26 @@ class _Problem:
 
 def _grid_search(prob: _Problem, terms: int) -> tuple[tuple[float, ...], float]:
     """Best rates on the grid for a friction with ``terms`` hump terms, and the sum of squares."""
+    return _grid_starts(prob, terms, 1)[0]
+
+
+def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float, ...], float]]:
+    """The ``top`` best rates on the grid whose linear parameters are all >= 0, then the ``top``
+    best of all (best first, without repeats): the starts of the refinement. On a grid of ratio
+    1.38 the best pair can lie in another basin than the optimum (two rates that merge, their
+    amplitudes +-10^4), so more than one start is refined."""
     if terms == 0:
-        return (), prob.lstsq([])[1]
+        return [((), prob.lstsq([])[1])]
     # normal equations, with the hump columns precomputed on the grid
     a, y = prob.a, prob.y
     h = np.column_stack([prob.hump(b) for b in BETA_GRID])
     g_aa, g_ay = a.T @ a, a.T @ y
     g_ah, g_hh, g_hy = a.T @ h, h.T @ h, h.T @ y
     yy = float(y @ y)
-    # the best pair whose linear parameters are all >= 0 (a negative viscous slope can mimic a slow
-    # Stribeck term on the grid, and would be clipped away afterwards); the best of all if none is
-    best: tuple[tuple[float, ...], float] = ((), math.inf)
-    best_any: tuple[tuple[float, ...], float] = ((), math.inf)
+    # the best pairs whose linear parameters are all >= 0 (a negative viscous slope can mimic a slow
+    # Stribeck term on the grid, and would be clipped away afterwards), then the best of all
+    feasible: list[tuple[tuple[float, ...], float]] = []
+    every: list[tuple[tuple[float, ...], float]] = []
     k = a.shape[1]
     pairs = (
         [(i,) for i in range(BETA_GRID.size)]
@@ -247,11 +270,15 @@ def _grid_search(prob: _Problem, terms: int) -> tuple[tuple[float, ...], float]:
             continue
         ss = yy - float(coef @ b)
         here = (tuple(float(BETA_GRID[i]) for i in sel), ss)
-        if ss < best_any[1]:
-            best_any = here
-        if ss < best[1] and not np.any(coef[: prob.k_lin] < 0.0):
-            best = here
-    return best if best[0] else best_any
+        every.append(here)
+        if not np.any(coef[: prob.k_lin] < 0.0):
+            feasible.append(here)
+    out: list[tuple[tuple[float, ...], float]] = []
+    for pool in (feasible, every):
+        for here in sorted(pool, key=lambda x: x[1])[:top]:
+            if here not in out:
+                out.append(here)
+    return out or [(tuple(float(b) for b in BETA_GRID[:terms]), math.inf)]
 
 
 def _residual(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
@@ -273,35 +300,64 @@ def _jacobian(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
 def _refine(
     prob: _Problem, betas: tuple[float, ...], start: np.ndarray | None = None
 ) -> tuple[np.ndarray, float]:
-    """Every free parameter together from the grid's best rates, or from ``start`` (bounded
-    Gauss-Newton)."""
+    """Every free parameter together from the grid's best rates, or from ``start``'s.
+
+    Variable projection: at given rates the fit is a bounded linear least-squares problem,
+    solved exactly (:func:`_bounded_linear`); the rates alone (in log units) are refined by
+    bounded Gauss-Newton on the projected residual (Kaufman's Jacobian: the hump columns'
+    rate derivatives projected off the span of the columns not at a bound). A few dozen
+    evaluations of the hump columns instead of hundreds for the full problem."""
     terms = len(betas)
     k = prob.a.shape[1]
-    lo = np.concatenate([_linear_lower(prob), np.full(terms, -np.inf), np.full(terms, BETA_BOUNDS[0])])
-    hi = np.concatenate([np.full(k, np.inf), np.full(terms, np.inf), np.full(terms, BETA_BOUNDS[1])])
-    if start is None:
-        coef, _ = prob.lstsq([prob.hump(b) for b in betas])
-        x0 = np.concatenate([coef, np.asarray(betas, dtype=float)])
-    else:
-        x0 = np.asarray(start, dtype=float)
-    x0 = np.clip(x0, lo, hi)
-    if start is None and np.any(x0[: prob.k_lin] == 0.0):
-        # a linear parameter clipped to its bound: start from the bounded linear fit at these rates
-        x0[: k + terms] = _bounded_linear(prob, [prob.hump(b) for b in betas], k)
+    b0 = np.asarray(betas if start is None else np.asarray(start)[k + terms :], dtype=float)
+    b0 = np.clip(b0, BETA_BOUNDS[0], BETA_BOUNDS[1])
+    lo_lin = np.concatenate([_linear_lower(prob), np.full(terms, -np.inf)])
+    memo: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def inner(log_b: np.ndarray):
+        key = tuple(float(x) for x in log_b)
+        if key not in memo:
+            b = np.exp(log_b)
+            extra = [prob.hump(x) for x in b]
+            a = np.column_stack([prob.a, *extra])
+            coef = optimize.lsq_linear(a, prob.y, bounds=(lo_lin, np.inf), method="bvls").x
+            memo.clear()
+            memo[key] = (coef, a @ coef - prob.y, a)
+        return memo[key]
+
+    def jac(log_b: np.ndarray) -> np.ndarray:
+        coef, _, a = inner(log_b)
+        b = np.exp(log_b)
+        d = np.column_stack([coef[k + t] * b[t] * prob.hump_rate(b[t]) for t in range(terms)])
+        active = (coef <= lo_lin) & np.isfinite(lo_lin)
+        q, _ = np.linalg.qr(a[:, ~active])
+        return d - q @ (q.T @ d)
+
+    x0 = np.log(b0)
     sol = optimize.least_squares(
-        lambda th: _residual(prob, th, terms),
+        lambda lb: inner(lb)[1],
         x0,
-        jac=lambda th: _jacobian(prob, th, terms),
-        bounds=(lo, hi),
-        x_scale="jac",
+        jac=jac,
+        bounds=(np.log(BETA_BOUNDS[0]), np.log(BETA_BOUNDS[1])),
         method="trf",
-        max_nfev=500,
+        x_scale=1.0,
+        max_nfev=100,
     )
-    r = sol.fun
-    r0 = _residual(prob, x0, terms)
+    best_x = sol.x
+    coef, r, _ = inner(best_x)
+    c0, r0, _ = inner(x0)
     if float(r0 @ r0) < float(r @ r):  # never worse than where it started
-        return x0, float(r0 @ r0)
-    return sol.x, float(r @ r)
+        coef, r, best_x = c0, r0, x0
+    return np.concatenate([coef, np.exp(best_x)]), float(r @ r)
+
+
+def _merged(theta: np.ndarray, k: int, terms: int) -> bool:
+    """Two hump terms whose rates merged (within :data:`MERGED_RATES` in log): their amplitudes
+    run off to +-A with A (b1 - b2) fixed."""
+    if terms < 2:
+        return False
+    b1, b2 = float(theta[k + terms]), float(theta[k + terms + 1])
+    return abs(math.log(b1 / b2)) < MERGED_RATES
 
 
 def _linear_lower(prob: _Problem) -> np.ndarray:
@@ -328,12 +384,14 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
     k = prob.a.shape[1]
     fits: dict[int, tuple[np.ndarray, float]] = {}
     for terms in (0, 1, 2) if hump_terms is None else (hump_terms,):
-        betas, _ = _grid_search(prob, terms)
         if terms == 0:
             coef = _bounded_linear(prob, [], k)
             fits[0] = (coef, float(np.sum(_residual(prob, coef, 0) ** 2)))
         else:
-            fits[terms] = _refine(prob, betas)
+            fits[terms] = min(
+                (_refine(prob, betas) for betas, _ in _grid_starts(prob, terms, GRID_STARTS)),
+                key=lambda f: (_merged(f[0], k, terms), f[1]),
+            )
             if terms == 2 and 1 in fits:
                 # also grow the one-term fit by a second term (so that two terms never fit worse than
                 # one): its rate the best on the grid with the first term held
@@ -342,7 +400,7 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
                 best = min(BETA_GRID, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
                 start = np.concatenate([one[:k], [one[k], 0.0], [b1, best]])
                 grown = _refine(prob, (b1, float(best)), start=start)
-                if grown[1] < fits[2][1]:
+                if (_merged(grown[0], k, 2), grown[1]) < (_merged(fits[2][0], k, 2), fits[2][1]):
                     fits[2] = grown
     tests: dict[str, float] = {}
     if hump_terms is None:
@@ -352,6 +410,10 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
         d10 = (fits[0][1] - fits[1][1]) / s2
         d21 = (fits[1][1] - fits[2][1]) / s2
         d20 = (fits[0][1] - fits[2][1]) / s2
+        if _merged(fits[2][0], k, 2):
+            # two terms only as one rate with amplitudes +-A (a derivative of one term, not a
+            # friction curve of eq. 14): not a second term
+            d21 = d20 = -math.inf
         tests = {"one_term_vs_none": d10, "two_terms_vs_one": d21, "two_terms_vs_none": d20, "threshold": thr}
         if d21 > thr:
             chosen = 2
@@ -398,13 +460,31 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
         var_jk = (runs.size - 1) / runs.size * np.sum((loo_a - loo_a.mean(axis=0)) ** 2, axis=0)
     else:
         var_jk = np.zeros(p)
+    # block sandwich (cluster-robust) covariance: the score summed over blocks of SANDWICH_BLOCK
+    # neighbouring windows of a run, so that errors correlated from window to window and a
+    # misfit that differs along the run (not in the per-window noise model) widen the interval
+    score = jac * res[:, None]
+    blocks = []
+    for i in runs:
+        idx = np.flatnonzero(prob.run_of_row == i)
+        for a in range(0, idx.size, SANDWICH_BLOCK):
+            blocks.append(score[idx[a : a + SANDWICH_BLOCK]].sum(axis=0))
+    if len(blocks) > p:
+        sb = np.array(blocks)
+        meat = sb.T @ sb * (len(blocks) / (len(blocks) - p))
+        var_sw = np.diag(cov_info @ meat @ cov_info)
+    else:
+        var_sw = np.zeros(p)
     sd_model = np.sqrt(np.maximum(np.diag(cov_model), 0.0))
     sd_jk = np.sqrt(var_jk)
-    sd = np.maximum(sd_model, sd_jk)
+    sd_sw = np.sqrt(np.maximum(var_sw, 0.0))
+    sd = np.maximum(np.maximum(sd_model, sd_jk), sd_sw)
     corr = cov_model / np.outer(np.maximum(sd_model, 1e-300), np.maximum(sd_model, 1e-300))
     cov = corr * np.outer(sd, sd)
     # how much of each parameter's information comes from constant-voltage runs
-    const_rows = np.concatenate([np.full(r.sigma.size, r.constant) for r in rows])
+    const_rows = np.concatenate(
+        [np.full(int(k_.sum()), r.constant) for r, k_ in zip(rows, prob.keep, strict=True)]
+    )
     info_all = np.sum(jac**2, axis=0)
     info_const = np.sum(jac[const_rows] ** 2, axis=0)
     values: dict[str, float] = {scale[0]: float(scale[1])}
@@ -423,6 +503,7 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
         cov=cov,
         sd_model=sd_model,
         sd_jackknife=sd_jk,
+        sd_sandwich=sd_sw,
         sd_information=np.sqrt(np.maximum(np.diag(cov_info), 0.0)),
         hump_terms=chosen,
         hump_tests=tests,

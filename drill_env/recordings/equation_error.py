@@ -71,13 +71,16 @@ kernel sums; see :mod:`drill_env.recordings.effects`.
 
 from __future__ import annotations
 
+import functools
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.polynomial import polynomial as P
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
-from scipy.signal import oaconvolve, savgol_coeffs, savgol_filter
+from scipy.signal import oaconvolve, savgol_filter
+from scipy.signal import savgol_coeffs as _scipy_savgol_coeffs
 
 from drill_env.friction import hump_slope, hump_torque
 from drill_env.params import RigParams
@@ -219,6 +222,18 @@ def run_counts(run, noise: AngleNoise) -> float:
     return 2.0 * math.pi / (noise.quantisation * math.sqrt(12.0))
 
 
+@functools.lru_cache(maxsize=256)
+def _savgol_coeffs_cached(n: int, order: int, deriv: int, delta: float, use: str) -> np.ndarray:
+    c = _scipy_savgol_coeffs(n, order, deriv=deriv, delta=delta, use=use)
+    c.flags.writeable = False
+    return c
+
+
+def savgol_coeffs(n: int, order: int, *, deriv: int = 0, delta: float = 1.0, use: str = "conv") -> np.ndarray:
+    """scipy's ``savgol_coeffs``, computed once per window (read-only: shared)."""
+    return _savgol_coeffs_cached(int(n), int(order), int(deriv), float(delta), use)
+
+
 def _savgol(x: np.ndarray, half: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
     """Cubic Savitzky-Golay filter (``mode="interp"``), by FFT convolution away from the ends
     (direct convolution costs a window length per sample: minutes at 10 kHz)."""
@@ -240,8 +255,33 @@ def _savgol(x: np.ndarray, half: int, deriv: int = 0, delta: float = 1.0) -> np.
     return out
 
 
+# the adaptive speeds of a run's angles, computed once per array (they do not depend on the
+# model): every RunEquations of a run (each pass of the fit, each model tested) reuses them
+_SPEED_CACHE: dict[tuple, tuple[weakref.ref, tuple[np.ndarray, np.ndarray]]] = {}
+
+
 def _adaptive_speed(theta, halves, dt, travel):
     """Per sample, the Savitzky-Golay speed of the shortest window that covers ``travel`` [rad]."""
+    key = (id(theta), tuple(halves), float(dt), float(travel))
+    hit = _SPEED_CACHE.get(key)
+    if hit is not None and hit[0]() is theta:
+        return hit[1]
+    out = _adaptive_speed_of(theta, halves, dt, travel)
+    for v in out:
+        v.flags.writeable = False
+    try:
+        ref = weakref.ref(theta)
+    except TypeError:  # not weakly referenceable: not cached
+        return out
+    for k in [k for k, (r, _) in _SPEED_CACHE.items() if r() is None]:
+        del _SPEED_CACHE[k]
+    if len(_SPEED_CACHE) >= 256:
+        _SPEED_CACHE.pop(next(iter(_SPEED_CACHE)))
+    _SPEED_CACHE[key] = (ref, out)
+    return out
+
+
+def _adaptive_speed_of(theta, halves, dt, travel):
     speeds = [_savgol(theta, g, deriv=1, delta=dt) for g in halves]
     choice = np.full(theta.size, len(halves) - 1, dtype=np.int64)
     for i in range(len(halves) - 2, -1, -1):
@@ -305,6 +345,20 @@ def line_variance(
         return out
     P = 1 << int(math.ceil(math.log2(2 * N)))
     m = np.arange(1, weights.size + 1, dtype=float)
+    if coef.strides[0] == 0 or n == 1:
+        # one kernel for every window (a broadcast row): its spectrum once, the bands per window
+        power1 = np.abs(np.fft.fft(coef[0], P)) ** 2
+        cum1 = np.concatenate([[0.0], np.cumsum(np.concatenate([power1, power1]))])
+        err = 1.0 / N if rate_error is None else rate_error[:, None]
+        half = m[None, :] * (err + 0.5 * spread[:, None])  # [cycles/sample]
+        centre = np.mod(m[None, :] * np.abs(rate[:, None]), 1.0)
+        lo = np.floor((centre - half) * P + 0.5).astype(np.int64) % P
+        width = np.maximum(np.floor(2.0 * half * P + 0.5).astype(np.int64), 1)
+        white = width >= P
+        width = np.minimum(width, P)
+        band = (cum1[lo + width] - cum1[lo]) / width
+        band = np.where(white, power1.mean(), band)
+        return band @ weights
     rows = max(1, chunk // P)
     for a in range(0, n, rows):
         b = min(n, a + rows)

@@ -400,6 +400,7 @@ def _simulate_run(
     name: str,
     reading: MeasurementModel | None = None,
     delay_s: float = 0.0,
+    amplifier: tuple[float, float] = (1.0, 0.0),
 ) -> MeasuredRun:
     from drill_env.sensors import SensorConfig, measure
     from drill_env.simulator import simulate
@@ -411,12 +412,14 @@ def _simulate_run(
     t_final = (n_rec - 1) * dt
     angle0 = float(rng.uniform(0.0, _TWO_PI))
     x0 = {"theta_u": angle0, "theta_l": angle0}
+    gain, offset = amplifier  # the amplifier applies gain u + offset for the asked-for u
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a failed run is an error, below
         if np.ndim(u_levels) == 0:
-            res = simulate(truth, float(u_levels), t_final, x0=x0, dt=dt, t0=t0)
+            res = simulate(truth, gain * float(u_levels) + offset, t_final, x0=x0, dt=dt, t0=t0)
         else:
-            res = simulate(truth, u_levels, t_final, x0=x0, dt=dt, t0=t0, control_dt=cdt)
+            applied = gain * np.asarray(u_levels, dtype=float) + offset
+            res = simulate(truth, applied, t_final, x0=x0, dt=dt, t0=t0, control_dt=cdt)
     if res.status != 0:  # never write the frozen angles of a run that stopped
         raise ValueError(
             f"magnitude: the truth model of run {name} could not be simulated ({res.message.rstrip('.')}); "
@@ -575,12 +578,16 @@ def make_plant_dataset(
     source: str = "plant file",
     progress: Callable[[int, int], None] | None = None,
     measurement: MeasurementModel | None = None,
+    amplifier_gain: float = 1.0,
+    amplifier_offset_v: float = 0.0,
 ) -> SynthResult:
     """Record a given truth plant (a plant file's rig, effects included) like the rig: the runs
     of ``config`` through its encoders. ``delay_s`` [s] is the plant's actuator delay: the
     recorded (asked-for) voltage leads the applied one by it; ``measurement`` the reading errors
     of its encoders (a plant file's ``measurement:`` section), applied to the true angles before
-    the encoders' quantisation. The answer names the plant's effects and parameters."""
+    the encoders' quantisation; ``amplifier_gain`` and ``amplifier_offset_v`` [V] its amplifier's
+    errors (it applies ``gain u + offset`` when ``u`` is asked for and recorded). The answer names
+    the plant's effects and parameters."""
     if not isinstance(truth, RigParams):
         raise ValueError(f"truth: expected RigParams, got {type(truth).__name__}")
     if not (math.isfinite(delay_s) and 0.0 <= delay_s <= 1.0):
@@ -597,7 +604,15 @@ def make_plant_dataset(
     for i, design in enumerate(designs):
         runs.append(
             _simulate_run(
-                truth, design, cfg.hold_quantum_s, cfg, rng, f"run{i + 1:02d}", measurement, delay_s=delay_s
+                truth,
+                design,
+                cfg.hold_quantum_s,
+                cfg,
+                rng,
+                f"run{i + 1:02d}",
+                measurement,
+                delay_s=delay_s,
+                amplifier=(float(amplifier_gain), float(amplifier_offset_v)),
             )
         )
         if progress is not None:
@@ -613,6 +628,7 @@ def make_plant_dataset(
         "effects": _named_effects(truth)
         + [f"encoder_eccentricity_{d}" for d in (measurement.active if measurement is not None else ())],
         "actuator_delay": delay_s,
+        "amplifier": {"gain": float(amplifier_gain), "offset_v": float(amplifier_offset_v)},
         "parameter_errors": {
             n: float(getattr(truth, n)) / float(getattr(nominal, n)) - 1.0
             for n in IDENTIFIED

@@ -170,6 +170,16 @@ class EmulatedRig:
         self.truth = truth[-1]
         return counts, truth
 
+    def warm(self) -> None:
+        """Load (or compile) the simulator's code by integrating a copy of the state for one
+        sample period: the rig itself does not move. An emulator that serves before this has
+        its first answers late by the seconds this takes."""
+        st = {k: v.copy() for k, v in self._state.items()}
+        _advance(
+            st["p"], st["y"], st["modes"], st["ep"], st["ecfg"], st["scfg"], st["sst"], st["rng"],
+            self.voltage, 1, np.empty((1, 2), dtype=np.int64), np.empty((1, 6)),
+        )  # fmt: skip
+
     def apply(self, voltage: float) -> float:
         """Set the voltage applied from now on, within the amplifier's range; the voltage set."""
         self.voltage = min(max(float(voltage), -self.voltage_limit), self.voltage_limit)
@@ -369,6 +379,7 @@ def serve(
     def _term(signum, frame):  # noqa: ANN001
         raise KeyboardInterrupt
 
+    rig.warm()  # before the address is announced: the first HELLO is answered at once
     old = signal.signal(signal.SIGTERM, _term)
     bound = sock.getsockname()
     announce(f"emulate-rig: listening on udp {bound[0]}:{bound[1]}")

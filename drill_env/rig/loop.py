@@ -12,8 +12,9 @@ and slew-limits it before it is written.
 A run: an open-loop warm-up at the set point's nominal voltage (``warmup`` s, as the
 benchmark's episodes start on the open-loop behaviour), then the controller for
 ``duration`` s. It always ends at 0 V: at the end, on a supervisor trip (watchdog: no
-reading for ``watchdog_periods`` periods, or a controller call longer than its period;
-speed limit), on Ctrl-C and on any error.
+reading for ``watchdog_periods`` periods, as many commands in a row that the rig applied
+only after its next reading, or a controller call longer than its period; speed limit), on
+Ctrl-C and on any error.
 
 Every run writes into its output folder: ``recording/`` (the measured-data format of
 :mod:`drill_env.recordings.dataset`: ``dataset.json`` and one CSV ``t,u,theta_u,theta_l`` at
@@ -167,6 +168,7 @@ def run_loop(
     state = None
     start = np.ones((1,), dtype=bool)
     last_arrival = None
+    behind = 0  # periods in a row whose command the rig applied late
     ts = info.sample_period
 
     def event(t: float, kind: str, text: str) -> None:
@@ -209,10 +211,20 @@ def run_loop(
                 late = not command_applied(reading.last_command, res.log[-1]["command_seq"])
                 res.log[-1]["late_at_rig"] = late
                 res.log[-1]["missed_deadline"] = bool(res.log[-1]["missed_deadline"] or late)
+                behind = behind + 1 if late else 0
             res.ticks.append(reading.first_tick + np.arange(reading.n))
             res.counts_u.append(reading.counts_upper)
             res.counts_l.append(reading.counts_lower)
             res.voltage.append(reading.voltage)
+            if behind >= run.limits.watchdog_periods:
+                # the rig ran on old voltages for that long: as if no reading had come (a loop
+                # descheduled with readings waiting in its socket never waits for one)
+                raise Trip(
+                    "watchdog",
+                    f"watchdog: the loop fell behind the rig: its commands reached the rig a period late "
+                    f"{behind} times in a row ({run.limits.watchdog_periods} allowed: --watchdog-periods); "
+                    "0 V written, run stopped",
+                )
             t = (reading.first_tick + reading.n - 1) * ts  # the rig time of the last sample
             obs = obs_chain.update(
                 reading.first_tick, reading.counts_upper, reading.counts_lower, float(reading.voltage[-1])

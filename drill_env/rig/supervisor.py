@@ -5,7 +5,8 @@ rig: clamped to +-``voltage_limit`` (at most the amplifier's 5 V), then slew-lim
 ``slew_limit`` V/s (a step of at most ``slew_limit * control_dt`` per control period). Each
 reading passes :meth:`Supervisor.check_speed`: a lower-disk speed estimate beyond
 ``speed_limit`` trips it. The loop trips it too when no reading came for
-``watchdog_periods`` control periods or a controller call overran its period. A trip is
+``watchdog_periods`` control periods, when as many commands in a row reached the rig only
+after its next reading (the loop fell behind), or when a controller call overran its period. A trip is
 final: the loop writes 0 V, stops the rig and exits non-zero with the trip's one line.
 
 Defaults: 5 V; 100 V/s (the whole range in 50 ms: no benchmark controller's step is

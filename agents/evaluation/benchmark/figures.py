@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import functools
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -34,15 +35,29 @@ def _figures(df, preset: str, out: Path, plant: str = NOMINAL) -> list[Path]:
 
 
 def bifurcation_figure(df, preset: str, out: Path) -> Path:
-    """``bifurcation_<preset>.png``: one panel per controller, each with the nominal model's
-    bifurcation diagram (faded) and, at its exact voltage, every run's steady min and max of
-    x3 joined by a bar. Runs beyond the common scale end in a triangle at the panel's edge;
-    their range is written under the panel's title."""
+    """``bifurcation_<preset>.png``: a grid of panels, one per controller, each with the
+    nominal model's bifurcation diagram (faded) and, at its exact voltage, every run's steady
+    min and max of x3 joined by a bar. Runs beyond the common scale end in a triangle at the
+    panel's edge; their range is written under the panel's title. Legible at the docs' width
+    (:data:`drill_env._figures.MAX_WIDTH_IN`)."""
 
     fig = draw_bifurcation_figure(df, preset)
     p = out / f"bifurcation_{preset}.png"
-    save_figure(fig, p, dpi=100)
+    save_figure(fig, p, dpi=FIGURE_DPI)
     return p
+
+
+FIGURE_WIDTH = 8.0  # [in] the benchmark's figures, drawn 724 px wide in the docs
+FIGURE_DPI = 150
+FONT = 9.0  # [pt] the smallest text of the benchmark's figures (8.5 pt as shown in the docs)
+GRID_COLUMNS = 4
+LEGEND_WRAP = 30  # [characters] per line of a legend entry in the grid figures
+
+
+def _grid(n: int, ncol: int = GRID_COLUMNS) -> tuple[int, int, int]:
+    """Rows and columns of a grid of ``n`` panels and the empty slots left in its last row."""
+    nrow = -(-n // ncol)
+    return nrow, ncol, nrow * ncol - n
 
 
 def draw_bifurcation_figure(df, preset: str, diagram=None):
@@ -60,13 +75,14 @@ def draw_bifurcation_figure(df, preset: str, diagram=None):
     tops += [float(np.max(b.x3)) for b in diagram.equilibrium_branches]
     y_hi = 1.15 * max(tops + [1.0])
     y_lo = -0.08 * y_hi
-    ncol = 4
-    nrow = -(-len(ctrls) // ncol)
-    fig, axes = subplots(nrow, ncol, figsize=(17, 3.9 * nrow + 0.6), sharex=True, sharey=True, squeeze=False)
+    nrow, ncol, spare = _grid(len(ctrls))
+    legend_below = spare < 2  # the legend takes the empty slots of the last row, or a band below
+    height = 1.85 * nrow + 0.75 + (1.3 if legend_below else 0.0)
+    fig, axes = subplots(nrow, ncol, figsize=(FIGURE_WIDTH, height), sharex=True, sharey=True, squeeze=False)
     flat = [a for row in axes for a in row]
     handles: list = []
     for ax, c in zip(flat, ctrls, strict=False):
-        plot_bifurcation(diagram, ax, annotate=False, legend=False, lw=1.0, alpha=0.5)
+        plot_bifurcation(diagram, ax, annotate=False, legend=False, lw=0.9, alpha=0.5)
         handles = handles or list(ax.diagram_handles)
         r = df[df["controller"] == c]
         u = r["voltage"].to_numpy(dtype=float)
@@ -74,14 +90,20 @@ def draw_bifurcation_figure(df, preset: str, diagram=None):
         col, m = controller_style(c).colour, controller_style(c).marker
         inside_hi, inside_lo = hi <= y_hi, lo >= y_lo
         both = inside_hi & inside_lo  # a run beyond the scale gets no bar across the panel
-        ax.vlines(u[both], lo[both], hi[both], color=col, lw=1.0, alpha=0.8, zorder=4)
-        ax.plot(u[inside_hi], hi[inside_hi], m, color=col, ms=4.5, mfc="white", zorder=5)
-        ax.plot(u[inside_lo], lo[inside_lo], m, color=col, ms=4.5, mfc="white", zorder=5)
+        ax.vlines(u[both], lo[both], hi[both], color=col, lw=0.9, alpha=0.8, zorder=4)
+        ax.plot(u[inside_hi], hi[inside_hi], m, color=col, ms=3.5, mfc="white", mew=0.8, zorder=5)
+        ax.plot(u[inside_lo], lo[inside_lo], m, color=col, ms=3.5, mfc="white", mew=0.8, zorder=5)
         for beyond, y_edge, m_edge in ((~inside_hi, y_hi, "^"), (~inside_lo, y_lo, "v")):
             if beyond.any():  # on the frame, unclipped (an empty unclipped line would stretch
                 # the layout to the figure's corner)
                 ax.plot(
-                    u[beyond], np.full(beyond.sum(), y_edge), m_edge, color=col, ms=6, clip_on=False, zorder=6
+                    u[beyond],
+                    np.full(beyond.sum(), y_edge),
+                    m_edge,
+                    color=col,
+                    ms=4.5,
+                    clip_on=False,
+                    zorder=6,
                 )
         title = c
         off = ~(inside_hi & inside_lo)
@@ -89,24 +111,27 @@ def draw_bifurcation_figure(df, preset: str, diagram=None):
             vs = u[off]
             title += (
                 f"\n{int(off.sum())} runs off scale ({vs.min():g}-{vs.max():g} V):"
-                f"\nx3 from {lo[off].min():.1f} to {hi[off].max():.1f} rad/s"
+                f"\nx3 {lo[off].min():.1f} to {hi[off].max():.1f} rad/s"
             )
-        ax.set_title(title, fontsize=9, color=col if c != "open_loop" else "black")
+        # an off-scale note clears the triangles on the frame
+        ax.set_title(
+            title, fontsize=FONT, color=col if c != "open_loop" else "black", pad=6 if off.any() else 3
+        )
         ax.set_xlabel("")
         ax.set_ylabel("")
+        ax.tick_params(labelsize=FONT, length=2.5, pad=2)
     for ax in flat[len(ctrls) :]:
         ax.axis("off")
     for row in axes:
-        row[0].set_ylabel("steady min / max of x3 [rad/s]", fontsize=9)
-    for ax in axes[-1]:
-        ax.set_xlabel("nominal voltage u [V]", fontsize=9)
+        row[0].set_ylabel("x3 [rad/s]", fontsize=FONT)
     for k, ax in enumerate(flat[: len(ctrls)]):
         if k + ncol >= len(ctrls):  # the lowest panel of its column
             ax.tick_params(labelbottom=True)
-            ax.set_xlabel("nominal voltage u [V]", fontsize=9)
+            ax.set_xlabel("nominal u [V]", fontsize=FONT)
     ax0 = flat[0]
     ax0.set_ylim(y_lo, y_hi)
     ax0.set_xlim(0.0, 5.1)
+    ax0.set_xticks([0, 1, 2, 3, 4, 5])
     handles = [h for h in handles if "simulation" not in h.get_label()]
     handles += [
         Line2D(
@@ -115,23 +140,39 @@ def draw_bifurcation_figure(df, preset: str, diagram=None):
             color="0.3",
             marker="o",
             mfc="white",
-            ms=4.5,
-            lw=1.0,
+            ms=3.5,
+            lw=0.9,
             label="a run's steady min and max of x3",
         ),
         Line2D(
-            [], [], color="0.3", marker="^", ls="none", ms=6, label="run off scale (range under the title)"
+            [], [], color="0.3", marker="^", ls="none", ms=4.5, label="run off scale (range under the title)"
         ),
     ]
-    ncol_legend = 4
-    fig.legend(handles=handles, loc="lower center", fontsize=8, ncol=ncol_legend, frameon=False)
+    for h in handles:  # two columns of the width of the empty slots
+        h.set_label(textwrap.fill(h.get_label(), LEGEND_WRAP, break_on_hyphens=False))
     fig.suptitle(
-        f"{preset}: each controller's closed-loop runs (one per seed; steady state: the last "
-        f"{EpisodeSettings().window:g} s) on the nominal model's bifurcation diagram (faded)",
-        fontsize=11,
+        f"{preset}: each controller's runs (one per seed; steady min and max of x3 over the last "
+        f"{EpisodeSettings().window:g} s)\non the nominal model's bifurcation diagram (faded)",
+        fontsize=FONT + 1,
     )
-    legend_rows = -(-len(handles) // ncol_legend)
-    fig.tight_layout(rect=(0, (0.3 + 0.2 * legend_rows) / fig.get_figheight(), 1, 1))
+    if legend_below:
+        fig.tight_layout(rect=(0, 1.3 / height, 1, 1), h_pad=0.6, w_pad=0.4)
+        fig.legend(handles=handles, loc="lower center", fontsize=FONT, ncol=2, frameon=False)
+    else:
+        fig.tight_layout(h_pad=0.6, w_pad=0.4)
+        empty = flat[len(ctrls) :]
+        x0 = min(a.get_position().x0 for a in empty)
+        x1 = max(a.get_position().x1 for a in empty)
+        y0 = min(a.get_position().y0 for a in empty)
+        y1 = max(a.get_position().y1 for a in empty)
+        fig.legend(
+            handles=handles,
+            loc="center",
+            bbox_to_anchor=(x0, y0 - 0.03, x1 - x0, y1 - y0 + 0.03),
+            fontsize=FONT,
+            ncol=2 if spare >= 3 else 1,
+            frameon=False,
+        )
     return fig
 
 
@@ -149,20 +190,51 @@ def _regime_handles(preset: str) -> list:
 
 _REGIME_SHADES = {"limit_cycle": "tab:orange", "stick_slip": "tab:red"}
 FLOOR_BAND = 0.45  # [-] height of the band under the floor where off-scale means are written
+FLOOR_LABEL_WIDTH = 0.42  # [in] room for one written mean ("-33.8") in that band
 
 
-def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False) -> None:
+LEADING = 0.95  # [-] controllers whose mean suppression is at least this at every voltage ...
+LEADERS_COLOUR = "0.45"  # ... are drawn as one band on the linear scale (told apart on the log one)
+
+
+def leading_controllers(df, ctrls, threshold: float = LEADING) -> list[str]:
+    """The controllers of ``ctrls`` whose mean suppression over seeds is at least ``threshold``
+    at every voltage with an open-loop cycle (none unless at least two): on a linear scale they
+    would lie on one line at 1, so the suppression panels draw them as one band."""
+    cyc = df[df["open_loop_amplitude"] > 0]
+    out = []
+    for c in ctrls:
+        g = cyc[cyc["controller"] == c].groupby("voltage")["suppression"].mean()
+        if len(g) and bool((g >= threshold).all()):
+            out.append(c)
+    return out if len(out) >= 2 else []
+
+
+def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False, group: bool = True) -> list[str]:
     """Suppression against voltage of each controller (mean over seeds, seed range as bars),
     every marker at its run's voltage. Means below the floor are drawn on it and written in
-    a band beneath it (only when not ``small``)."""
+    a band beneath it (only when not ``small``). With ``group``, the
+    :func:`leading_controllers` are drawn as one band from the lowest to the highest of their
+    means at each voltage (returned), not as lines on top of each other."""
     cyc = df[df["open_loop_amplitude"] > 0]
     for name, lo, hi in _regime_spans(preset):
         if name in _REGIME_SHADES:
             ax.axvspan(lo, hi, color=_REGIME_SHADES[name], alpha=0.15, lw=0, zorder=0)
+    leaders = leading_controllers(df, ctrls) if group else []
+    if leaders:
+        means = cyc[cyc["controller"].isin(leaders)].groupby(["voltage", "controller"])["suppression"].mean()
+        band = means.groupby(level="voltage").agg(["min", "max"])
+        v = band.index.to_numpy(dtype=float)
+        ax.fill_between(
+            v, band["min"], band["max"], color=LEADERS_COLOUR, alpha=0.5, lw=0, zorder=2,
+            label=f"grey band: the {len(leaders)} controllers at {LEADING:g} or more at every voltage "
+            "(lowest to highest mean; told apart below)",
+        )  # fmt: skip
+        ax.plot(v, band["min"], "-", color=LEADERS_COLOUR, lw=1.2 if small else 2.0, zorder=2.1)
     floored: list[tuple[float, float, str]] = []
     for c in ctrls:
         r = cyc[cyc["controller"] == c]
-        if r.empty:
+        if r.empty or c in leaders:
             continue
         g = r.groupby("voltage")["suppression"]
         v = np.array(sorted(g.groups))
@@ -195,16 +267,19 @@ def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False) -> Non
         bottom = Y_FLOOR - FLOOR_BAND
         ax.axhspan(bottom, Y_FLOOR - 0.04, color="white", zorder=2.5)  # a band clear of lines
         ax.axhline(Y_FLOOR - 0.04, color="0.5", lw=0.6, ls="--", zorder=2.6)
-        rows: dict[float, int] = {}
+        ends: list[float] = []  # per row of labels: the voltage where its last label ends
+        gap = FLOOR_LABEL_WIDTH * 5.1 / max(ax.get_position().width * ax.figure.get_figwidth(), 1e-9)
         for vv, mm, c in sorted(floored):
-            k = rows.get(vv, 0)
-            rows[vv] = k + 1
+            k = next((i for i, end in enumerate(ends) if vv - end >= gap), len(ends))
+            if k == len(ends):
+                ends.append(vv)
+            ends[k] = vv
             ax.annotate(
                 f"{mm:.1f}",
                 (vv, Y_FLOOR - 0.04),
-                xytext=(0, -3 - 9 * k),
+                xytext=(0, -3 - 11 * k),
                 textcoords="offset points",
-                fontsize=7,
+                fontsize=FONT,
                 color=controller_style(c).colour,
                 ha="center",
                 va="top",
@@ -213,6 +288,7 @@ def _draw_suppression(ax, df, preset: str, ctrls, *, small: bool = False) -> Non
     ax.set_ylim(bottom, 1.1)
     ax.set_xlim(0.0, 5.1)
     ax.grid(alpha=0.3)
+    return leaders
 
 
 SHORTFALL_FLOOR = 1e-4  # [-] a mean shortfall 1 - suppression below this is drawn at it
@@ -271,42 +347,52 @@ def _suppression_figure(df, preset: str, out: Path, plant: str, ctrls) -> list[P
 
     from drill_env._figures import subplots
 
-    fig, (ax, ax_log) = subplots(2, 1, figsize=(12.5, 8.6), sharex=True)
+    fig, (ax, ax_log) = subplots(2, 1, figsize=(FIGURE_WIDTH, 9.6), sharex=True)
     _draw_suppression(ax, df, preset, ctrls)
     _draw_shortfall(ax_log, df, preset, ctrls)
-    ax_log.set_xlabel("nominal voltage u [V]")
-    ax.set_ylabel("suppression = 1 - amplitude / open-loop amplitude [-]")
-    ax_log.set_ylabel("shortfall 1 - suppression [-]\n(mean over seeds, log scale)")
-    on = "" if plant == NOMINAL else f" on plant {plant} (reference: the open-loop run on it)"
-    ax.set_title(f"{preset}{on}: suppression of the open-loop cycle", fontsize=10)
+    ax_log.set_xlabel("nominal voltage u [V]", fontsize=FONT)
+    ax.set_ylabel("suppression [-]\n1 - amplitude / open-loop amplitude", fontsize=FONT)
+    ax_log.set_ylabel("shortfall 1 - suppression [-]\n(mean over seeds, log scale)", fontsize=FONT)
+    on = "" if plant == NOMINAL else f" on plant {plant}\n(reference: the open-loop run on it)"
+    ax.set_title(f"{preset}{on}: suppression of the open-loop cycle", fontsize=FONT + 1)
     ax_log.set_title(
-        f"the same means as shortfall: 0.99 -> 1e-2, 0.999 -> 1e-3 (below {SHORTFALL_FLOOR:g} drawn at it; "
+        f"the same means as shortfall: 0.99 -> 1e-2, 0.999 -> 1e-3\n(below {SHORTFALL_FLOOR:g} drawn at it; "
         f"means at or below {SHORTFALL_ABOVE:g} only above)",
-        fontsize=9,
+        fontsize=FONT,
     )
-    handles, _ = ax.get_legend_handles_labels()
-    handles = [Line2D([], [], ls="none", label="mean over seeds, bar: min-max:"), *handles]
+    for a in (ax, ax_log):
+        a.tick_params(labelsize=FONT)
+    handles, _ = ax_log.get_legend_handles_labels()
+    seen = {h.get_label() for h in handles}
+    handles += [h for h in ax.get_legend_handles_labels()[0] if h.get_label() not in seen]
+    handles = sorted(
+        handles, key=lambda h: CONTROLLERS.index(h.get_label()) if h.get_label() in CONTROLLERS else 99
+    )
     handles += [
         Line2D([], [], color="gray", lw=0.8, ls=":", label="1: cycle removed"),
         Line2D([], [], color="gray", lw=0.8, label="0: amplitude as open loop"),
         Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="amplifier limit 5 V"),
         *_regime_handles(preset),
     ]
-    if any(t.get_text() for t in ax.texts):
+    if any(t.get_text() for t in ax.texts if t.get_text()[:1] in "-0123456789"):
         handles.append(
             Line2D(
-                [],
-                [],
-                color="0.5",
-                lw=0.6,
-                ls="--",
-                label=f"below {Y_FLOOR:g}: drawn at {Y_FLOOR:g},\nmean written under the dashed line",
+                [], [], color="0.5", lw=0.6, ls="--",
+                label=f"below {Y_FLOOR:g}: drawn at {Y_FLOOR:g}, mean written under the dashed line",
             )
-        )
-    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    fig.tight_layout()
+        )  # fmt: skip
+    for h in handles:
+        h.set_label(textwrap.fill(h.get_label(), 34, break_on_hyphens=False))
+    ncol = 3
+    rows = sum(-(-len(h.get_label().splitlines()) // 1) for h in handles) / ncol
+    legend_in = 0.21 * rows + 0.3
+    fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1))
+    fig.legend(
+        handles=handles, loc="lower center", fontsize=FONT, ncol=ncol, frameon=False,
+        title="mean over seeds (bar: seed range)", title_fontsize=FONT,
+    )  # fmt: skip
     p = out / (f"suppression_{preset}.png" if plant == NOMINAL else f"suppression_{preset}_{plant}.png")
-    save_figure(fig, p, dpi=110)
+    save_figure(fig, p, dpi=FIGURE_DPI)
     return [p]
 
 
@@ -319,42 +405,71 @@ def _plants_figure(df, preset: str, out: Path, plants: Sequence[str]) -> Path:
 
     ok = df[(df["preset"] == preset) & (df["error"] == "")]
     ctrls = ordered_controllers(ok["controller"])
-    ncol = 4
-    nrow = -(-(len(plants) + 1) // ncol)  # one slot for the legend
-    fig, axes = subplots(nrow, ncol, figsize=(16, 2.6 * nrow + 1.0), sharex=True, sharey=True, squeeze=False)
+    ncol = GRID_COLUMNS
+    n_legend_slots = 3
+    nrow = -(-(len(plants) + n_legend_slots) // ncol)  # the legend takes the last slots
+    fig, axes = subplots(
+        nrow, ncol, figsize=(FIGURE_WIDTH, 1.75 * nrow + 0.8), sharex=True, sharey=True, squeeze=False
+    )
     flat = [a for row in axes for a in row]
     for k, plant in enumerate(plants):
         ax = flat[k]
         _draw_suppression(ax, ok[ok["plant"] == plant], preset, ctrls, small=True)
-        ax.set_title(plant, fontsize=9)
+        ax.set_title(plant, fontsize=FONT, pad=3)
         ax.set_ylim(Y_FLOOR - 0.1, 1.1)
+        ax.tick_params(labelsize=FONT, length=2.5, pad=2)
         if k % ncol == 0:
-            ax.set_ylabel("suppression [-]")
+            ax.set_ylabel("suppression [-]", fontsize=FONT)
         if k + ncol >= len(plants):  # the lowest panel of its column
-            ax.set_xlabel("nominal voltage u [V]")
+            ax.set_xlabel("nominal u [V]", fontsize=FONT)
             ax.tick_params(labelbottom=True)
     for ax in flat[len(plants) :]:
         ax.axis("off")
-    handles, _ = flat[0].get_legend_handles_labels()
-    handles = [Line2D([], [], ls="none", label="mean over seeds, bar: min-max:"), *handles]
+    from matplotlib.patches import Patch
+
+    # every controller (a panel draws its leaders as one band: which ones differs by plant)
+    handles = [
+        Line2D(
+            [], [], marker=controller_style(c).marker, color=controller_style(c).colour, mfc="none", label=c
+        )
+        for c in ctrls
+    ]
+    handles.append(
+        Patch(
+            color=LEADERS_COLOUR,
+            alpha=0.5,
+            label=f"band: those at {LEADING:g}+ everywhere",
+        )
+    )
+    regimes = _regime_handles(preset)
+    for h in regimes:  # short: the legend fits the empty slots
+        h.set_label(h.get_label().replace("nominal model: ", "").replace(" without stick", ""))
     handles += [
-        Line2D([], [], color="gray", lw=0.8, ls=":", label="1: cycle removed"),
-        Line2D([], [], color="gray", lw=0.8, label="0: amplitude as open loop"),
-        Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="amplifier limit 5 V"),
-        *_regime_handles(preset),
+        Line2D([], [], color="gray", lw=0.8, ls=":", label="1: removed"),
+        Line2D([], [], color="gray", lw=0.8, label="0: as open loop"),
+        Line2D([], [], color="tab:purple", lw=1.0, ls="-.", label="5 V limit"),
+        *regimes,
     ]
     fig.suptitle(
-        f"{preset}: suppression on each plant, controllers designed on the nominal model "
+        f"{preset}: suppression on each plant, controllers designed on the nominal model\n"
         f"(reference: the open-loop run on the same plant; means below {Y_FLOOR:g} drawn at {Y_FLOOR:g})",
-        fontsize=10,
+        fontsize=FONT + 1,
     )
-    fig.tight_layout(rect=(0, 0, 1, 0.985))
-    # after the layout, which would otherwise shrink every panel to the legend's width
-    flat[len(plants)].legend(
-        handles=handles, loc="upper left", bbox_to_anchor=(0.05, 0.95), fontsize=8, frameon=False, ncol=3
-    )
+    fig.tight_layout(h_pad=0.6, w_pad=0.4)
+    # after the layout, which would otherwise shrink every panel to the legend's width: in the
+    # empty slots of the last rows
+    empty = flat[len(plants) :]
+    x0, x1 = min(a.get_position().x0 for a in empty), max(a.get_position().x1 for a in empty)
+    y0, y1 = min(a.get_position().y0 for a in empty), max(a.get_position().y1 for a in empty)
+    for h in handles:
+        h.set_label(textwrap.fill(h.get_label(), 22, break_on_hyphens=False))
+    fig.legend(
+        handles=handles, loc="center", bbox_to_anchor=(x0, y0 - 0.01, x1 - x0, y1 - y0), fontsize=FONT,
+        frameon=False, ncol=3, handlelength=1.4, columnspacing=0.8, labelspacing=0.25, borderaxespad=0.0,
+        title="mean over seeds (bar: seed range); shaded: the nominal model's regimes", title_fontsize=FONT,
+    )  # fmt: skip
     p = out / f"suppression_{preset}_plants.png"
-    save_figure(fig, p, dpi=100)
+    save_figure(fig, p, dpi=FIGURE_DPI)
     return p
 
 
@@ -389,7 +504,8 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     volts = [v for w in worst.values() for v in w]
     pad = 0.05 * (max(volts) - min(volts)) + 0.05
     xlim = (min(volts) - pad, max(volts) + pad)
-    fig, axes = subplots(1, 2 if pairs else 1, figsize=(15 if pairs else 9, 5.4), squeeze=False)
+    # one panel above the other (the second: each robust policy against its counterpart)
+    fig, axes = subplots(2 if pairs else 1, 1, figsize=(FIGURE_WIDTH, 8.4 if pairs else 5.0), squeeze=False)
     ax = axes[0][0]
     for name, lo, hi in _regime_spans(preset):
         if name in _REGIME_SHADES:
@@ -404,7 +520,8 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
             style.marker + "-",
             color=style.colour,
             mfc="none",
-            ms=6,
+            ms=5,
+            lw=1.0,
             label=c,
         )
     ax.set_yscale("log")
@@ -412,23 +529,27 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
     ax.axhline(0.1, color="gray", lw=0.8, ls="--")
     ax.set_xlim(*xlim)
     ax.grid(alpha=0.3, which="both")
-    ax.set_xlabel("nominal voltage u [V]")
-    ax.set_ylabel("1 - suppression = worst amplitude\n/ open-loop amplitude [-] (log)")
-    ax.set_title(f"{preset}: worst run over {n_plants} plants and every seed, at each voltage", fontsize=10)
+    ax.set_xlabel("nominal voltage u [V]", fontsize=FONT)
+    ax.set_ylabel("1 - suppression = worst amplitude\n/ open-loop amplitude [-] (log)", fontsize=FONT)
+    ax.tick_params(labelsize=FONT)
+    ax.set_title(
+        f"{preset}: worst run over {n_plants} plants and every seed, at each voltage", fontsize=FONT + 1
+    )
     handles, _ = ax.get_legend_handles_labels()
     handles += [
         Line2D([], [], color="gray", lw=0.8, label="1: as open loop"),
         Line2D([], [], color="gray", lw=0.8, ls="--", label="0.1: suppression 0.9"),
         *_regime_handles(preset),
     ]
-    # one panel (no robust policy with its counterpart) is narrower: fewer legend columns
-    ncol = 6 if pairs else 3
-    fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
-    n_legend = len(handles)
+    ncol = 4
+    for h in handles:
+        h.set_label(textwrap.fill(h.get_label(), 24, break_on_hyphens=False))
+    fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=FONT, frameon=False)
+    legend_lines = sum(len(h.get_label().splitlines()) for h in handles)
     if pairs:
         from drill_env.agents.evaluation.robustness import worst_case_verdict
 
-        ax = axes[0][1]
+        ax = axes[1][0]
         margins: list[float] = []
         for robust, nominal in pairs:
             vs = sorted(set(worst[robust]) & set(worst[nominal]))
@@ -441,7 +562,7 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
                 style.marker + "-",
                 color=style.colour,
                 mfc="none",
-                ms=6,
+                ms=5,
                 label=f"{robust} - {nominal}: >= 0 at {verdict['at_least']} of {verdict['voltages']} voltages",
             )
             ax.plot(np.array(vs)[margin < 0], margin[margin < 0], "x", color="tab:red", ms=8, mew=2)
@@ -454,15 +575,18 @@ def worst_case_figure(df, preset: str, out: Path) -> Path | None:
 
         ax.yaxis.set_minor_locator(SymmetricalLogLocator(base=10, linthresh=0.01, subs=range(2, 10)))
         ax.grid(alpha=0.3, which="both")
-        ax.set_xlabel("nominal voltage u [V]")
-        ax.set_ylabel("difference of worst suppression [-] (symlog)")
-        ax.set_title("robust policy less its nominal-trained counterpart (worst runs, left)", fontsize=10)
+        ax.set_xlabel("nominal voltage u [V]", fontsize=FONT)
+        ax.set_ylabel("difference of worst\nsuppression [-] (symlog)", fontsize=FONT)
+        ax.tick_params(labelsize=FONT)
+        ax.set_title(
+            "robust policy less its nominal-trained counterpart (worst runs, above)", fontsize=FONT + 1
+        )
         handles, _ = ax.get_legend_handles_labels()
         if any(m < 0 for m in margins):
             handles.append(Line2D([], [], color="tab:red", marker="x", ls="none", mew=2, label="behind"))
-        ax.legend(handles=handles, fontsize=8, loc="upper right")
-    legend_rows = -(-(len(worst) + 2) // 6) if pairs else -(-n_legend // ncol)
-    fig.tight_layout(rect=(0, (0.15 + 0.22 * legend_rows) / fig.get_figheight(), 1, 1))
+        ax.legend(handles=handles, fontsize=FONT, loc="upper right")
+    legend_rows = -(-legend_lines // ncol) + 1
+    fig.tight_layout(rect=(0, (0.15 + 0.19 * legend_rows) / fig.get_figheight(), 1, 1))
     p = out / f"worst_case_{preset}.png"
-    save_figure(fig, p, dpi=110)
+    save_figure(fig, p, dpi=FIGURE_DPI)
     return p

@@ -8,6 +8,7 @@ interval: the leading controllers told apart where their suppression all reads 0
 from __future__ import annotations
 
 import json
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -157,6 +158,23 @@ def write_rankings(
     return paths
 
 
+MAX_DECADE_TICKS = 7  # labelled ticks of the difference axis at the most (labels clear of each other)
+
+
+def _symlog_ticks(low: float, high: float) -> list[float]:
+    """Ticks of the symmetric log axis from ``low`` to ``high``: 0 and the powers of ten beyond
+    :data:`LINEAR_BELOW` on each side, every k-th decade so that at most
+    :data:`MAX_DECADE_TICKS` are labelled."""
+    e0 = int(np.floor(np.log10(LINEAR_BELOW) + 1e-9))
+    pos = [10.0**e for e in range(e0, 3) if 10.0**e <= high]
+    neg = [-(10.0**e) for e in range(e0, 3) if -(10.0**e) >= low]
+    step = max(1, -(-(len(pos) + len(neg)) // (MAX_DECADE_TICKS - 1)))
+    if step > 1:  # a crowded axis: the largest decades kept, none at +-LINEAR_BELOW beside 0
+        pos, neg = pos[::-1][::step][::-1], neg[::-1][::step][::-1]
+        pos, neg = [x for x in pos if x > LINEAR_BELOW * 1.5], [x for x in neg if x < -LINEAR_BELOW * 1.5]
+    return sorted([0.0, *pos, *neg])
+
+
 def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
     """Two panels, one row per controller whose mean score is above :data:`SHOWN_ABOVE` (better
     than open loop), by rank:
@@ -174,7 +192,8 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
     left_out = [r for r in rows if r not in shown]
     k = len(shown)
     best = rows[0]["controller"]
-    fig, (ax1, ax2) = subplots(1, 2, figsize=(11.0, 0.42 * k + 2.3), sharey=True)
+    font = 9.0  # 8 in wide, 9 pt: legible at the docs' width (drill_env._figures)
+    fig, (ax1, ax2) = subplots(1, 2, figsize=(8.0, 0.34 * k + 2.6), sharey=True)
     y = np.arange(k)[::-1]
     pairs = {(r["a"], r["b"]): r for r in st.pairs.to_dict("records")}
     widest = LINEAR_BELOW
@@ -213,37 +232,49 @@ def ranking_figure(st: PairedStatistics, title: str, path: Path) -> Path:
             capsize=3,
         )
     ax1.set_yticks(y, [f"{r['rank']}. {r['controller']}" for r in shown])
+    for a in (ax1, ax2):
+        a.tick_params(labelsize=font)
     ax1.set_xscale("log")
     # better to the right in both panels
     ax1.set_xlim(min(1.0, 2.0 * max(shortfalls)), max(SHORTFALL_FLOOR, min(shortfalls)) / 2.0)
-    ax1.set_xlabel(f"shortfall 1 - mean {st.score} [-]\n(log scale; 0.99 -> 1e-2, 0.999 -> 1e-3)")
-    # ticks at 1, 2 and 5 of each decade, labelled as numbers (0.005), no crowded minor labels
-    ax1.xaxis.set_major_locator(FixedLocator([m * 10.0**e for e in range(-5, 1) for m in (1, 2, 5)]))
+    ax1.set_xlabel(f"shortfall 1 - mean {st.score} [-]\n(log; 0.99 -> 1e-2, 0.999 -> 1e-3)", fontsize=font)
+    # labelled ticks as numbers (0.001): at each decade, unlabelled ones at 2 and 5 of it (labels
+    # that do not overlap at the docs' width); on an axis of less than two decades at 1, 2 and 5
+    lo_x, hi_x = sorted(ax1.get_xlim())
+    narrow = np.log10(hi_x / lo_x) < 2.0
+    every = [m * 10.0**e for e in range(-5, 1) for m in (1, 2, 5)]
+    decades = [10.0**e for e in range(-5, 1)]
+    ax1.xaxis.set_major_locator(FixedLocator(every if narrow else decades))
+    ax1.xaxis.set_minor_locator(FixedLocator([] if narrow else [t for t in every if t not in decades]))
     ax1.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
     ax1.xaxis.set_minor_formatter(NullFormatter())
     ax1.grid(alpha=0.3, which="both")
     ax2.axvline(0.0, color="gray", lw=0.8)
     ax2.set_xscale("symlog", linthresh=LINEAR_BELOW, linscale=0.5)
     ax2.set_xlim(2.0 * widest, 2.0 * lowest)
+    ax2.xaxis.set_major_locator(FixedLocator(_symlog_ticks(2.0 * lowest, 2.0 * widest)))
     ax2.set_xlabel(
-        f"{best} - controller [-], paired difference\nof mean {st.score} (linear within +-{LINEAR_BELOW:g})"
+        f"{best} - controller [-]: paired difference\nof mean {st.score} (linear within +-{LINEAR_BELOW:g})",
+        fontsize=font,
     )
     ax2.grid(alpha=0.3, which="both")
     handles = [
         Line2D([], [], marker="o", ls="none", color="0.3", label="resolved: interval excludes 0"),
         Line2D([], [], marker="o", ls="none", color="0.3", mfc="white", label="not resolved"),
     ]
-    ax2.legend(handles=handles, fontsize=8, loc="upper left")
+    ax2.legend(handles=handles, fontsize=font, loc="upper left")
     pct = f"{100 * st.confidence:g} %"
-    fig.suptitle(f"{title}: {st.n_units} paired units, {pct} {st.method} bootstrap intervals", fontsize=10)
+    fig.suptitle(
+        f"{title}:\n{st.n_units} paired units, {pct} {st.method} bootstrap intervals", fontsize=font + 1
+    )
     if left_out:
-        fig.text(
-            0.01,
-            0.01,
+        note = textwrap.fill(
             f"not drawn (mean {st.score} at most {SHOWN_ABOVE:g}, as open loop or worse): "
             + ", ".join(f"{r['controller']} {_num(r['score'])}" for r in left_out),
-            fontsize=8,
+            100,
         )
-    fig.tight_layout(rect=(0, 0.04 if left_out else 0, 1, 1))
-    save_figure(fig, path, dpi=110)
+        fig.text(0.01, 0.01, note, fontsize=font)
+    n_note = len(note.splitlines()) if left_out else 0
+    fig.tight_layout(rect=(0, (0.05 + 0.17 * n_note) / fig.get_figheight(), 1, 1))
+    save_figure(fig, path, dpi=150)
     return path
