@@ -55,6 +55,7 @@ __all__ = [
     "check_new_folder",
     "MARKER_NAME",
     "OutputWriteError",
+    "StaleLockWarning",
     "ResumeError",
     "check_command_folder",
     "command_folder",
@@ -88,6 +89,12 @@ class OutputFolderBusy(OutputFolderError):
 class ResumeError(OutputFolderError):
     """A partial file left by an interrupted run cannot be resumed from (empty, truncated,
     foreign, another version's): the message names it and the choice (``--fresh``)."""
+
+
+class StaleLockWarning(RuntimeWarning):
+    """A lock left by a run that is gone was taken over (shown by the CLI as one line)."""
+
+    one_line = True
 
 
 class OutputWriteError(OutputFolderError):
@@ -440,7 +447,7 @@ def _acquire(folder: Path, what: str, folder_key: str) -> tuple[Path, str, int]:
                 warnings.warn(
                     f"{folder}: taking over the lock left by a run that is gone ({gone}); "
                     "its results in this folder may be incomplete",
-                    RuntimeWarning,
+                    StaleLockWarning,
                     stacklevel=4,
                 )
                 _take_over(path, ident)

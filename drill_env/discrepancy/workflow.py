@@ -329,7 +329,7 @@ def refuse_still_runs(dataset: MeasuredDataset, eqs: list[RunEquations]) -> None
 
     def turned(eq: RunEquations) -> str:
         counts = max(float(np.ptp(eq.run.theta_u)), float(np.ptp(eq.run.theta_l))) / dataset.encoder_step
-        return f"{eq.run.label}, {counts:.0f} encoder counts at most"
+        return f"{eq.run.label} turns {counts:.0f} encoder counts at most"
 
     named = ", ".join(turned(eq) for eq in still[:6]) + (
         f" and {len(still) - 6} more" if len(still) > 6 else ""
