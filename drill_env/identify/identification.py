@@ -502,9 +502,14 @@ def identify(
             # the lag's time constant: the profile of the joint fit about its estimate
             cand_bounds = (1e-4, 5.0)
 
-            def fit_at(tau: float, name: str = name, terms: int = fit.hump_terms) -> JointFit:
+            # the rates move little with the lag: each fit of the profile refines from this one's
+            warm = tuple(fit.values[r] for r in HUMP_RATES[: fit.hump_terms]) or None
+
+            def fit_at(tau: float, name: str = name, terms: int = fit.hump_terms, warm=warm) -> JointFit:
                 effects[name] = tau
-                return joint_fit([rows_of(at_eqs[r.name]) for r in dataset.runs], scale, hump_terms=terms)
+                return joint_fit(
+                    [rows_of(at_eqs[r.name]) for r in dataset.runs], scale, hump_terms=terms, warm_rates=warm
+                )
 
             first = effects[name]
             assert first is not None

@@ -374,10 +374,20 @@ def _bounded_linear(prob: _Problem, extra: list[np.ndarray], k: int) -> np.ndarr
     return optimize.lsq_linear(a, prob.y, bounds=(lo, np.inf), method="bvls").x
 
 
-def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int | None = None) -> JointFit:
+def joint_fit(
+    rows: list[RunRows],
+    scale: tuple[str, float],
+    *,
+    hump_terms: int | None = None,
+    warm_rates: tuple[float, ...] | None = None,
+) -> JointFit:
     """Fit every parameter on the rows of ``rows`` with ``scale = (name, value)`` held.
 
-    ``hump_terms`` forces the number of hump terms (default: chosen on the data)."""
+    ``hump_terms`` forces the number of hump terms (default: chosen on the data);
+    ``warm_rates`` (with ``hump_terms`` = their number, > 0) refines from these rates alone, no
+    grid: a fit next to one already made (a lag's profile, one time constant to the next)."""
+    if warm_rates is not None and (hump_terms is None or len(warm_rates) != hump_terms or not hump_terms):
+        raise ValueError(f"warm_rates: {warm_rates!r} needs hump_terms = its length (> 0)")
     negative = sum(r.negative_upper for r in rows) >= NEGATIVE_MIN_WINDOWS
     free_lin = _free_linear(scale[0], negative)
     prob = _Problem(rows, scale, free_lin)
@@ -388,9 +398,13 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
             coef = _bounded_linear(prob, [], k)
             fits[0] = (coef, float(np.sum(_residual(prob, coef, 0) ** 2)))
         else:
+            starts = (
+                [tuple(float(b) for b in warm_rates)]
+                if warm_rates is not None
+                else [b for b, _ in _grid_starts(prob, terms, GRID_STARTS)]
+            )
             fits[terms] = min(
-                (_refine(prob, betas) for betas, _ in _grid_starts(prob, terms, GRID_STARTS)),
-                key=lambda f: (_merged(f[0], k, terms), f[1]),
+                (_refine(prob, betas) for betas in starts), key=lambda f: (_merged(f[0], k, terms), f[1])
             )
             if terms == 2 and 1 in fits:
                 # also grow the one-term fit by a second term (so that two terms never fit worse than
