@@ -382,7 +382,8 @@ def write_curves(runs: list[dict], out: Path) -> None:
     df["worst"] = df[[f"suppression_{g}" for g in CYCLE_REGIMES]].min(axis=1)
     colours = {"ppo": "tab:purple", "sac": "tab:brown"}
     for preset, dp in df.groupby("preset"):
-        fig, axes = subplots(2, 2, figsize=(11, 7), sharey="row")
+        font = 9.0  # [pt] on a figure 8 in wide: legible where the docs draw it (drill_env._figures)
+        fig, axes = subplots(2, 2, figsize=(8.0, 7.4), sharey="row")
         for algo, da in dp.groupby("algo"):
             # align the seeds by check: the checks fall at the same env-steps in every seed
             g = da.groupby("check")
@@ -411,18 +412,23 @@ def write_curves(runs: list[dict], out: Path) -> None:
             axes[0, col].axhline(1.0 - SUPPRESSION_TARGET, color="black", ls="--", lw=1)
             axes[0, col].set_yscale("log")
             axes[1, col].set_xlabel(
-                "training env-steps [millions]" if col == 0 else "training wall time [s] (dotted: 300 s)"
+                "training env-steps [millions]" if col == 0 else "training wall time [s]\n(dotted: 300 s)",
+                fontsize=font,
             )
         for row in (0, 1):  # seconds to minutes: PPO's and SAC's runs differ 10x in length
             axes[row, 1].set_xscale("log")
         axes[1, 1].axvline(TIME_TO_POLICY_TARGET_S, color="gray", ls=":", lw=1)
         axes[0, 1].axvline(TIME_TO_POLICY_TARGET_S, color="gray", ls=":", lw=1)
-        axes[0, 0].set_ylabel("1 - suppression, worse cycle regime [-]\n(dashed: target 0.99)")
-        axes[1, 0].set_ylabel("training return per episode [-]\n(each config's own training episodes)")
-        axes[0, 0].legend(loc="upper right", fontsize=8)
+        axes[0, 0].set_ylabel("1 - suppression, worse cycle\nregime [-] (dashed: target 0.99)", fontsize=font)
+        axes[1, 0].set_ylabel("training return per episode [-]\n(each config's own episodes)", fontsize=font)
+        for ax in axes.flat:
+            ax.tick_params(labelsize=font)
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        leg = fig.legend(handles, labels, loc="lower center", fontsize=font, frameon=False)
         rig = "the braked rig" if preset == "brake" else "the rig without the brake"
-        fig.suptitle(f"Learning from scratch on {rig} (target check)")
-        fig.tight_layout()
+        fig.suptitle(f"Learning from scratch on {rig} (target check)", fontsize=font + 2)
+        height = leg.get_window_extent(fig.canvas.get_renderer()).height / (fig.dpi * fig.get_figheight())
+        fig.tight_layout(rect=(0, height + 0.01, 1, 1))
         fig.savefig(out / f"learning_curves_{preset}.png", dpi=110)
 
 

@@ -4,6 +4,7 @@ marker at its run's voltage."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import matplotlib.pyplot as plt
@@ -467,6 +468,299 @@ def test_the_discrepancy_reports_gain_and_equation_error_figures_are_legible(tmp
     )
     res = analyse(ds, simulate_gaps=False, rule=DecisionRule(bootstrap=20))
     names = [name for name, _ in _figures(res, tmp_path)]
-    assert {"candidates.png", "equation_error.png"} <= set(names)
-    for fig in saved_figures[: names.index("equation_error.png") + 1]:
-        assert legibility_problems(fig) == [], fig.axes[0].get_title()
+    assert {"candidates.png", "equation_error.png", "spectra.png", "residual_spectra.png"} <= set(names)
+    assert len(saved_figures) == len(names)
+    for fig in saved_figures:  # every figure of the report
+        assert legibility_problems(fig) == [], fig.get_suptitle() or fig.axes[0].get_title()
+
+
+# -- every figure the docs show: legible at the width they are drawn -----------------------
+
+
+@pytest.mark.parametrize("kind", ["fig6", "fig8", "period", "fig9"])
+def test_the_bifurcation_figures_are_legible_at_the_docs_width(
+    kind, brake, no_brake, saved_figures, tmp_path
+):
+    from drill_env._figures import legibility_problems, offscreen
+    from drill_env.analysis.plots import save_figures
+
+    for diagram in (brake, no_brake):
+        with offscreen():
+            ax = diagram.plot(kind, **({"check": _Check(diagram)} if kind == "fig8" else {}))
+        fig = (ax[0] if isinstance(ax, np.ndarray | list | tuple) else ax).figure
+        assert legibility_problems(fig) == [], (diagram.preset, kind)
+        if kind == "fig6":
+            assert len(fig.legends) == 1 and not any(a.get_legend() for a in fig.axes)  # one legend
+        if kind == "fig9":  # the projections' units, the legend in the grid's fourth cell
+            assert [a.get_xlabel() for a in ax] == [
+                "x1 = twist [rad]",
+                "x1 = twist [rad]",
+                "x2 = upper speed [rad/s]",
+            ]
+            assert ax.legend_axes.get_legend() is not None and not ax.legend_axes.axison
+    save_figures(no_brake, tmp_path)  # what `drill-env bifurcation` writes
+    assert len(saved_figures) == 4
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.get_suptitle() or f.axes[0].get_title()
+
+
+def test_the_extended_diagram_with_its_enlarged_view_is_legible():
+    from drill_env._figures import legibility_problems, offscreen
+
+    diagram = bifurcation_diagram("brake", u_max=16.0)
+    with offscreen():
+        ax = diagram.plot("fig8")
+    assert ax.child_axes  # the enlarged view of the start of motion
+    assert legibility_problems(ax.figure) == []
+
+
+def test_the_sim_to_real_suppression_figure_is_legible_on_the_committed_results(tmp_path, saved_figures):
+    from pathlib import Path
+
+    from drill_env._figures import legibility_problems
+    from drill_env.agents.evaluation.sim_to_real import SimToRealConfig, _suppression_figure
+
+    df = pd.read_csv(Path(__file__).parents[1] / "results" / "sim_to_real" / "results.csv")
+    ctrls = tuple(c for c in dict.fromkeys(df["controller"]) if c != "open_loop")
+    assert len(ctrls) >= 3
+    cfg = SimToRealConfig(controllers=ctrls, seeds=tuple(sorted(set(df["seed"]))))
+    _suppression_figure(df, cfg, tmp_path)
+    (fig,) = saved_figures
+    assert legibility_problems(fig) == []
+    assert len(fig.legends) == 1
+    assert [ax.get_title(loc="left") for ax in fig.axes[::2]] == list(ctrls)  # a row per controller
+
+
+@pytest.mark.slow
+def test_the_sim_to_real_figures_are_legible(tmp_path, saved_figures):
+    from typer.testing import CliRunner
+
+    from drill_env._figures import legibility_problems
+    from drill_env.cli import app
+
+    r = CliRunner().invoke(app, ["sim-to-real", "--quick", "--out", str(tmp_path / "s2r")])
+    assert r.exit_code == 0, r.output
+    names = {p.name for p in (tmp_path / "s2r").rglob("*.png")}
+    assert {"suppression.png", "spectra.png", "residual_spectra.png"} <= names
+    assert any(n.startswith("timeseries_") for n in names)
+    assert len(saved_figures) >= len(names)
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.get_suptitle() or f.axes[0].get_title()
+
+
+@pytest.mark.slow
+def test_the_identification_reports_figures_are_legible(tmp_path, saved_figures):
+    from typer.testing import CliRunner
+
+    from drill_env._figures import legibility_problems
+    from drill_env.cli import app
+    from drill_env.identify import ExperimentPlan, draw_rig, synth_config
+    from drill_env.params import IDENTIFIED_PARAMETERS
+    from drill_env.recordings.synth import make_dataset, write_synthetic
+
+    plan = ExperimentPlan(
+        "small", (0.1, 0.3, 0.8, 2.0, 4.0), 2, (-5.0, 5.0), (0.5, 2.0), 40.0, 30.0, (250.0, 1000.0)
+    )
+    rig = draw_rig("brake", 7)
+    cfg = synth_config(plan, "brake", sample_rate_hz=500.0, angle_noise_std=0.0)
+    res = make_dataset(
+        "none", seed=7, config=cfg, truth_overrides={n: float(getattr(rig, n)) for n in IDENTIFIED_PARAMETERS}
+    )
+    write_synthetic(res, tmp_path / "data", tmp_path / "answer.json", preset="brake")
+    out = tmp_path / "id"
+    args = ["identify", str(tmp_path / "data"), "--out", str(out), "--no-effects"]
+    r = CliRunner().invoke(app, [*args, "--known", f"string_stiffness={rig.string_stiffness!r}"])
+    assert r.exit_code == 0, r.output
+    assert {p.name for p in out.glob("*.png")} == {"friction.png", "heldout.png", "bifurcation.png"}
+    assert len(saved_figures) == 3
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.axes[0].get_title()
+        assert len(f.legends) + sum(a.get_legend() is not None for a in f.axes) >= 1
+
+
+def test_a_resume_with_every_run_present_redraws_without_the_policies(tmp_path):
+    """The records of recipes not kept (results/robust_rl/distilled_brake) name an agents folder
+    that is not in the checkout: their figures are redrawn from the rows all the same, and a
+    resume with a run missing still needs the folder."""
+    import shutil
+    from pathlib import Path
+
+    from typer.testing import CliRunner
+
+    from drill_env.cli import app
+
+    src = Path(__file__).parents[1] / "results" / "robust_rl" / "distilled_brake"
+    out = tmp_path / "distilled_brake"
+    shutil.copytree(src, out)
+    for png in out.glob("*.png"):
+        png.unlink()
+    args = ["benchmark", "--quick", "--preset", "brake", "--plants", "family", "--controllers", "ppo_robust"]
+    args += ["--agents-dir", str(tmp_path / "not_here"), "--seeds", "3", "--no-timeseries", "--out", str(out)]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    assert "no policy loaded" in r.output
+    assert {"bifurcation_brake.png", "suppression_brake.png", "suppression_brake_plants.png"} <= {
+        p.name for p in out.glob("*.png")
+    }
+    record = json.loads((out / "benchmark_config.json").read_text())
+    assert record["policies"] == json.loads((src / "benchmark_config.json").read_text())["policies"]
+    lines = (out / "benchmark.csv").read_text().splitlines(keepends=True)
+    (out / "benchmark.csv").write_text("".join(lines[:-1]))  # one run missing: it must run
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 2
+    assert "--agents-dir" in r.output and "is not a folder" in r.output
+
+
+# -- the committed figures the docs and the README show ------------------------------------
+
+_ROOT = __import__("pathlib").Path(__file__).parents[1]
+_IMAGE = __import__("re").compile(r"!\[[^\]]*\]\(([^)\s]+\.png)\)")
+_INCLUDE = __import__("re").compile(r"\{include\}\s*\.\./_generated/results/(\S+\.md)")
+
+
+def _png_size(path) -> tuple[int, float | None]:
+    """(width [px], dpi or None) from a PNG's header and its pHYs chunk."""
+    import struct
+
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path}: not a PNG"
+    width = struct.unpack(">I", data[16:20])[0]
+    pos = 8
+    while pos + 8 <= len(data):
+        length, kind = struct.unpack(">I4s", data[pos : pos + 8])
+        if kind == b"pHYs":
+            x, _, unit = struct.unpack(">IIB", data[pos + 8 : pos + 17])
+            return width, x * 0.0254 if unit == 1 else None
+        if kind in (b"IDAT", b"IEND"):
+            break
+        pos += 12 + length
+    return width, None
+
+
+def shown_figures() -> dict:
+    """Every PNG under results/ that a docs page or the README shows: the images of
+    docs/**/*.md, of README.md, of the renderers in docs/_ext, and of the result reports
+    (results/**/*.md) the docs pages include, each with where it is shown."""
+    import re
+
+    shown: dict = {}
+
+    def add(target: str, base, where: str) -> None:
+        if "://" in target:
+            return
+        path = (base / target).resolve()
+        if _ROOT / "results" in path.parents:
+            shown.setdefault(path, where)
+
+    included: set[str] = set()
+    for page in sorted((_ROOT / "docs").rglob("*.md")):
+        if "_generated" in page.parts or "_build" in page.parts:
+            continue
+        text = page.read_text(encoding="utf-8")
+        for target in _IMAGE.findall(text):
+            add(target, page.parent, str(page.relative_to(_ROOT)))
+        included |= set(_INCLUDE.findall(text))
+    for target in _IMAGE.findall((_ROOT / "README.md").read_text(encoding="utf-8")):
+        add(target, _ROOT, "README.md")
+    for ext in sorted((_ROOT / "docs" / "_ext").glob("*.py")):
+        for target in re.findall(r"results/[\w./-]+\.png", ext.read_text(encoding="utf-8")):
+            add(target, _ROOT, str(ext.relative_to(_ROOT)))
+    for md in sorted((_ROOT / "results").rglob("*.md")):
+        name = "_".join(md.relative_to(_ROOT / "results").with_suffix("").parts) + ".md"
+        if name in included:
+            for target in _IMAGE.findall(md.read_text(encoding="utf-8")):
+                add(target, md.parent, f"{md.relative_to(_ROOT)} (included by the docs)")
+    return shown
+
+
+# Shown figures whose code draws them 8 in wide but whose committed files are older, each with
+# the command of results/README.md that redraws them (a figure leaves this list when redrawn).
+AWAITING_REDRAW = {
+    "results/identify/identified/friction.png": "python examples/identify_own_rig.py --out results/identify",
+    "results/identify/identified/heldout.png": "python examples/identify_own_rig.py --out results/identify",
+    "results/identify/identified/bifurcation.png": "python examples/identify_own_rig.py --out results/identify",
+    "results/training/learning_curves_brake.png": "python benchmarks/bench_training.py ... --out results/training",
+    "results/training/learning_curves_no_brake.png": "python benchmarks/bench_training.py ... --out results/training",
+}
+
+
+def test_every_figure_the_docs_show_fits_the_docs_width():
+    """A committed figure the docs or the README show is at most MAX_WIDTH_IN wide at the dpi
+    it was saved with (its text then legible at the column's 724 px; the figure functions'
+    tests check the text itself)."""
+    from drill_env._figures import MAX_WIDTH_IN
+
+    shown = shown_figures()
+    assert len(shown) >= 30  # the results pages' figures, the README's and the reports'
+    assert _ROOT / "results" / "bifurcation" / "no_brake" / "fig8_bifurcation.png" in shown
+    assert _ROOT / "results" / "discrepancy" / "detection.png" in shown  # via a report the docs include
+    assert {_ROOT / p for p in AWAITING_REDRAW} <= set(shown)
+    problems = []
+    for path, where in sorted(shown.items()):
+        if path.relative_to(_ROOT).as_posix() in AWAITING_REDRAW:
+            continue
+        if not path.is_file():
+            problems.append(f"{path.relative_to(_ROOT)} (shown in {where}) is missing")
+            continue
+        width, dpi = _png_size(path)
+        if dpi is None:
+            problems.append(f"{path.relative_to(_ROOT)}: no resolution recorded (pHYs)")
+        elif width > MAX_WIDTH_IN * dpi + 0.5:
+            problems.append(
+                f"{path.relative_to(_ROOT)} (shown in {where}): {width} px at {dpi:.0f} dpi = "
+                f"{width / dpi:.2f} in > {MAX_WIDTH_IN:g} in"
+            )
+    assert problems == []
+
+
+def test_the_width_scan_reads_a_figures_size_and_catches_a_wide_one(tmp_path):
+    from drill_env._figures import MAX_WIDTH_IN, subplots
+
+    for width_in, dpi in ((8.0, 110), (12.0, 130)):
+        fig, _ = subplots(figsize=(width_in, 3))
+        fig.savefig(tmp_path / "f.png", dpi=dpi)
+        width, got = _png_size(tmp_path / "f.png")
+        assert got == pytest.approx(dpi, abs=0.05) and width == round(width_in * dpi)
+        assert (width > MAX_WIDTH_IN * got + 0.5) == (width_in > MAX_WIDTH_IN)
+
+
+def test_policy_cards_redraws_each_learning_curve_legibly(tmp_path, saved_figures):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from drill_env._figures import legibility_problems
+    from drill_env.cli import app
+
+    for name in ("ppo", "sac_robust_no_brake"):
+        shutil.copytree(_ROOT / "results" / "agents" / name, tmp_path / name)
+        (tmp_path / name / "learning_curve.png").unlink()
+    r = CliRunner().invoke(app, ["policy-cards", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    for name in ("ppo", "sac_robust_no_brake"):
+        assert (tmp_path / name / "learning_curve.png").stat().st_size > 10_000
+    assert len(saved_figures) == 2
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.axes[0].get_title()
+        assert [a.get_xlabel() for a in f.axes] == ["environment steps"] * 2
+
+
+def test_the_discrepancy_study_figures_are_redrawn_legibly_from_study_json(tmp_path, saved_figures):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from drill_env._figures import legibility_problems
+    from drill_env.cli import app
+
+    out = tmp_path / "study"
+    out.mkdir()
+    shutil.copy(_ROOT / "results" / "discrepancy" / "unseen_seeds" / "study.json", out / "study.json")
+    r = CliRunner().invoke(app, ["discrepancy-study", "--figures-only", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert {p.name for p in out.glob("*.png")} == {"confusion.png", "detection.png"}
+    assert len(saved_figures) == 2
+    for f in saved_figures:
+        assert legibility_problems(f) == [], f.axes[0].get_title()
+    r = CliRunner().invoke(app, ["discrepancy-study", "--figures-only", "--out", str(tmp_path / "none")])
+    assert r.exit_code == 2 and "no study.json" in r.output

@@ -6,6 +6,7 @@ import math
 import time
 from contextlib import ExitStack
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -49,6 +50,37 @@ def resumed_count(out: Path) -> int:
     except OSError:
         return 0
     return max(0, data.count(b"\n") - 1)
+
+
+def _check_run_files(cfg: Any, agents_dir: Path | None, trust_policies: bool) -> Any:  # noqa: ANN401
+    """Every file the runs will need (gains, policies), before the first run; the policies
+    from outside the project's vouched for (``cfg`` with ``trust_policies`` then)."""
+    from drill_env.agents.commands._trust import vouch_for_policies
+    from drill_env.agents.learning.policy_info import policy_training_record
+    from drill_env.agents.learning.rl import check_policy_zip
+    from drill_env.agents.registry import LEARNED, load_gains, policy_path
+
+    policies: list[Path] = []
+    try:
+        if any(c not in LEARNED for c in cfg.controllers):
+            load_gains(cfg.gains_file)
+        for c in cfg.controllers:
+            if c in LEARNED:
+                for p in cfg.presets:
+                    path = policy_path(c, p, cfg.agents_dir)
+                    check_policy_zip(path)
+                    policy_training_record(path)  # what it was trained on, or refused
+                    policies.append(path)
+    except ValueError as exc:
+        if "policy" not in str(exc):
+            _fail(f"--gains: {exc}")
+        _fail(f"--agents-dir: {exc}" if agents_dir is not None else str(exc))
+    option = "--agents-dir" if agents_dir is not None else "agents folder"
+    if vouch_for_policies(policies, flag=trust_policies, option=option):
+        import dataclasses
+
+        cfg = dataclasses.replace(cfg, trust_policies=True)
+    return cfg
 
 
 def register(app: typer.Typer) -> None:
@@ -284,10 +316,6 @@ def register(app: typer.Typer) -> None:
                 _fail(f"--design-params: {design_params}: {exc}")
         if gains is not None and not gains.is_file():
             _fail(f"--gains: {gains} is not a file (a YAML written by drill-env tune)")
-        if agents_dir is not None and not agents_dir.is_dir():
-            _fail(
-                f"--agents-dir: {agents_dir} is not a folder (trained policies, laid out like results/agents)"
-            )
         from drill_env.envs.config import EnvSettings
 
         control_dt = EnvSettings().control_dt
@@ -336,32 +364,29 @@ def register(app: typer.Typer) -> None:
             _fail(
                 f"the grid has {n_runs:,} runs; allowed: at most {MAX_RUNS:,} (fewer seeds, voltages or controllers)"
             )
-        # every file the runs will need, before the first run
-        from drill_env.agents.commands._trust import vouch_for_policies
-        from drill_env.agents.learning.policy_info import policy_training_record
-        from drill_env.agents.learning.rl import check_policy_zip
-        from drill_env.agents.registry import LEARNED, load_gains, policy_path
+        # a resume with every run of the grid in OUT runs nothing: it writes the report and the
+        # figures again from the rows, and needs (and loads) no policy, gains or agents folder
+        # (the time-series figures run the controllers: with them, the files are checked)
+        complete = False
+        if not fresh and not (timeseries if timeseries is not None else quick):
+            from drill_env.agents.evaluation.benchmark import check_resumable, runs_missing
 
-        policies: list[Path] = []
-        try:
-            if any(c not in LEARNED for c in cfg.controllers):
-                load_gains(cfg.gains_file)
-            for c in cfg.controllers:
-                if c in LEARNED:
-                    for p in cfg.presets:
-                        path = policy_path(c, p, cfg.agents_dir)
-                        check_policy_zip(path)
-                        policy_training_record(path)  # what it was trained on, or refused
-                        policies.append(path)
-        except ValueError as exc:
-            if "policy" not in str(exc):
-                _fail(f"--gains: {exc}")
-            _fail(f"--agents-dir: {exc}" if agents_dir is not None else str(exc))
-        option = "--agents-dir" if agents_dir is not None else "agents folder"
-        if vouch_for_policies(policies, flag=trust_policies, option=option):
-            import dataclasses
-
-            cfg = dataclasses.replace(cfg, trust_policies=True)
+            try:
+                complete = check_resumable(cfg, out) is not None and runs_missing(cfg, out) == 0
+            except (ValueError, OSError):
+                complete = False  # named below, before anything runs
+        if complete:
+            Console(stderr=True).print(
+                f"every run of the grid is in {out}: the report and the figures are made again "
+                "from its rows (no controller is run, no policy loaded)",
+                highlight=False,
+            )
+        elif agents_dir is not None and not agents_dir.is_dir():
+            _fail(
+                f"--agents-dir: {agents_dir} is not a folder (trained policies, laid out like results/agents)"
+            )
+        else:
+            cfg = _check_run_files(cfg, agents_dir, trust_policies)
         from drill_env.outputs import OutputFolderError, check_command_folder, command_folder
 
         check_command_folder(out, "benchmark", "--out", own=BENCHMARK_FILES)

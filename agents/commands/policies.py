@@ -25,18 +25,36 @@ def register(app: typer.Typer) -> None:
         Each card says, from the folder's config.yaml and training_summary.json, how the policy
         started (from scratch, clone of a classical controller, residual on one, distilled from a
         trained policy), the training config it was trained with, how long it trained and what it
-        reached; README.md is a table of them.
+        reached; README.md is a table of them. Each folder's learning_curve.png is drawn again
+        from its eval.csv and progress.csv (as train draws it).
         """
-        from drill_env.agents.learning.cards import write_policy_cards
+        from drill_env.agents.learning.cards import policy_folders, write_policy_cards
+        from drill_env.outputs import check_tree_files
 
         if not agents_dir.is_dir():
             _fail(f"AGENTS_DIR: {agents_dir} is not a folder")
         try:
+            curves = [f for f in policy_folders(agents_dir) if (f / "eval.csv").is_file()]
+            check_tree_files(
+                agents_dir,
+                [f / "learning_curve.png" for f in curves],
+                "policy-cards",
+                "AGENTS_DIR",
+                accepts=("train",),
+            )
             written = write_policy_cards(agents_dir)
         except ValueError as exc:
             _fail(str(exc))
         for path in written:
             typer.echo(f"wrote {path}")
+        if curves:
+            from drill_env.agents.learning.rl import plot_learning_curve
+
+            for folder in curves:
+                try:
+                    typer.echo(f"wrote {plot_learning_curve(folder)}")
+                except (ValueError, KeyError, OSError) as exc:
+                    _fail(f"{folder / 'eval.csv'}: the learning curve cannot be drawn: {exc}")
 
     @app.command("upgrade-policies")
     def upgrade_policies(

@@ -585,6 +585,19 @@ LABEL = {
 
 
 COINCIDE = 0.02  # [rad/s] before and after closer than this everywhere are said to coincide
+# the figures: at most FIGURE_WIDTH wide, no text below FONT (legible where the docs draw a
+# figure, 724 px wide: drill_env._figures' size rule)
+FIGURE_WIDTH = 8.0  # [in]
+FONT = 9.0  # [pt]
+
+
+def _legend_below(fig, handles: list, ncol: int = 1) -> None:  # noqa: ANN001
+    """One legend centred below the panels, the panels laid out above its measured height."""
+    from drill_env._figures import renderer
+
+    leg = fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=FONT, frameon=False)
+    height = leg.get_window_extent(renderer(fig)).height / (fig.dpi * fig.get_figheight())
+    fig.tight_layout(rect=(0, height + 0.01, 1, 1))
 
 
 def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConfig, out: Path) -> Path:
@@ -595,7 +608,7 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
 
     ctrls = cfg.controllers
     fig, axes = subplots(
-        len(ctrls), 1, figsize=(9, 2.3 * len(ctrls) + 1.4), sharex=True, sharey=True, squeeze=False
+        len(ctrls), 1, figsize=(FIGURE_WIDTH, 2.1 * len(ctrls) + 1.6), sharex=True, sharey=True, squeeze=False
     )
     ol = traces[("-", "open_loop")]
     t_on = float(ol.t[0]) - float(ol.t[1] - ol.t[0]) if ol.t.size > 1 else 0.0
@@ -619,13 +632,14 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
                 transform=ax.transAxes,
                 ha="right",
                 va="top",
-                fontsize=8,
+                fontsize=FONT,
                 bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
             )
-        ax.set_title(c, fontsize=10, loc="left")
-        ax.set_ylabel("lower-disk speed\n[rad/s]")
+        ax.set_title(c, fontsize=FONT + 1, loc="left")
+        ax.set_ylabel("lower-disk speed\n[rad/s]", fontsize=FONT)
+        ax.tick_params(labelsize=FONT)
         ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel("time since the controller was switched on [s]")
+    axes[-1, 0].set_xlabel("time since the controller was switched on [s]", fontsize=FONT)
     handles = [
         Line2D([], [], color="0.7", lw=0.8, label="open loop"),
         Line2D([], [], ls="--", color="k", lw=2.0, alpha=0.55, label=LABEL["nominal"]),
@@ -633,14 +647,15 @@ def _timeseries_figure(traces: Mapping[tuple[str, str], Any], cfg: SimToRealConf
         Line2D([], [], color="0.3", ls=(0, (4, 2)), lw=0.6, label="target speed, nominal model"),
         Line2D([], [], color="0.3", ls="-", lw=0.6, label="target speed, corrected model"),
     ]
-    fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
     what = (
         f"plant file {Path(cfg.truth_file).name}"
         if cfg.truth_file
         else f"{cfg.effect} {cfg.magnitude:g}, parameter errors"
     )
-    fig.suptitle(f"Truth plant ({what}) at {cfg.timeseries_voltage:g} V, seed {cfg.seeds[0]}", fontsize=10)
-    fig.tight_layout(rect=(0, 0.7 / fig.get_figheight(), 1, 1))
+    fig.suptitle(
+        f"Truth plant ({what}) at {cfg.timeseries_voltage:g} V, seed {cfg.seeds[0]}", fontsize=FONT + 1
+    )
+    _legend_below(fig, handles, ncol=2)
     path = out / f"timeseries_{cfg.timeseries_voltage:g}V.png"
     save_figure(fig, path, dpi=110)
     return path
@@ -653,13 +668,17 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
     from drill_env.agents.evaluation.robustness import COLORS
 
     ctrls = cfg.controllers
+    # one row per controller: its suppression (left) and RMS speed error (right)
     fig, axes = subplots(
-        2, len(ctrls), figsize=(3.3 * len(ctrls), 6.4), sharex=True, sharey="row", squeeze=False
+        len(ctrls),
+        2,
+        figsize=(FIGURE_WIDTH, 1.9 * len(ctrls) + 1.9),
+        sharex=True,
+        sharey="col",
+        squeeze=False,
     )
-    for j, c in enumerate(ctrls):
-        for i, (metric, label) in enumerate(
-            (("suppression", "suppression [-]"), ("rms_error", "RMS speed error [rad/s]"))
-        ):
+    for i, c in enumerate(ctrls):
+        for j, metric in enumerate(("suppression", "rms_error")):
             ax = axes[i, j]
             for d, marker, off in zip(DESIGNS, ("o", "s"), (-0.012, 0.012), strict=True):
                 g = df[(df.controller == c) & (df.design == d)].groupby("voltage")[metric]
@@ -678,25 +697,26 @@ def _suppression_figure(df, cfg: SimToRealConfig, out: Path) -> Path:
             if metric == "suppression":
                 ax.axhline(1.0, color="0.7", lw=0.6)
                 ax.axhline(0.0, color="0.7", lw=0.6)
-                ax.set_title(c, fontsize=10)
+                ax.set_ylabel("suppression [-]", fontsize=FONT)
+                ax.set_title(c, fontsize=FONT + 1, loc="left", color=COLORS.get(c, "k"))
             else:
                 ax.set_yscale("log")
-                ax.set_xlabel("nominal voltage [V]")
-            if j == 0:
-                ax.set_ylabel(label)
+                ax.set_ylabel("RMS speed error\n[rad/s] (log)", fontsize=FONT)
+            if i == len(ctrls) - 1:
+                ax.set_xlabel("nominal voltage [V]", fontsize=FONT)
+            ax.tick_params(labelsize=FONT)
             ax.grid(alpha=0.3)
     handles = [
         Line2D([], [], ls="--", marker="o", mfc="none", color="k", label=LABEL["nominal"]),
         Line2D([], [], ls="-", marker="s", color="C0", label=LABEL["corrected"] + " (controller's colour)"),
     ]
-    fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
     n = len(cfg.seeds)
     fig.suptitle(
-        f"On the truth plant: mean over {n} seed{'s' if n > 1 else ''} (bars: min-max; before and after "
-        "drawn side by side); suppression against the open loop on the same plant",
-        fontsize=9,
+        f"On the truth plant: mean over {n} seed{'s' if n > 1 else ''} (bars: min-max; before and\n"
+        "after drawn side by side); suppression against the open loop on the same plant",
+        fontsize=FONT + 1,
     )
-    fig.tight_layout(rect=(0, 0.45 / fig.get_figheight(), 1, 1))
+    _legend_below(fig, handles)
     path = out / "suppression.png"
     save_figure(fig, path, dpi=110)
     return path

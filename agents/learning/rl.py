@@ -1305,7 +1305,8 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
     if summary is None:
         summary = json.loads((out_dir / "training_summary.json").read_text())
     curve = pd.read_csv(out_dir / "eval.csv")
-    fig, axes = subplots(1, 2, figsize=(11, 4))
+    font = 9.0  # [pt] on a figure 8 in wide: legible where the docs draw it (drill_env._figures)
+    fig, axes = subplots(2, 1, figsize=(8.0, 6.6))
     ax = axes[0]
     ax.plot(curve["timesteps"], curve["mean_return"], "k.-", label="all regimes")
     for regime in REGIMES:
@@ -1314,12 +1315,14 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
             ax.plot(curve["timesteps"], curve[col], lw=0.8, label=regime)
     for name, value in (summary.get("reference_returns") or {}).items():
         ax.axhline(value, ls="--", lw=0.8, color="gray")
-        ax.annotate(name, (curve["timesteps"].iloc[0], value), fontsize=8, va="bottom", color="gray")
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("evaluation return (deterministic)")
+        ax.annotate(name, (curve["timesteps"].iloc[0], value), fontsize=font, va="bottom", color="gray")
+    ax.set_xlabel("environment steps", fontsize=font)
+    ax.set_ylabel("evaluation return\n(deterministic) [-]", fontsize=font)
     verdict = "converged" if summary.get("converged") else "not converged"
-    ax.set_title(f"{summary['algo'].upper()} seed {summary['seed']}: {verdict}")
-    ax.legend(fontsize=8)
+    ax.set_title(f"{summary['algo'].upper()} seed {summary['seed']}: {verdict}", fontsize=font + 1)
+    ax.legend(
+        fontsize=font, loc="center left", bbox_to_anchor=(1.01, 0.5), title="regime", title_fontsize=font
+    )
     ax = axes[1]
     prog_path = out_dir / "progress.csv"
     rows = None
@@ -1337,10 +1340,13 @@ def plot_learning_curve(out_dir: str | Path, summary: Mapping[str, Any] | None =
             ha="center",
             va="center",
             transform=ax.transAxes,
+            fontsize=font,
         )
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("training episode return (stochastic)")
-    ax.set_title("training episodes")
+    ax.set_xlabel("environment steps", fontsize=font)
+    ax.set_ylabel("training episode return\n(stochastic) [-]", fontsize=font)
+    ax.set_title("training episodes", fontsize=font + 1)
+    for a in axes:
+        a.tick_params(labelsize=font)
     fig.tight_layout()
     path = out_dir / "learning_curve.png"
     save_figure(fig, path, dpi=110)

@@ -358,6 +358,11 @@ def discrepancy_study(
     ),
     paper_case_only: bool = typer.Option(False, "--paper-case-only", help="Only the paper's case."),
     skip_paper_case: bool = typer.Option(False, "--skip-paper-case", help="Skip the paper's case."),
+    figures_only: bool = typer.Option(
+        False,
+        "--figures-only",
+        help="Draw confusion.png and detection.png of the study in OUT again from its study.json; run nothing.",
+    ),
     fresh: bool = typer.Option(
         False,
         "--fresh",
@@ -398,6 +403,19 @@ def discrepancy_study(
     workers = workers or (os.cpu_count() or 1)
     if paper_case_only and skip_paper_case:
         _fail("--paper-case-only and --skip-paper-case together leave nothing to do; give at most one")
+    if figures_only:
+        if out is None or paper_case_only:
+            _fail("--figures-only: needs --out, the folder of a finished study (and no --paper-case-only)")
+        from drill_env.discrepancy.study import redraw_figures
+
+        check_command_folder(out, "discrepancy-study", "--out", own=STUDY_FILES)
+        try:
+            with command_folder(out, "discrepancy-study", "--out", own=STUDY_FILES):
+                paths = redraw_figures(out)
+        except (OutputFolderError, ValueError) as exc:
+            _fail(f"--figures-only: {exc}")
+        typer.echo("wrote " + ", ".join(str(p) for p in paths))
+        return
     if out is not None and out.exists() and not out.is_dir():
         _fail(f"--out {out} exists and is not a folder")
     if out is not None:

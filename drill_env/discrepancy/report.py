@@ -39,9 +39,40 @@ def plot_spectra(ax, comp_nominal, comp_after=None, title=""):
     ax.loglog(f, comp_nominal.psd_model[band], color="tab:red", lw=1, label="nominal model")
     if comp_after is not None:
         ax.loglog(f, comp_after.psd_model[band], color="tab:blue", lw=1, ls="--", label="with effect")
-    ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel("PSD of lower speed [(rad/s)^2/Hz]")
-    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("frequency [Hz]", fontsize=FONT)
+    ax.set_ylabel("PSD of lower speed\n[(rad/s)^2/Hz]", fontsize=FONT)
+    ax.set_title(title, fontsize=FONT)
+    ax.tick_params(labelsize=FONT)
+
+
+# The report's figures: at most FIGURE_WIDTH wide, no text below FONT (legible where the docs
+# draw a figure, 724 px wide: drill_env._figures' size rule)
+FIGURE_WIDTH = 8.0  # [in]
+FONT = 9.0  # [pt]
+
+
+def _run_grid(k: int, row_height: float = 2.9):
+    """A figure of ``k`` panels, two to a row, FIGURE_WIDTH wide; returns (figure, axes in
+    order); the panels a last odd row leaves over are hidden."""
+    from drill_env._figures import subplots
+
+    ncol = min(2, k)
+    nrow = -(-k // ncol)
+    fig, axes = subplots(nrow, ncol, figsize=(FIGURE_WIDTH, row_height * nrow + 0.7), squeeze=False)
+    flat = list(axes.flat)
+    for ax in flat[k:]:
+        ax.set_visible(False)
+    return fig, flat[:k]
+
+
+def _legend_below(fig, ax) -> None:  # noqa: ANN001
+    """One legend for the figure (the entries of ``ax``), centred below the panels."""
+    from drill_env._figures import renderer
+
+    handles, labels = ax.get_legend_handles_labels()
+    leg = fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=FONT, frameon=False)
+    height = leg.get_window_extent(renderer(fig)).height / (fig.dpi * fig.get_figheight())
+    fig.tight_layout(rect=(0, height + 0.01, 1, 1))
 
 
 def _decade_ticks(axis, limits: tuple[float, float]) -> None:  # noqa: ANN001
@@ -158,11 +189,10 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     if held:
         # spectra of the held-out runs
         k = len(held)
-        fig, axes = subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
-        for ax, name in zip(axes[0], held, strict=False):
+        fig, axes = _run_grid(k)
+        for ax, name in zip(axes, held, strict=False):
             plot_spectra(ax, res.nominal[name], res.after.get(name), runs[name].label)
-        axes[0][0].legend(fontsize=7)
-        fig.tight_layout()
+        _legend_below(fig, axes[0])
         save_figure(fig, out / "spectra.png", dpi=110)
         figs.append(
             (
@@ -172,8 +202,8 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             )
         )
         # residual spectra of the short-horizon prediction
-        fig, axes = subplots(1, k, figsize=(4 * k, 3.2), squeeze=False)
-        for ax, name in zip(axes[0], held, strict=False):
+        fig, axes = _run_grid(k)
+        for ax, name in zip(axes, held, strict=False):
             c = res.nominal[name]
             band = (c.freqs > 0) & (c.freqs <= 10.0)
             ax.loglog(c.freqs[band], c.psd_short_residual[band], color="tab:red", lw=1, label="nominal")
@@ -182,13 +212,12 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
                 ax.loglog(
                     a.freqs[band], a.psd_short_residual[band], color="tab:blue", lw=1, label="with effect"
                 )
-            ax.set_title(runs[name].label, fontsize=9)
-            ax.set_xlabel("frequency [Hz]")
-            ax.set_ylabel(
-                "PSD of lower-disk speed residual\n(2 s prediction - measured) [(rad/s)^2/Hz]", fontsize=8
-            )
-        axes[0][0].legend(fontsize=7)
-        fig.tight_layout()
+            ax.set_title(runs[name].label, fontsize=FONT)
+            ax.set_xlabel("frequency [Hz]", fontsize=FONT)
+            ax.set_ylabel("PSD of the speed residual\n[(rad/s)^2/Hz]", fontsize=FONT)
+            ax.tick_params(labelsize=FONT)
+        fig.suptitle("lower-disk speed residual: 2 s prediction - measured", fontsize=FONT + 1)
+        _legend_below(fig, axes[0])
         save_figure(fig, out / "residual_spectra.png", dpi=110)
         figs.append(
             (
@@ -198,7 +227,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
             )
         )
         # trajectories
-        fig, axes = subplots(k, 1, figsize=(9, 2.4 * k), squeeze=False)
+        fig, axes = subplots(k, 1, figsize=(FIGURE_WIDTH, 2.2 * k + 0.6), squeeze=False, sharex=True)
         for ax, name in zip(axes[:, 0], held, strict=False):
             c = res.nominal[name]
             sel = c.t <= min(c.t[-1], 40.0)
@@ -213,11 +242,11 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
                     ls="--",
                     label="with effect, short horizons",
                 )
-            ax.set_ylabel("lower speed [rad/s]")
-            ax.set_title(runs[name].label, fontsize=9)
-        axes[-1, 0].set_xlabel("time since start of recording [s]")
-        axes[0, 0].legend(fontsize=7, loc="upper right")
-        fig.tight_layout()
+            ax.set_ylabel("lower speed [rad/s]", fontsize=FONT)
+            ax.set_title(runs[name].label, fontsize=FONT)
+            ax.tick_params(labelsize=FONT)
+        axes[-1, 0].set_xlabel("time since start of recording [s]", fontsize=FONT)
+        _legend_below(fig, axes[0, 0])
         save_figure(fig, out / "trajectories.png", dpi=110)
         figs.append(
             (
@@ -230,7 +259,7 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
     # bifurcation points
     const = [n for n, c in res.nominal.items() if c.features_measured is not None]
     if const:
-        fig, ax = subplots(figsize=(6, 4))
+        fig, ax = subplots(figsize=(6.5, 4.2))
         for n in const:
             c = res.nominal[n]
             v = c.voltage
@@ -245,9 +274,10 @@ def _figures(res, out: Path) -> list[tuple[str, str]]:
         ax.plot([], [], "x", color="tab:red", label="nominal model")
         if res.after:
             ax.plot([], [], "+", color="tab:blue", label="with effect (held-out runs)")
-        ax.set_xlabel("constant voltage u [V]")
-        ax.set_ylabel("lower speed min / mean / max [rad/s]")
-        ax.legend(fontsize=7)
+        ax.set_xlabel("constant voltage u [V]", fontsize=FONT)
+        ax.set_ylabel("lower speed min / mean / max [rad/s]", fontsize=FONT)
+        ax.tick_params(labelsize=FONT)
+        ax.legend(fontsize=FONT)
         fig.tight_layout()
         save_figure(fig, out / "bifurcation.png", dpi=110)
         figs.append(

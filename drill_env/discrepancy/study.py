@@ -759,6 +759,27 @@ def _write_markdown(
     atomic_write_text(out / "confusion.md", "\n".join(lines))
 
 
+def redraw_figures(out: str | Path) -> list[Path]:
+    """Draw ``confusion.png`` and ``detection.png`` of the study in ``out`` again from its
+    ``study.json`` (nothing is run); returns the figures' paths."""
+    out = Path(out)
+    path = out / "study.json"
+    if not path.is_file():
+        raise ValueError(f"{path}: no study.json here (a finished study writes it)")
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+        rows, summary = record["rows"], record["summary"]
+    except (json.JSONDecodeError, KeyError, TypeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a study's record ({type(exc).__name__}: {exc})") from None
+    with output_lock(out, "discrepancy-study"):
+        _plot(out, rows, summary)
+    return [out / "confusion.png", out / "detection.png"]
+
+
+FIGURE_WIDTH = 8.0  # [in] the study's figures (drawn 724 px wide in the docs)
+FONT = 9.0  # [pt] their smallest text
+
+
 def _plot(out: Path, rows, summary) -> None:
     from drill_env._figures import subplots
 
@@ -766,27 +787,37 @@ def _plot(out: Path, rows, summary) -> None:
     labels = [t.label for t in truths()]
     conds = list(summary["per_condition"])
     acc = np.array([[summary["per_condition"][c]["by_truth"][lab] for c in conds] for lab in labels])
-    fig, ax = subplots(figsize=(8.5, 0.42 * len(labels) + 1.8))
+    # 8 in wide, text at FONT: legible where the docs draw a figure (drill_env._figures)
+    fig, ax = subplots(figsize=(FIGURE_WIDTH, 0.45 * len(labels) + 2.0))
     im = ax.imshow(acc, vmin=0.0, vmax=1.0, cmap="RdYlGn", aspect="auto")
     for i in range(acc.shape[0]):
         for j in range(acc.shape[1]):
             v = acc[i, j]
-            ax.text(j, i, "-" if not math.isfinite(v) else f"{v:.0%}", ha="center", va="center", fontsize=8)
-    ax.set_xticks(range(len(conds)), [c.replace(", ", "\n") for c in conds], fontsize=8)
-    ax.set_yticks(range(len(labels)), labels, fontsize=8)
-    ax.set_xlabel("condition: added angle noise [rad], parameter error [% of each identified parameter]")
-    ax.set_ylabel("truth (hidden effects)")
-    ax.set_title(
-        f"Share of datasets with the right verdict (overall {summary['accuracy']:.1%}, "
-        f"false discoveries {summary['false_discoveries']})",
-        fontsize=10,
+            ax.text(
+                j, i, "-" if not math.isfinite(v) else f"{v:.0%}", ha="center", va="center", fontsize=FONT
+            )
+    # "0.001 rad, 2%" as "0.001\n2%": the units are the axis label's, the columns stay apart
+    ax.set_xticks(
+        range(len(conds)), [c.replace(" rad", "").replace(", ", "\n") for c in conds], fontsize=FONT
     )
-    fig.colorbar(im, ax=ax, label="right verdicts [-]")
+    ax.set_yticks(range(len(labels)), labels, fontsize=FONT)
+    ax.set_xlabel(
+        "condition: added angle noise [rad],\nparameter error [% of each identified parameter]", fontsize=FONT
+    )
+    ax.set_ylabel("truth (hidden effects)", fontsize=FONT)
+    ax.set_title(
+        f"Share of datasets with the right verdict\n(overall {summary['accuracy']:.1%}, "
+        f"false discoveries {summary['false_discoveries']})",
+        fontsize=FONT + 1,
+    )
+    bar = fig.colorbar(im, ax=ax)
+    bar.set_label("right verdicts [-]", fontsize=FONT)
+    bar.ax.tick_params(labelsize=FONT)
     fig.tight_layout()
     with atomic_file(out / "confusion.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
 
-    fig, axes = subplots(1, 2, figsize=(11.5, 4.3))
+    fig, axes = subplots(2, 1, figsize=(FIGURE_WIDTH, 9.0), height_ratios=(1.0, 0.8))
     markers = ("o", "s", "^", "v", "D", "P")
     dashes = ("-", "--", "-.", ":")
     ax = axes[0]
@@ -800,11 +831,19 @@ def _plot(out: Path, rows, summary) -> None:
     ax.grid(alpha=0.3)
     n0, e0 = SWEEP_CONDITION
     ax.set_title(
-        f"Detection against magnitude (angle noise {n0:g} rad, parameter error {e0:.0%})", fontsize=9
+        f"Detection against magnitude (angle noise {n0:g} rad, parameter error {e0:.0%})", fontsize=FONT + 1
     )
-    ax.set_xlabel("magnitude / lower end of the detectable range [-]")
-    ax.set_ylabel("share of datasets named right [-]")
-    ax.legend(fontsize=7, title="true effect", title_fontsize=7, loc="lower right")
+    ax.set_xlabel("magnitude / lower end of the detectable range [-]", fontsize=FONT)
+    ax.set_ylabel("share of datasets named right [-]", fontsize=FONT)
+    ax.legend(
+        fontsize=FONT,
+        title="true effect",
+        title_fontsize=FONT,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.16),
+        ncol=3,
+        frameon=False,
+    )
     ax = axes[1]
     z = np.array(
         [
@@ -829,13 +868,16 @@ def _plot(out: Path, rows, summary) -> None:
         for x in (-1.96, 1.96):
             ax.axvline(x, color="tab:red", ls="--", lw=0.8)
         ax.plot([], [], color="tab:red", ls="--", lw=0.8, label="95 % interval edge")
-    ax.set_xlabel("(recalibrated - true value) / interval's standard deviation [-]")
-    ax.set_ylabel("density [-]")
+        ax.set_ylim(0.0, 1.45 * ax.get_ylim()[1])  # room for the legend above the bars
+    ax.set_xlabel("(recalibrated - true value) / interval's standard deviation [-]", fontsize=FONT)
+    ax.set_ylabel("density [-]", fontsize=FONT)
     ax.set_title(
         f"Parameter errors in units of their intervals ({summary['coverage_per_parameter']:.1%} inside)",
-        fontsize=9,
+        fontsize=FONT + 1,
     )
-    ax.legend(fontsize=7, loc="upper left")
+    ax.legend(fontsize=FONT, loc="upper left")
+    for a in axes:
+        a.tick_params(labelsize=FONT)
     fig.tight_layout()
     with atomic_file(out / "detection.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)
@@ -884,7 +926,7 @@ def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
     res = run_discrepancy(data_dir, out / "analysis", heldout=held)
     from drill_env._figures import subplots
 
-    fig, axes = subplots(1, 2, figsize=(10, 3.8))
+    fig, axes = subplots(1, 2, figsize=(FIGURE_WIDTH, 3.6))
     for ax, name in zip(axes, held, strict=False):
         run = next(r for r in syn.runs if r.name == name)
         plot_spectra(ax, res.nominal[name], res.after.get(name), f"{run.voltage:g} V (held out)")
@@ -892,8 +934,8 @@ def _paper_case(out: Path, seed: int, magnitude: float, data_dir: Path) -> dict:
         assert speed is not None  # kept for the figures
         rot = float(np.mean(speed)) / (2 * math.pi)
         ax.axvline(rot, color="gray", lw=0.6, ls=":")
-        ax.text(rot, ax.get_ylim()[1], " rotation rate", fontsize=7, va="top", color="gray")
-    axes[0].legend(fontsize=7)
+        ax.text(rot, ax.get_ylim()[1], " rotation rate", fontsize=FONT, va="top", color="gray")
+    axes[0].legend(fontsize=FONT)
     fig.tight_layout()
     with atomic_file(out / "spectra_0.2_0.5V.png", "wb") as f:
         fig.savefig(f, format="png", dpi=110)

@@ -15,6 +15,10 @@ from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
 
 __all__ = ["identification_json", "write_outputs", "UNITS"]
 
+# the report's figures: at most FIGURE_WIDTH wide, no text below FONT (legible where the docs
+# draw a figure, 724 px wide: drill_env._figures' size rule)
+FIGURE_WIDTH = 8.0  # [in]
+FONT = 9.0  # [pt]
 MISFIT_WARN = 10.0  # residual variance (noise floor 1) above which the report names a misfit
 
 UNITS = {
@@ -241,7 +245,7 @@ def _friction_figure(res: Identification, p: RigParams, path: Path) -> None:
     from drill_env._figures import subplots
     from drill_env.friction import lower_friction_curve, upper_slip_friction
 
-    fig, (ax_u, ax_l) = subplots(1, 2, figsize=(12, 4.8))
+    fig, (ax_u, ax_l) = subplots(2, 1, figsize=(FIGURE_WIDTH, 7.8))
     top_l = max(res.max_lower_speed, 1.0)
     w_l = np.linspace(0.0, top_l, 300)
     w_up = max([abs(s.mean_upper_speed) for s in res.states] + [1.0])
@@ -281,26 +285,31 @@ def _friction_figure(res: Identification, p: RigParams, path: Path) -> None:
             ms=7,
             label="runs: k_m u - k_theta mean(x1) at mean(x2)",
         )
-    ax_l.set_xlabel("|x3| = lower-disk speed [rad/s]")
-    ax_l.set_ylabel("lower-disk friction T_l [N m]")
-    ax_l.set_title("lower disk")
-    ax_u.set_xlabel("x2 = upper-disk speed [rad/s]")
-    ax_u.set_ylabel("upper-disk friction T_fu [N m]")
-    ax_u.set_title("upper disk" + ("" if res.fit.negative_side else " (negative side not in the data)"))
+    ax_l.set_xlabel("|x3| = lower-disk speed [rad/s]", fontsize=FONT)
+    ax_l.set_ylabel("lower-disk friction T_l [N m]", fontsize=FONT)
+    ax_l.set_title("lower disk", fontsize=FONT + 1)
+    ax_u.set_xlabel("x2 = upper-disk speed [rad/s]", fontsize=FONT)
+    ax_u.set_ylabel("upper-disk friction T_fu [N m]", fontsize=FONT)
+    ax_u.set_title(
+        "upper disk" + ("" if res.fit.negative_side else " (negative side not in the data)"),
+        fontsize=FONT + 1,
+    )
     for ax in (ax_u, ax_l):
         ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=8)
+        ax.tick_params(labelsize=FONT)
+        ax.legend(loc="best", fontsize=FONT)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
 
 
 def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> bool:
     from drill_env._figures import subplots
+    from drill_env.analysis.plots import legend_below
 
     comps = [c for c in res.heldout.values() if c.t is not None]
     if not comps:
         return False
-    fig, axes = subplots(len(comps), 1, figsize=(11, 2.6 * len(comps)), squeeze=False)
+    fig, axes = subplots(len(comps), 1, figsize=(FIGURE_WIDTH, 2.3 * len(comps) + 0.7), squeeze=False)
     for ax, c in zip(axes[:, 0], comps, strict=True):
         t = c.t - c.t[0]
         k = t <= window_s
@@ -311,12 +320,12 @@ def _heldout_figure(res: Identification, path: Path, window_s: float = 60.0) -> 
         ax.plot(t[k], meas[k], color="0.2", lw=1.0, label="measured (rig's speed chain, 0.1 s average)")
         ax.plot(t[k], free[k], color="tab:orange", lw=1.2, ls="--", label="identified model, free run (same)")
         run = res.dataset.run(c.run)
-        ax.set_title(f"held-out run {run.label}", fontsize=10)
-        ax.set_ylabel("x3 [rad/s]")
+        ax.set_title(f"held-out run {run.label}", fontsize=FONT + 1)
+        ax.set_ylabel("x3 [rad/s]", fontsize=FONT)
+        ax.tick_params(labelsize=FONT)
         ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel("time since the start of the recording [s]")
-    axes[0, 0].legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
+    axes[-1, 0].set_xlabel("time since the start of the recording [s]", fontsize=FONT)
+    legend_below(fig, axes[0, 0].get_legend_handles_labels()[0])
     save_figure(fig, path, dpi=110)
     return True
 
@@ -329,7 +338,7 @@ def _bifurcation_figure(
 
     from drill_env._figures import subplots
     from drill_env.analysis import bifurcation_diagram
-    from drill_env.analysis.plots import plot_bifurcation
+    from drill_env.analysis.plots import legend_below, plot_bifurcation
 
     pos = [s for s in res.states if s.voltage > 0]
     u_max = max([s.voltage for s in pos] + [1.0])
@@ -338,10 +347,12 @@ def _bifurcation_figure(
         diagram = bifurcation_diagram(params, u_max=u_max, u_min=0.0)
     except Exception as exc:  # noqa: BLE001 (the report says why the figure is missing)
         return {"error": f"{type(exc).__name__}: {exc}"}
-    fig, ax = subplots(figsize=(11, 5.5))
+    fig, ax = subplots(figsize=(FIGURE_WIDTH, 6.6))
+    ax.tick_params(labelsize=FONT)
     plot_bifurcation(diagram, ax=ax, legend=False, alpha=0.8)
     ax.set_title(
-        f"bifurcation diagram of the identified model ({res.structure}) with the data's steady states"
+        f"bifurcation diagram of the identified model ({res.structure})\nwith the data's steady states",
+        fontsize=FONT + 2,
     )
     handles = list(getattr(ax, "diagram_handles", []))
     if pos:
@@ -354,8 +365,7 @@ def _bifurcation_figure(
             Line2D([], [], marker="^", mfc="none", color="tab:red", ls="none", label="data: max x3 (0.1 s)"),
             Line2D([], [], marker="v", mfc="none", color="tab:red", ls="none", label="data: min x3 (0.1 s)"),
         ]
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    fig.tight_layout()
+    legend_below(fig, handles)
     save_figure(fig, path, dpi=110)
     return {
         "u_max": u_max,

@@ -56,7 +56,13 @@ from drill_env.agents.evaluation.benchmark.report import (
     write_report,
 )
 from drill_env.agents.evaluation.benchmark.runs import OPEN_LOOP_FLOOR, run_job
-from drill_env.agents.evaluation.benchmark.store import COLUMNS, KEY, check_resumable, load_results
+from drill_env.agents.evaluation.benchmark.store import (
+    COLUMNS,
+    KEY,
+    check_resumable,
+    load_results,
+    runs_missing,
+)
 from drill_env.agents.evaluation.plants import NOMINAL, Plant
 
 __all__ = [
@@ -79,6 +85,7 @@ __all__ = [
     "Plant",
     "bifurcation_figure",
     "check_resumable",
+    "runs_missing",
     "draw_bifurcation_figure",
     "load_results",
     "run_benchmark",

@@ -118,6 +118,14 @@ def check_resumable(cfg: BenchmarkConfig, out_dir: str | Path) -> dict[str, Any]
     return old
 
 
+def runs_missing(cfg: BenchmarkConfig, out_dir: str | Path) -> int:
+    """How many runs of ``cfg``'s grid the results file in ``out_dir`` lacks (all of them
+    without one); call it after :func:`check_resumable`. Zero: resuming runs nothing, it only
+    writes the report and the figures again from the rows."""
+    done = _done_keys(Path(out_dir) / "benchmark.csv")
+    return sum(1 for j in cfg.jobs() if j.key not in done)
+
+
 def _check_same_grid(cfg: BenchmarkConfig, out: Path, old: Mapping[str, Any], csv_path: Path) -> None:
     """Refuse to resume a benchmark of another grid: every run of the one in ``out`` (its
     recorded grid and every row of its CSV) must be a run of ``cfg``, so that the results and
