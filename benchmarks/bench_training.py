@@ -473,16 +473,16 @@ def write_summary(result: dict, out: Path) -> None:
             f"Baseline workload (`configs/agents/{b['config']}`, {b['steps']} env-steps of `learn`): "
             f"{b['wall_s']:.1f} s wall, {b['cpu_s']:.1f} s CPU."
         )
+    clock = result.get("clock", "wall")
     lines += [
         "",
-        "| algorithm | rig | config | seeds reaching it | within target | time to target per seed [s] "
+        f"| algorithm | rig | config | seeds reaching it | within target | time to target per seed [{clock} s] "
         "| median wall / CPU [s] | worst wall / CPU [s] | median / baseline | target |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in result["summary"]:
-        times = ", ".join(
-            f"{seed}: {_s(t)}" for seed, t in zip(s["seeds"], s["time_to_target_s"], strict=True)
-        )
+        per_seed = s["time_to_target_s"] if clock == "wall" else s["cpu_to_target_s"]
+        times = ", ".join(f"{seed}: {_s(t)}" for seed, t in zip(s["seeds"], per_seed, strict=True))
         cfg = (
             s.get("config") or f"configs/agents/{config_name(s['algo'], s['preset'], result['from_scratch'])}"
         )

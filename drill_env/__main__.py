@@ -1,6 +1,6 @@
-"""``python -m drill_env``: the command line, as ``drill-env``."""
+"""``python -m drill_env``: the command line, as ``drill-env`` (the same Ctrl-C handling)."""
 
-from drill_env.cli import app
+from drill_env.cli import main
 
 if __name__ == "__main__":
-    app(prog_name="python -m drill_env")
+    main(prog_name="python -m drill_env")

@@ -263,11 +263,11 @@ def _register_commands() -> None:
 _register_commands()
 
 
-def main() -> None:  # entry point
+def main(prog_name: str | None = None) -> None:  # entry point (``drill-env``, ``python -m drill_env``)
     """Run the command; a Ctrl-C at any moment ends it with exit code 130, also one that
-    arrived where Python cannot raise it (a finaliser, a cleanup: "Exception ignored")."""
+    arrived where Python cannot raise it (a finaliser, a cleanup: "Exception ignored"), and
+    also in a process started with SIGINT ignored (a shell script's background job)."""
     import signal
-    import sys
 
     seen: list[int] = []
 
@@ -280,7 +280,7 @@ def main() -> None:  # entry point
     except ValueError:  # not the main thread: leave Python's handler
         pass
     try:
-        app()
+        app(prog_name=prog_name) if prog_name is not None else app()
     except SystemExit as exc:
         if seen and exc.code in (0, None):
             typer.secho(
@@ -289,8 +289,31 @@ def main() -> None:  # entry point
                 fg=typer.colors.YELLOW,
                 err=True,
             )
-            sys.exit(INTERRUPTED_EXIT)
+            _exit_now(INTERRUPTED_EXIT)
+        if exc.code == INTERRUPTED_EXIT:
+            _exit_now(INTERRUPTED_EXIT)
         raise
+
+
+def _exit_now(code: int) -> None:
+    """End the process at once after a Ctrl-C: the exit handlers run (pools, clusters, temporary
+    folders), the output is flushed, and the interpreter's teardown is skipped -- freeing the
+    compiled kernels' machine code alone takes seconds on a loaded machine. Every file the
+    command wrote was closed (and replaced whole) before it got here."""
+    import atexit
+    import os
+    import sys
+
+    try:
+        atexit._run_exitfuncs()
+    except BaseException:  # noqa: BLE001 (a second Ctrl-C in a handler: end anyway)
+        pass
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except BaseException:  # noqa: BLE001
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":

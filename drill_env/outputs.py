@@ -55,6 +55,7 @@ __all__ = [
     "check_new_folder",
     "MARKER_NAME",
     "OutputWriteError",
+    "StaleLockWarning",
     "ResumeError",
     "check_command_folder",
     "command_folder",
@@ -88,6 +89,12 @@ class OutputFolderBusy(OutputFolderError):
 class ResumeError(OutputFolderError):
     """A partial file left by an interrupted run cannot be resumed from (empty, truncated,
     foreign, another version's): the message names it and the choice (``--fresh``)."""
+
+
+class StaleLockWarning(RuntimeWarning):
+    """A lock left by a run that is gone was taken over (shown by the CLI as one line)."""
+
+    one_line = True
 
 
 class OutputWriteError(OutputFolderError):
@@ -440,7 +447,7 @@ def _acquire(folder: Path, what: str, folder_key: str) -> tuple[Path, str, int]:
                 warnings.warn(
                     f"{folder}: taking over the lock left by a run that is gone ({gone}); "
                     "its results in this folder may be incomplete",
-                    RuntimeWarning,
+                    StaleLockWarning,
                     stacklevel=4,
                 )
                 _take_over(path, ident)
@@ -691,16 +698,7 @@ def check_command_folder(
     marked = _marker_command(path)
     if marked == command:
         return path
-    if marked is not None:
-        raise OutputFolderError(
-            f"{option} {path}: holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder holds "
-            f"one command's outputs, never mixed: choose another folder for `drill-env {command}`"
-        )
-    if (path / "dataset.json").exists() or (path / "dataset.json").is_symlink():
-        raise OutputFolderError(
-            f"{option} {path}: holds a dataset (dataset.json); outputs are never written into a dataset "
-            "folder: choose another folder"
-        )
+    _refuse_foreign_folder(path, command, option, path)
     entries = sorted(p for p in path.iterdir() if p.name != LOCK_NAME)
     for p in entries:
         if p.is_symlink():
@@ -815,16 +813,17 @@ def _refuse_foreign_folder(
     command other than ``command`` and ``accepts``)."""
     if not folder.is_dir():
         return
+    where = f"{option} {shown}: " + ("" if folder == shown else f"{folder} ")
     marked = _marker_command(folder)
     if marked is not None and marked != command and marked not in accepts:
         raise OutputFolderError(
-            f"{option} {shown}: {folder} holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder "
-            f"holds one command's outputs, never mixed: choose another folder for `drill-env {command}`"
+            f"{where}holds the outputs of `drill-env {marked}` ({MARKER_NAME}); a folder holds one command's "
+            f"outputs, never mixed: choose another folder for `drill-env {command}`"
         )
     if (folder / "dataset.json").exists() or (folder / "dataset.json").is_symlink():
         raise OutputFolderError(
-            f"{option} {shown}: {folder} holds a dataset (dataset.json); outputs are never written into a "
-            "dataset folder: choose another folder"
+            f"{where}holds a dataset (dataset.json); outputs are never written into a dataset folder: "
+            "choose another folder"
         )
 
 

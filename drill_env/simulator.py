@@ -555,21 +555,28 @@ def _run_stoppable(args: tuple[Any, ...], stats: np.ndarray, long_run: bool, ker
     if not long_run or threading.current_thread() is not threading.main_thread():
         return kernel(*args)
     box: dict[str, Any] = {}
+    done = threading.Event()
 
     def target() -> None:
         try:
             box["status"] = kernel(*args)
         except BaseException as exc:  # noqa: BLE001 (passed on to the caller)
             box["error"] = exc
+        finally:
+            done.set()
 
     worker = threading.Thread(target=target, name="drill-env-simulate", daemon=True)
     worker.start()
     try:
-        while worker.is_alive():
-            worker.join(0.05)
+        while not done.wait(0.05):
+            pass
     except KeyboardInterrupt:
         stats[..., ST_STOP] = 1.0  # every rig of a batch reads its own row
-        worker.join()
+        # an Event, not Thread.join: a join that Ctrl-C interrupted can mark the thread as ended
+        # while it still runs (Python 3.11), and a second join then returns at once
+        # the kernel stops after its current step; one still being loaded (compiled code read
+        # from the cache, seconds on a loaded machine) stops at its first: not waited for
+        done.wait(1.0)
         raise
     if "error" in box:
         raise box["error"]

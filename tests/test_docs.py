@@ -183,6 +183,34 @@ def test_the_results_pages_show_the_regenerating_commands():
     )
 
 
+# Pages that are no result of one command: the policies' own cards and the variants not kept.
+NOT_A_RESULTS_PAGE = {"agents", "history"}
+
+
+@pytest.mark.parametrize(
+    "page", sorted(p.stem for p in (DOCS / "results").glob("*.md") if p.stem not in NOT_A_RESULTS_PAGE)
+)
+def test_a_results_page_opens_with_a_figure_and_its_headline_table(page):
+    """After the title: a figure, then the short table computed from the committed files, and
+    that table renders from them (a column missing or a file moved fails here, not in the build)."""
+    spec = importlib.util.spec_from_file_location("headlines", DOCS / "_ext" / "headlines.py")
+    headlines = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(headlines)
+    blocks = [
+        b for b in (DOCS / "results" / f"{page}.md").read_text(encoding="utf-8").split("\n\n") if b.strip()
+    ]
+    assert blocks[0].startswith("# "), blocks[0]
+    assert blocks[1].startswith("![") and "../../results/" in blocks[1], (
+        f"{page}: no figure first: {blocks[1][:80]!r}"
+    )
+    assert blocks[2].strip() == f"```{{include}} ../_generated/results/headline_{page}.md\n```", blocks[2][
+        :80
+    ]
+    table = headlines.HEADLINES[page](ROOT / "results")
+    rows = [line for line in table.splitlines() if line.startswith("| ")]
+    assert 2 <= len(rows) <= 25, f"{page}: a headline of {len(rows)} rows is no short table"
+
+
 # -- the built site, in a browser ------------------------------------------------------------
 
 

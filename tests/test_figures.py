@@ -449,7 +449,6 @@ def test_the_gain_axis_decades_stay_apart(gains):
     assert legibility_problems(fig) == []
 
 
-@pytest.mark.slow
 def test_the_discrepancy_reports_gain_and_equation_error_figures_are_legible(tmp_path, saved_figures):
     from drill_env._figures import legibility_problems
     from drill_env.discrepancy.report import _figures

@@ -515,6 +515,24 @@ def test_ctrl_c_stops_the_simulate_command_and_says_so():
     assert err.strip().splitlines()[-1] == "interrupted (Ctrl-C): the simulation was stopped; nothing written"
 
 
+def test_ctrl_c_stops_python_m_drill_env_within_2_s_and_exits_130():
+    """`python -m drill_env` ends a Ctrl-C as `drill-env` does (it called the app directly, without
+    the entry point's handling), and the process ends at once after it: the interpreter's
+    teardown (seconds with the compiled kernels loaded) is skipped."""
+    drill_env.simulate("brake", 2.0, 60.0)  # the kernels in the cache the command reads
+    args = [sys.executable, "-m", "drill_env", "simulate", "--duration", "1e7", "--dt", "10"]
+    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(8.0)  # started and in the run (hours long)
+    assert proc.poll() is None, proc.communicate()
+    t = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    took = time.perf_counter() - t
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "interrupted (Ctrl-C)" in err
+    assert took < 2.0, took
+
+
 # -- 6. time precision at a late start ---------------------------------------------------------------------
 
 
@@ -721,3 +739,57 @@ def test_discrepancy_on_a_motionless_dataset_names_the_runs_and_what_they_lack(t
     if moving:
         assert "run02" not in line  # the run that turns is not named
     assert not (tmp_path / "o").exists()  # refused before anything was written
+
+
+def test_identify_on_runs_that_barely_excite_the_rig_reports_instead_of_a_traceback(tmp_path):
+    """Three short runs just above the break-away (0.2-0.4 V): the fit's covariance is not
+    finite, which broke the flat-direction analysis with numpy's "Eigenvalues did not
+    converge"; now the report names the parameters as unbounded and no rig file is written."""
+    from drill_env.recordings.synth import SynthConfig, make_dataset, write_synthetic
+
+    cfg = SynthConfig(preset="brake", voltages=(0.2, 0.3, 0.4), random_runs=0, duration_s=20.0)
+    write_synthetic(
+        make_dataset("none", seed=0, config=cfg), tmp_path / "d", tmp_path / "a.json", preset="brake"
+    )
+    res = runner.invoke(app, ["identify", str(tmp_path / "d"), "--out", str(tmp_path / "o"), "--no-effects"])
+    assert "Traceback" not in res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
+    assert res.exit_code in (1, 2), res.output
+    assert "error: no rig.yaml" in res.output
+    report = (tmp_path / "o" / "report.md").read_text()
+    assert "a 95 % half-width of inf" in report
+    assert not (tmp_path / "o" / "rig.yaml").exists()
+
+
+@pytest.mark.parametrize("command", ["benchmark", "discrepancy", "sim-to-real"])
+def test_ctrl_c_ends_a_long_command_within_2_s_with_exit_130(tmp_path, command):
+    """Ctrl-C in the middle of the work (after the start-up, in the runs or the analysis) ends
+    the command within 2 s, exit code 130, one line, no traceback."""
+    data = tmp_path / "data"
+    if command == "discrepancy":
+        from drill_env.recordings.synth import SynthConfig, make_dataset, write_synthetic
+
+        cfg = SynthConfig(voltages=(1.0, 2.0, 3.0), random_runs=0, duration_s=20.0, pre_roll_s=2.0)
+        write_synthetic(make_dataset("none", seed=1, config=cfg), data, tmp_path / "a.json", preset="brake")
+    args = {
+        "benchmark": ["benchmark", "--quick", "--controllers", "open_loop,pi_upper", "--workers", "1"],
+        "discrepancy": ["discrepancy", str(data)],
+        "sim-to-real": ["sim-to-real", "--quick"],
+    }[command]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "drill_env", *args, "--out", str(tmp_path / "o")],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(10.0)  # past the start-up, in the work (each takes minutes)
+    assert proc.poll() is None, proc.communicate()
+    t = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    took = time.perf_counter() - t
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "Exception ignored" not in err
+    assert [ln for ln in err.splitlines() if ln.startswith("interrupted (Ctrl-C)")], err
+    assert took < 2.0, took

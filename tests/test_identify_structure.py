@@ -205,10 +205,11 @@ def test_cli_amplifier_errors_are_none_or_recalibrated_never_unexplained(tmp_pat
     p = ident["parameters"]
     gain, offset = amplifier.get("gain", 1.0), amplifier.get("offset_v", 0.0)
     km = rig.motor_constant
-    assert p["motor_constant"]["value"] == pytest.approx(km * gain, rel=0.01)
-    # the offset is a constant torque k_m u0: the positive-side level absorbs it exactly
-    assert p["upper_static_pos"]["value"] == pytest.approx(rig.upper_static_pos - km * offset, rel=0.02)
-    assert p["upper_viscous_pos"]["value"] == pytest.approx(rig.upper_viscous_pos, rel=0.02)
+    # within the 3 % for an excited parameter (the folded values are exact: a gain scales
+    # k_m, an offset is a constant torque k_m u0 the positive-side level absorbs)
+    assert p["motor_constant"]["value"] == pytest.approx(km * gain, rel=0.03)
+    assert p["upper_static_pos"]["value"] == pytest.approx(rig.upper_static_pos - km * offset, rel=0.03)
+    assert p["upper_viscous_pos"]["value"] == pytest.approx(rig.upper_viscous_pos, rel=0.03)
     r = CliRunner().invoke(
         app,
         ["discrepancy", str(data), "--params", str(ident_dir / "rig.yaml"), "--out",
@@ -365,6 +366,16 @@ def test_study_on_lab_protocols():
         )  # fmt: skip
         ident = s.identification
         case = f"{structure}-{seed}-{protocol}"
+        errors = {
+            n: ident.parameters[n].value / float(getattr(rig, n)) - 1.0
+            for n in EXCITED
+            if ident.parameters[n].identified
+        }
+        worst = max(errors, key=lambda n: abs(errors[n])) if errors else None
+        print(
+            f"{case} hidden {effect}: verdict {s.verdict}; largest excited error "
+            + (f"{errors[worst]:+.2%} ({worst})" if worst else "-")
+        )
         if effect is None:
             assert s.verdict in ("none", "recalibrated"), (case, s.as_dict())  # no false discovery
         elif effect == "outside":
@@ -388,4 +399,7 @@ def test_study_on_lab_protocols():
                 if k in fields_:
                     total += 1
                     inside += lo <= fields_[k] <= hi
+                    if not lo <= fields_[k] <= hi:
+                        missed.append(f"{case}:{k}")
+    print(f"truths inside their 95 % intervals: {inside}/{total} = {inside / total:.1%}; outside: {missed}")
     assert inside >= 0.9 * total, (inside, total, missed)

@@ -10,7 +10,6 @@ path and leaves no lock, temporary or 0-byte file behind.
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
 import socket
@@ -20,6 +19,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from file_tree import one_error_line, tree
 from typer.testing import CliRunner
 
 from drill_env.cli import app
@@ -55,33 +55,11 @@ def dataset(tmp_path_factory) -> Path:
     return root / "data"
 
 
-def _tree(folder: Path) -> dict[str, str]:
-    """Every entry under ``folder`` (links not followed) with its content's digest."""
-    out = {}
-    for p in sorted(folder.rglob("*")):
-        rel = p.relative_to(folder).as_posix()
-        if p.is_symlink():
-            out[rel] = "link -> " + os.readlink(p)
-        elif p.is_file():
-            out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
-        else:
-            out[rel] = "folder"
-    return out
-
-
 def _victim(tmp_path: Path) -> Path:
     victim = tmp_path / "elsewhere" / "victim.txt"
     victim.parent.mkdir()
     victim.write_text("the user's own file\n")
     return victim
-
-
-def _one_error_line(res) -> str:
-    assert res.exit_code == 2, res.output
-    assert "Traceback" not in res.output
-    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
-    assert len(lines) == 1, res.stderr
-    return lines[0]
 
 
 # -- planted links ---------------------------------------------------------------------------------
@@ -93,10 +71,10 @@ def test_identify_refuses_a_planted_link_and_leaves_its_target(tmp_path, runner,
     out.mkdir()
     (out / "friction.png").symlink_to(victim)
     res = runner.invoke(app, ["identify", str(dataset), "--out", str(out), "--no-bifurcation"])
-    line = _one_error_line(res)
+    line = one_error_line(res)
     assert "friction.png" in line and "symbolic link" in line
     assert victim.read_text() == "the user's own file\n"
-    assert _tree(out) == {"friction.png": f"link -> {victim}"}  # nothing added, nothing replaced
+    assert tree(out) == {"friction.png": f"link -> {victim}"}  # nothing added, nothing replaced
 
 
 @pytest.mark.parametrize(
@@ -125,10 +103,10 @@ def test_every_command_refuses_a_link_in_its_output_folder(tmp_path, runner, dat
     }
     (out / names[command[0]]).symlink_to(victim)
     args = [a.format(out=out, data=dataset) for a in command]
-    line = _one_error_line(runner.invoke(app, args))
+    line = one_error_line(runner.invoke(app, args))
     assert "symbolic link" in line and names[command[0]] in line
     assert victim.read_text() == "the user's own file\n"
-    assert _tree(out) == {names[command[0]]: f"link -> {victim}"}
+    assert tree(out) == {names[command[0]]: f"link -> {victim}"}
 
 
 def test_train_refuses_a_link_in_its_logs_folder(tmp_path, runner):
@@ -147,7 +125,7 @@ def test_train_refuses_a_link_in_its_logs_folder(tmp_path, runner):
         "--run-dir",
         str(logs),
     ]
-    line = _one_error_line(runner.invoke(app, args))
+    line = one_error_line(runner.invoke(app, args))
     assert "--run-dir" in line and "final_policy.zip" in line
     assert victim.read_text() == "the user's own file\n"
     assert not (tmp_path / "ppo").exists()  # nothing created before the inputs were checked
@@ -159,7 +137,7 @@ def test_a_link_as_the_output_file_is_refused(tmp_path, runner, command):
     link = tmp_path / ("run.csv" if command == "simulate" else "rc.md")
     link.symlink_to(victim)
     args = [command, "--out", str(link)] + (["--duration", "1"] if command == "simulate" else [])
-    line = _one_error_line(runner.invoke(app, args))
+    line = one_error_line(runner.invoke(app, args))
     assert "symbolic link" in line
     assert victim.read_text() == "the user's own file\n"
 
@@ -221,11 +199,11 @@ def test_sim_to_real_data_refuses_an_existing_dataset(tmp_path, runner, dataset)
     for p in dataset.iterdir():
         (data / p.name).write_bytes(p.read_bytes())
     (data / "notes.txt").write_text("x\n")
-    before = _tree(data)
+    before = tree(data)
     res = runner.invoke(app, ["sim-to-real", "--quick", "--data", str(data), "--out", str(tmp_path / "s2r")])
-    line = _one_error_line(res)
+    line = one_error_line(res)
     assert "--data" in line and "not empty" in line
-    assert _tree(data) == before  # no run replaced, none added
+    assert tree(data) == before  # no run replaced, none added
     assert not (tmp_path / "s2r").exists()
 
 
@@ -235,7 +213,7 @@ def test_a_folder_of_another_command_or_a_dataset_is_refused(tmp_path, runner, d
     (ident / MARKER_NAME).write_text(json.dumps({"command": "identify"}))
     (ident / "report.md").write_text("identify's report\n")
     res = runner.invoke(app, ["discrepancy", str(dataset), "--out", str(ident)])
-    line = _one_error_line(res)
+    line = one_error_line(res)
     assert "`drill-env identify`" in line
     assert (ident / "report.md").read_text() == "identify's report\n"
     # a discrepancy output from before folders had markers: its files tell
@@ -243,14 +221,14 @@ def test_a_folder_of_another_command_or_a_dataset_is_refused(tmp_path, runner, d
     legacy.mkdir()
     (legacy / "report.md").write_text("discrepancy's report\n")
     (legacy / "result.json").write_text("{}\n")
-    line = _one_error_line(runner.invoke(app, ["identify", str(dataset), "--out", str(legacy)]))
+    line = one_error_line(runner.invoke(app, ["identify", str(dataset), "--out", str(legacy)]))
     assert "result.json" in line
     assert (legacy / "report.md").read_text() == "discrepancy's report\n"
     # a dataset is never an output folder
-    before = _tree(dataset)
-    line = _one_error_line(runner.invoke(app, ["bifurcation", "--out", str(dataset)]))
+    before = tree(dataset)
+    line = one_error_line(runner.invoke(app, ["bifurcation", "--out", str(dataset)]))
     assert "holds a dataset" in line
-    assert _tree(dataset) == before
+    assert tree(dataset) == before
 
 
 def test_a_refused_run_leaves_no_output_folder(tmp_path, runner):
@@ -322,7 +300,7 @@ def test_a_full_disk_in_a_command_names_the_path_and_leaves_no_file(tmp_path, ru
     _full_disk(monkeypatch)
     out = tmp_path / "sim" / "run.csv"
     res = runner.invoke(app, ["simulate", "--duration", "2", "--out", str(out)])
-    line = _one_error_line(res)
+    line = one_error_line(res)
     assert str(out) in line and "No space left on device" in line
     assert list(tmp_path.rglob("*")) == []  # the folder it made is gone too
     assert not out.exists()
@@ -424,7 +402,7 @@ def test_discrepancy_study_refuses_an_unusable_partial_file_in_one_line(tmp_path
     partial = out / "study_rows.partial.jsonl"
     partial.write_bytes(content)
     args = ["discrepancy-study", "--out", str(out), "--seeds", "1", "--sweep-seeds", "1"]
-    line = _one_error_line(runner.invoke(app, [*args, "--workers", "1", "--skip-paper-case"]))
+    line = one_error_line(runner.invoke(app, [*args, "--workers", "1", "--skip-paper-case"]))
     assert str(partial) in line and "--fresh" in line
     assert partial.read_bytes() == content  # kept for the user to decide
     assert not (out / LOCK_NAME).exists()
@@ -465,7 +443,7 @@ def test_a_ray_address_nothing_answers_at_is_refused(tmp_path, runner, command):
     args = [command, "--out", str(tmp_path / "o"), "--backend", "ray", "--ray-address", address]
     if command == "benchmark":
         args += ["--quick", "--controllers", "open_loop"]
-    line = _one_error_line(runner.invoke(app, args))
+    line = one_error_line(runner.invoke(app, args))
     assert "--ray-address" in line and address in line
     assert not (tmp_path / "o").exists()
 
@@ -661,7 +639,7 @@ def test_a_duplicate_key_in_dataset_json_is_refused_with_the_key(tmp_path, runne
         meta.replace('"preset": "brake"', '"preset": "brake",\n  "preset": "no_brake"')
     )
     out = tmp_path / "id"
-    line = _one_error_line(runner.invoke(app, ["identify", str(data), "--out", str(out)]))
+    line = one_error_line(runner.invoke(app, ["identify", str(data), "--out", str(out)]))
     assert "'preset' appears twice (line" in line and "dataset.json" in line
     assert not out.exists()
 

@@ -11,13 +11,13 @@ the run created.
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
 import shutil
 from pathlib import Path
 
 import pytest
+from file_tree import one_error_line, tree
 from typer.testing import CliRunner
 
 from drill_env.cli import app
@@ -30,27 +30,6 @@ KEPT = "the user's own file\n"
 @pytest.fixture
 def runner() -> CliRunner:
     return CliRunner()
-
-
-def _tree(folder: Path) -> dict[str, str]:
-    out = {}
-    for p in sorted(folder.rglob("*")):
-        rel = p.relative_to(folder).as_posix()
-        if p.is_symlink():
-            out[rel] = "link -> " + os.readlink(p)
-        elif p.is_file():
-            out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
-        else:
-            out[rel] = "folder"
-    return out
-
-
-def _one_error_line(res) -> str:
-    assert res.exit_code == 2, res.output
-    assert "Traceback" not in res.output
-    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
-    assert len(lines) == 1, res.stderr
-    return lines[0]
 
 
 # the commands whose output is one or two named files: their arguments with the file {out}
@@ -84,12 +63,12 @@ def _folder_of(kind: str, where: Path) -> Path:
 @pytest.mark.parametrize("command", sorted(FILE_COMMANDS))
 def test_a_file_command_refuses_a_folder_of_another_command_or_a_dataset(tmp_path, runner, command, kind):
     folder = _folder_of(kind, tmp_path / "there")
-    before = _tree(folder)
+    before = tree(folder)
     out = folder / FILE_NAMES[command]
-    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    line = one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
     assert str(folder) in line
     assert ("`drill-env benchmark`" if kind == "benchmark-outputs" else "holds a dataset") in line
-    assert _tree(folder) == before  # nothing written, nothing replaced
+    assert tree(folder) == before  # nothing written, nothing replaced
 
 
 @pytest.mark.parametrize("command", sorted(FILE_COMMANDS))
@@ -100,10 +79,10 @@ def test_a_file_command_refuses_a_planted_link_and_leaves_its_target(tmp_path, r
     out = tmp_path / "o" / FILE_NAMES[command]
     out.parent.mkdir()
     out.symlink_to(victim)
-    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    line = one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
     assert "symbolic link" in line and str(out) in line
     assert victim.read_text() == KEPT
-    assert _tree(out.parent) == {out.name: f"link -> {victim}"}
+    assert tree(out.parent) == {out.name: f"link -> {victim}"}
 
 
 def _enospc(monkeypatch) -> None:
@@ -119,7 +98,7 @@ def _enospc(monkeypatch) -> None:
 def test_a_write_error_of_a_file_command_leaves_nothing_behind(tmp_path, runner, monkeypatch, command):
     _enospc(monkeypatch)
     out = tmp_path / "new" / "deeper" / FILE_NAMES[command]
-    line = _one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
+    line = one_error_line(runner.invoke(app, [a.format(out=out) for a in FILE_COMMANDS[command]]))
     assert str(out) in line and "No space left on device" in line
     assert list(tmp_path.iterdir()) == []  # the folders it made are gone, no temporary, no 0-byte file
 
@@ -150,10 +129,10 @@ def test_scenarios_refuses_another_command_s_folder_a_dataset_and_a_link(tmp_pat
         (folder / "summary.md").symlink_to(tmp_path / "victim.txt")
     else:
         folder = _folder_of(kind, tmp_path / "there")
-    before = _tree(folder)
-    line = _one_error_line(runner.invoke(app, [*SCENARIOS, "--out", str(folder)]))
+    before = tree(folder)
+    line = one_error_line(runner.invoke(app, [*SCENARIOS, "--out", str(folder)]))
     assert "--out" in line and str(folder) in line
-    assert _tree(folder) == before
+    assert tree(folder) == before
     if kind == "link":
         assert "symbolic link" in line and (tmp_path / "victim.txt").read_text() == KEPT
 
@@ -204,10 +183,10 @@ def test_policy_commands_refuse_a_planted_link_before_writing_anything(
         victim.write_text(KEPT)
     target.symlink_to(victim)
     kept = victim.read_bytes()
-    before = _tree(policies)
-    line = _one_error_line(runner.invoke(app, [*command, str(policies)]))
+    before = tree(policies)
+    line = one_error_line(runner.invoke(app, [*command, str(policies)]))
     assert "symbolic link" in line and str(target) in line
-    assert _tree(policies) == before  # not one card written before the refusal
+    assert tree(policies) == before  # not one card written before the refusal
     assert victim.read_bytes() == kept
 
 
@@ -223,10 +202,10 @@ def test_policy_commands_refuse_a_dataset_or_another_command_s_folder(
         marker = {"command": "benchmark", "written_by": "drill-env"}
         (policies / "ppo" / MARKER_NAME).write_text(json.dumps(marker))
         words = "`drill-env benchmark`"
-    before = _tree(policies)
-    line = _one_error_line(runner.invoke(app, [*command, str(policies)]))
+    before = tree(policies)
+    line = one_error_line(runner.invoke(app, [*command, str(policies)]))
     assert words in line
-    assert _tree(policies) == before
+    assert tree(policies) == before
 
 
 def test_policy_cards_accept_a_folder_train_wrote(tmp_path, runner, policies):
@@ -252,3 +231,111 @@ def test_a_policy_folder_reached_through_a_link_is_never_written(tmp_path):
             root, [root / "own" / "policy.md", root / "linked" / "policy.md"], "policy-cards", "X"
         )
     check_tree_files(root, [root / "own" / "policy.md", root / "README.md"], "policy-cards", "X")
+
+
+# -- a stale lock, taken over as a user sees it ------------------------------------------------------
+
+
+@pytest.mark.parametrize("content", ["dead-pid", "empty"])
+def test_a_stale_lock_is_taken_over_with_one_warning_line(tmp_path, content):
+    """The lock of a run that is gone (a dead pid on this host, or a 0-byte lock no process
+    holds) is taken over by the next run, which says so in one `warning:` line, and leaves no
+    lock behind."""
+    import socket
+    import subprocess
+    import sys
+
+    out = tmp_path / "rc"
+    out.mkdir()
+    lock = out / ".drill-env.lock"
+    if content == "empty":
+        lock.write_bytes(b"")
+    else:
+        record = {"pid": 2**22 + 12345, "host": socket.gethostname(), "command": "drill-env x", "what": "x"}
+        lock.write_text(json.dumps(record))
+    code = (
+        "import warnings, sys; from drill_env.cli import _one_line_warnings; _one_line_warnings()\n"
+        "from drill_env.outputs import output_lock\n"
+        f"with output_lock({str(out)!r}, 'probe'): print('held', flush=True)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "held"
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("warning: ") and "taking over the lock" in lines[0], lines
+    assert not lock.exists()
+
+
+# -- a full disk for real: a small tmpfs in a private mount namespace -------------------------------
+
+
+def _in_small_tmpfs(tmp_path: Path, script: str, size: str = "64k"):
+    """Run ``script`` (sh) with a tmpfs of ``size`` mounted at $FULL, in a private user and mount
+    namespace (nothing is mounted outside it); skipped where the machine does not allow one."""
+    import subprocess
+
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare(1) for a private tmpfs")
+    full = tmp_path / "full"
+    full.mkdir()
+    probe = subprocess.run(
+        [
+            "unshare",
+            "--user",
+            "--map-root-user",
+            "--mount",
+            "sh",
+            "-c",
+            f"mount -t tmpfs -o size={size} tmpfs {full}",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    if probe.returncode != 0:
+        pytest.skip(f"no private tmpfs on this machine ({probe.stderr.strip()[:80]})")
+    body = f"mount -t tmpfs -o size={size} tmpfs {full} || exit 97; export FULL={full}; {script}"
+    return subprocess.run(
+        ["unshare", "--user", "--map-root-user", "--mount", "sh", "-c", body],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_a_full_tmpfs_names_the_path_and_leaves_nothing(tmp_path):
+    """simulate's CSV (about 1.5 MB) on a 64 KiB file system: the error names the file, and the
+    file system is left as empty as it was (no temporary, no 0-byte file, no folder)."""
+    import sys
+
+    run = f"{sys.executable} -m drill_env simulate --duration 100 --out $FULL/sim/run.csv; echo rc=$?"
+    res = _in_small_tmpfs(tmp_path, f"{run}; echo left:; find $FULL -mindepth 1")
+    out = res.stdout.split("left:")
+    assert "rc=2" in out[0], (res.stdout, res.stderr)
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and "sim/run.csv" in errors[0] and "No space left on device" in errors[0], (
+        res.stderr
+    )
+    assert out[1].strip() == "", out[1]
+
+
+def test_a_full_tmpfs_leaves_no_lock_behind(tmp_path):
+    """A file system with no space at all: the lock itself cannot be written; the error names it
+    and no 0-byte lock (which would block every later run) or folder is left."""
+    import sys
+
+    from drill_env.recordings.synth import SynthConfig, make_dataset, write_synthetic
+
+    cfg = SynthConfig(voltages=(1.0, 3.0), random_runs=0, duration_s=10.0, pre_roll_s=2.0)
+    write_synthetic(
+        make_dataset("none", seed=3, config=cfg), tmp_path / "d", tmp_path / "a.json", preset="brake"
+    )
+    fill = "head -c 200000 /dev/zero > $FULL/filler 2>/dev/null || true"
+    run = f"{sys.executable} -m drill_env identify {tmp_path / 'd'} --out $FULL/id; echo rc=$?"
+    res = _in_small_tmpfs(tmp_path, f"{fill}; {run}; echo left:; find $FULL -mindepth 1")
+    out = res.stdout.split("left:")
+    assert "rc=2" in out[0], (res.stdout, res.stderr)
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and "No space left on device" in errors[0], res.stderr
+    assert "id/" in errors[0]  # the path of what could not be written
+    assert out[1].split() == [f"{tmp_path / 'full' / 'filler'}"], out[1]

@@ -213,8 +213,9 @@ def test_a_loop_behind_its_rig_for_the_watchdogs_periods_trips_it():
         "watchdog: the loop fell behind the rig: its commands reached the rig a period late 4 times in a row "
         "(4 allowed: --watchdog-periods); 0 V written, run stopped"
     )
-    # readings 0..5 recorded: the 6th showed the 4th late command in a row (the first is judged by the 2nd)
-    assert len(res.ticks) == 6 and len(res.log) == 5
+    # readings 0..4 recorded: the 5th showed the 4th late command in a row (each command is
+    # judged by the reading after its own), and the trip came before it was answered
+    assert len(res.ticks) == 5 and len(res.log) == 4 and all(r["late_at_rig"] for r in res.log)
     assert rig.stopped and rig.writes[-1] == 0.0 and rig.rig.voltage == 0.0
 
 
@@ -416,13 +417,16 @@ def test_killing_the_emulator_trips_the_watchdog(tmp_path):
 
 def test_ctrl_c_writes_0_volt_and_exits_130(tmp_path):
     """Ctrl-C (SIGINT) mid-run: 0 V written and STOP answered, one line, exit code 130, and
-    the run so far recorded: the recording readable by identify's loader, the report written."""
+    the run so far recorded: the recording readable by identify's loader, the report written.
+    Started with SIGINT ignored, as a shell script's background job is (`python -m drill_env`
+    ran on regardless, the motor driven, until it ran through the entry point's handler)."""
     emu = Emulator(tmp_path)
     out = tmp_path / "run"
     proc = subprocess.Popen(
         [*CLI, "run-controller", "lqi", "--rig", emu.address, "--voltage", "2", "--warmup", "5",
          "--duration", "60", "--watchdog-periods", WATCHDOG, "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )  # fmt: skip
     try:
         deadline = time.monotonic() + 240
@@ -516,6 +520,29 @@ def test_bad_limits_are_one_line_and_exit_2(emulator, tmp_path, args, words):
         p.returncode == 2 and p.stderr.strip().startswith(words) and len(p.stderr.strip().splitlines()) == 1
     )
     assert np.all(emulator.truth_voltages() == 0.0)  # the motor never ran
+
+
+@pytest.mark.parametrize(
+    "controller, run",
+    [("lqi", "lqi_2V"), (str(ROOT / "results" / "agents" / "ppo" / "policy.zip"), "ppo_2V")],
+)
+def test_a_recorded_run_is_never_replaced(tmp_path, controller, run):
+    """A dataset folder that holds a run of the name this one would get: refused in one line
+    before the rig is asked anything (the name of a policy file's run is its folder's)."""
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "dataset.json").write_text('{"preset": "brake", "encoder_counts_per_rev": 2000}')
+    (data / f"{run}.csv").write_text("t,u,theta_u,theta_l\n")
+    p = run_cli(
+        "run-controller", controller, "--rig", "127.0.0.1:9", "--voltage", "2", "--out",
+        str(tmp_path / "o"), "--record", str(data),
+    )  # fmt: skip
+    assert p.returncode == 2
+    assert p.stderr.strip() == (
+        f"error: --record {data}: already holds a run named {run!r}; give another --run-name (the recorded "
+        "run is kept)"
+    )
+    assert (data / f"{run}.csv").read_text() == "t,u,theta_u,theta_l\n"
 
 
 def test_an_address_that_does_not_answer(tmp_path):

@@ -97,10 +97,13 @@ def register(app: typer.Typer) -> None:
             limits = SupervisorLimits(voltage_limit, slew_limit, speed_limit, watchdog_periods)
         except ValueError as exc:
             _fail(str(exc))
-        name = (
-            run_name
-            or f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', Path(controller).stem if controller.endswith('.zip') else controller)}_{voltage:g}V"
-        )
+        if controller.endswith(".zip"):
+            # a policy file is most often FOLDER/policy.zip: the folder names it (as its label)
+            p = Path(controller)
+            stem = p.parent.name if p.stem == "policy" and p.parent.name not in ("", ".") else p.stem
+        else:
+            stem = controller
+        name = run_name or f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', stem)}_{voltage:g}V"
         if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
             _fail(f"--run-name: {name!r}; allowed: letters, digits, _ . -")
         from drill_env.outputs import check_command_folder, check_output_folder, command_folder
@@ -110,6 +113,11 @@ def register(app: typer.Typer) -> None:
         check_command_folder(out, "run-controller", "--out", own=own)
         if record is not None:
             check_output_folder(record, "--record")
+            if (record / f"{name}.csv").exists():  # never replace a recorded run
+                _fail(
+                    f"--record {record}: already holds a run named {name!r}; give another --run-name "
+                    "(the recorded run is kept)"
+                )
         from drill_env.params import available_presets
         from drill_env.rig.udp import UdpRig, parse_address
 

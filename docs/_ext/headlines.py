@@ -181,6 +181,95 @@ def leaderboard(results: Path) -> str:
     return note + _table(header, rows)
 
 
+def bifurcation(results: Path) -> str:
+    """The points A-F of each committed diagram: voltage and type."""
+    rows = []
+    for folder, label in (
+        ("no_brake", "without brake"),
+        ("brake", "with brake"),
+        ("brake_extended", "with brake, beyond 5 V"),
+    ):
+        rec = json.loads((results / "bifurcation" / folder / "bifurcation.json").read_text(encoding="utf-8"))
+        for name, point in sorted(rec["points"].items()):
+            rows.append([label, name, f"{point['u']:.3f}", point["type"].replace("_", " ")])
+    note = "*The points of each diagram, found on the exact nonsmooth flow (`bifurcation/*/bifurcation.json`).*\n\n"
+    return note + _table(["diagram", "point", "voltage [V]", "type"], rows)
+
+
+def rig_loop(results: Path) -> str:
+    """What the loop run measured: suppression and tracking as the benchmark computes them, and its timing."""
+    r = json.loads((results / "rig_loop" / "result.json").read_text(encoding="utf-8"))
+    m, t = r["measured"], r["timing"]
+    rows = [
+        [
+            "controller, set point",
+            f"`{r['controller']}`, {r['nominal_voltage']:g} V ({r['regime'].replace('_', '-')})",
+        ],
+        ["suppression", f"{m['suppression']:.3f}"],
+        ["RMS speed error [rad/s]", f"{m['rms_error']:.3f}"],
+        ["control periods", f"{t['periods']} of {t['period_ms']:g} ms"],
+        ["period jitter: std / max [ms]", f"{t['jitter_std_ms']:.1f} / {t['jitter_max_ms']:.1f}"],
+        ["missed deadlines", f"{t['missed_deadlines']}"],
+        ["ended by", f"{r['ended_by']}" + (f" ({r['trip']})" if r.get("trip") else "")],
+    ]
+    return "*The run of `rig_loop/result.json`.*\n\n" + _table(["", "measured"], rows)
+
+
+def scenarios(results: Path) -> str:
+    """Each controller's suite score with its paired interval and the ranks its resolved differences allow."""
+    rec = json.loads((results / "scenarios" / "ranking.json").read_text(encoding="utf-8"))
+    rk = next(r for r in rec["rankings"] if r["key"] == "suite")
+    rows = [
+        [
+            f"`{q['controller']}`",
+            f"{q['score']:.3f} [{q['low']:.3f}, {q['high']:.3f}]",
+            f"{q['best_rank']}"
+            if q["best_rank"] == q["worst_rank"]
+            else f"{q['best_rank']}-{q['worst_rank']}",
+        ]
+        for q in rk["scores"]
+    ]
+    note = (
+        f"*Suite score (mean over {rk['n_units']} paired scenario x preset x seed units; 95 % {rk['method']} "
+        "interval) and the ranks its resolved differences allow (`scenarios/ranking.json`).*\n\n"
+    )
+    return note + _table(["controller", "suite score [interval]", "rank"], rows)
+
+
+def identify(results: Path) -> str:
+    """The worked example: the hidden effect, how close the identified parameters came to the
+    truth, and the controllers designed on the identified model on the truth plant."""
+    import yaml
+
+    base = results / "identify"
+    truth = yaml.safe_load((base / "truth" / "rig.yaml").read_text(encoding="utf-8"))
+    answer = json.loads((base / "truth" / "answer.json").read_text(encoding="utf-8"))
+    ident = json.loads((base / "identified" / "identification.json").read_text(encoding="utf-8"))
+    fitted = {
+        k: v
+        for k, v in ident["parameters"].items()
+        if v.get("identified") and k != ident["scale"]["parameter"]
+    }
+    errors = {k: v["value"] / truth[k] - 1.0 for k, v in fitted.items() if truth.get(k)}
+    inside = [k for k, v in fitted.items() if v["ci95"][0] <= truth[k] <= v["ci95"][1]]
+    worst_param = max(errors, key=lambda k: abs(errors[k]))
+    rows = [
+        ["effect hidden in the truth", f"`{answer['effect']}` (magnitude {answer['magnitude']:g})"],
+        [
+            "parameters within 3 % of the truth",
+            f"{sum(abs(e) <= 0.03 for e in errors.values())} of {len(errors)}",
+        ],
+        ["largest error", f"`{worst_param}` {100 * errors[worst_param]:+.1f} %"],
+        ["truth inside the 95 % interval", f"{len(inside)} of {len(fitted)}"],
+    ]
+    runs = json.loads((base / "controllers_on_truth.json").read_text(encoding="utf-8"))
+    for c in dict.fromkeys(r["controller"] for r in runs):
+        worst = min(r["suppression"] for r in runs if r["controller"] == c)
+        rows.append([f"`{c}` on the truth, worst suppression", f"{worst:.3f}"])
+    note = "*The worked example (`identify/truth/`, `identify/identified/identification.json`, `identify/controllers_on_truth.json`).*\n\n"
+    return note + _table(["", "worked example"], rows)
+
+
 HEADLINES: dict[str, Callable[[Path], str]] = {
     "leaderboard": leaderboard,
     "benchmark": benchmark,
@@ -189,6 +278,10 @@ HEADLINES: dict[str, Callable[[Path], str]] = {
     "discrepancy": discrepancy,
     "sim_to_real": sim_to_real,
     "training": training,
+    "bifurcation": bifurcation,
+    "rig_loop": rig_loop,
+    "scenarios": scenarios,
+    "identify": identify,
 }
 
 

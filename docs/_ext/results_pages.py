@@ -91,6 +91,7 @@ def _span(r: dict) -> str:
 
 
 SUITE_KEY = "suite"  # the suite score's ranking in a scenario suite's ranking.json
+LEADERBOARD = ("benchmark", "plant_family", "scenarios")  # the folders the leaderboard page ranks
 
 
 def _shown(record: dict) -> list[dict]:
@@ -266,7 +267,11 @@ def write_results_pages(app) -> None:  # noqa: ANN001 (Sphinx application)
             written[f"leaderboard_{folder.replace('/', '_')}_suite.md"] = suite_tables(
                 records[folder], folder
             )
-    written["leaderboard_ranks.md"] = leaderboard_ranks(records)
+    # the ranks table of the leaderboard page: the rankings it shows (the other folders' are on
+    # their own pages)
+    written["leaderboard_ranks.md"] = leaderboard_ranks(
+        {f: r for f, r in records.items() if f in LEADERBOARD}
+    )
     for name, text in written.items():
         path = out / name
         if not path.is_file() or path.read_text(encoding="utf-8") != text:

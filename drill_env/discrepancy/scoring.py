@@ -221,15 +221,25 @@ def _fit_linear_joint(train, held, cal: CalibrationSetup, name: str | None, rule
     return JointFit(theta, cov, _ss(train, theta, m, b), sum(s.n for s in train), q_h)
 
 
-def _fit_lag_joint(train, held, cal: CalibrationSetup, c: Candidate, rule: DecisionRule, i: int) -> JointFit:
-    """Calibration refitted with the lag candidate's column (coefficient 1, physics) at tau_i."""
+def _lag_blocks(train, held, cal: CalibrationSetup):
+    """The calibration blocks of the training and held-out runs, which every time constant of
+    a lag candidate shares."""
     f, ata, atz = _cal_block(cal, train)
+    _, ath, atzh = _cal_block(cal, held)
+    return f, ata, atz, ath, atzh
+
+
+def _fit_lag_joint(
+    train, held, cal: CalibrationSetup, c: Candidate, rule: DecisionRule, i: int, blocks=None
+) -> JointFit:
+    """Calibration refitted with the lag candidate's column (coefficient 1, physics) at tau_i
+    (``blocks``: :func:`_lag_blocks` of these runs, computed once for every tau)."""
+    f, ata, atz, ath, atzh = blocks if blocks is not None else _lag_blocks(train, held, cal)
     atx = sum((cal.stats[s.name].cross_lag[c.name][f, i] for s in train), np.zeros(f.size))
     rhs = atz - atx
     theta, cov = solve_joint(ata, rhs, cal.prior[cal.free], rule.ridge)
     q_tr = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in train))
     q_tr += float(-2.0 * theta @ rhs + theta @ ata @ theta)
-    _, ath, atzh = _cal_block(cal, held)
     atxh = sum((cal.stats[s.name].cross_lag[c.name][f, i] for s in held), np.zeros(f.size))
     q_h = float(sum(s.ztz - 2.0 * s.lag[c.name][0][i] + s.lag[c.name][1][i] for s in held))
     q_h += float(-2.0 * theta @ (atzh - atxh) + theta @ ath @ theta)
@@ -250,7 +260,8 @@ def _score(c: Candidate, train, held, rule: DecisionRule, cal: CalibrationSetup,
     n_h = sum(s.n for s in held)
     nf = len(cal.free)
     if c.is_lag:
-        fits = [_fit_lag_joint(train, held, cal, c, rule, i) for i in range(c.lags.size)]
+        blocks = _lag_blocks(train, held, cal)
+        fits = [_fit_lag_joint(train, held, cal, c, rule, i, blocks) for i in range(c.lags.size)]
         gain_train = np.array([ref.train_ss - f.train_ss for f in fits])
         i = int(np.argmax(gain_train))
         tau = float(c.lags[i])

@@ -329,7 +329,7 @@ def refuse_still_runs(dataset: MeasuredDataset, eqs: list[RunEquations]) -> None
 
     def turned(eq: RunEquations) -> str:
         counts = max(float(np.ptp(eq.run.theta_u)), float(np.ptp(eq.run.theta_l))) / dataset.encoder_step
-        return f"{eq.run.label}, {counts:.0f} encoder counts at most"
+        return f"{eq.run.label} turns {counts:.0f} encoder counts at most"
 
     named = ", ".join(turned(eq) for eq in still[:6]) + (
         f" and {len(still) - 6} more" if len(still) > 6 else ""
@@ -363,13 +363,16 @@ def analyse(
     seed: int = 0,
     progress: Callable[[str, int, int], None] | None = None,
     params: RigParams | None = None,
+    simulate_training_runs: bool = True,
 ) -> DiscrepancyResult:
     """Run the whole workflow in memory (no files); see :func:`run_discrepancy`.
 
     ``calibrate=False`` scores the effects as additions to the nominal model (the
     parameters are taken as exact). ``params`` is the nominal model (default: the preset
     named by the dataset), e.g. a rig identified by ``drill-env identify``; its effects, if
-    any, are part of it."""
+    any, are part of it. ``simulate_training_runs=False`` simulates the nominal model on the
+    held-out runs only (all the decision uses; the training runs' sensor-space gaps are left
+    out of the where table)."""
     rule = rule or DecisionRule()
     cal_rule = calibration_rule or CalibrationRule()
     timings: dict[str, float] = {}
@@ -502,12 +505,12 @@ def analyse(
     by_name = {eq.run.name: eq for eq in eqs}
     held_eqs = [by_name[n] for n in decision.heldout_runs]
     if simulate_gaps:
-        for i, eq in enumerate(eqs):
+        for i, eq in enumerate(eqs if simulate_training_runs else held_eqs):
             nominal[eq.run.name] = compare_run(
                 params, eq, dataset.encoder_counts_per_rev, compare_config, measured_cache=cache
             )
             if progress:
-                progress("simulate nominal", i + 1, len(eqs))
+                progress("simulate nominal", i + 1, len(eqs if simulate_training_runs else held_eqs))
         if decision.named:
             # the effect must make the recalibrated model better in sensor space too
             ref_params = calibrated_params(params, decision.reference_parameters)

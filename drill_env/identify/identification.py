@@ -149,8 +149,23 @@ class Identification:
         )
         # what the data excite (the window noise alone), in relative units
         c_rel = corr * np.outer(info_sd / v, info_sd / v)
-        lam, vec = np.linalg.eigh(c_rel)
         out = []
+        # a parameter whose variance is not finite (data that barely excite it) is a flat
+        # direction of its own, with no bound; the eigen-directions are those of the rest
+        finite = np.isfinite(c_rel).all(axis=0) & np.isfinite(c_rel).all(axis=1)
+        for i in np.flatnonzero(~finite):
+            out.append(
+                {
+                    "half_width": math.inf,
+                    "loadings": {names[i]: 1.0},
+                    "run_that_identifies_it": RUN_THAT_IDENTIFIES[names[i]],
+                }
+            )
+        names = [n for n, ok in zip(names, finite, strict=True) if ok]
+        if not names:
+            return out
+        c_rel = c_rel[np.ix_(finite, finite)]
+        lam, vec = np.linalg.eigh(c_rel)
         for k in np.argsort(lam)[::-1]:
             half = 1.96 * math.sqrt(max(float(lam[k]), 0.0))
             if half <= FLAT_HALF_WIDTH:
@@ -487,9 +502,14 @@ def identify(
             # the lag's time constant: the profile of the joint fit about its estimate
             cand_bounds = (1e-4, 5.0)
 
-            def fit_at(tau: float, name: str = name, terms: int = fit.hump_terms) -> JointFit:
+            # the rates move little with the lag: each fit of the profile refines from this one's
+            warm = tuple(fit.values[r] for r in HUMP_RATES[: fit.hump_terms]) or None
+
+            def fit_at(tau: float, name: str = name, terms: int = fit.hump_terms, warm=warm) -> JointFit:
                 effects[name] = tau
-                return joint_fit([rows_of(at_eqs[r.name]) for r in dataset.runs], scale, hump_terms=terms)
+                return joint_fit(
+                    [rows_of(at_eqs[r.name]) for r in dataset.runs], scale, hump_terms=terms, warm_rates=warm
+                )
 
             first = effects[name]
             assert first is not None

@@ -46,6 +46,9 @@ LINEAR: tuple[str, ...] = tuple(p for p in IDENTIFIED_PARAMETERS if p not in HUM
 BETA_GRID = np.geomspace(0.02, 60.0, 26)  # [s/rad] Stribeck rates tried before refining
 BETA_BOUNDS = (1e-3, 500.0)  # [s/rad]
 HUMP_ALPHA = 1e-4  # level at which a hump term is kept
+SANDWICH_BLOCK = 10  # neighbouring windows per block of the sandwich covariance
+MERGED_RATES = 0.02  # two rates this close in log are one (see _merged)
+GRID_STARTS = 3  # best grid points refined (of those with linear parameters >= 0, and of all)
 NEGATIVE_MIN_WINDOWS = 10  # upper-disk windows turning backwards needed for T_sun, b_un
 
 
@@ -123,6 +126,7 @@ class JointFit:
     cov: np.ndarray  # covariance of the free parameters (interval scale)
     sd_model: np.ndarray  # standard deviations from the window noise alone
     sd_jackknife: np.ndarray  # one-step jackknife over the runs
+    sd_sandwich: np.ndarray  # block sandwich: SANDWICH_BLOCK neighbouring windows of a run per block
     sd_information: np.ndarray  # from the window noise alone, unscaled by the misfit: what the data excite
     hump_terms: int  # 0, 1 or 2
     hump_tests: dict[str, float]  # chi2 of each added hump term, and the threshold
@@ -226,18 +230,26 @@ class _Problem:
 
 def _grid_search(prob: _Problem, terms: int) -> tuple[tuple[float, ...], float]:
     """Best rates on the grid for a friction with ``terms`` hump terms, and the sum of squares."""
+    return _grid_starts(prob, terms, 1)[0]
+
+
+def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float, ...], float]]:
+    """The ``top`` best rates on the grid whose linear parameters are all >= 0, then the ``top``
+    best of all (best first, without repeats): the starts of the refinement. On a grid of ratio
+    1.38 the best pair can lie in another basin than the optimum (two rates that merge, their
+    amplitudes +-10^4), so more than one start is refined."""
     if terms == 0:
-        return (), prob.lstsq([])[1]
+        return [((), prob.lstsq([])[1])]
     # normal equations, with the hump columns precomputed on the grid
     a, y = prob.a, prob.y
     h = np.column_stack([prob.hump(b) for b in BETA_GRID])
     g_aa, g_ay = a.T @ a, a.T @ y
     g_ah, g_hh, g_hy = a.T @ h, h.T @ h, h.T @ y
     yy = float(y @ y)
-    # the best pair whose linear parameters are all >= 0 (a negative viscous slope can mimic a slow
-    # Stribeck term on the grid, and would be clipped away afterwards); the best of all if none is
-    best: tuple[tuple[float, ...], float] = ((), math.inf)
-    best_any: tuple[tuple[float, ...], float] = ((), math.inf)
+    # the best pairs whose linear parameters are all >= 0 (a negative viscous slope can mimic a slow
+    # Stribeck term on the grid, and would be clipped away afterwards), then the best of all
+    feasible: list[tuple[tuple[float, ...], float]] = []
+    every: list[tuple[tuple[float, ...], float]] = []
     k = a.shape[1]
     pairs = (
         [(i,) for i in range(BETA_GRID.size)]
@@ -258,11 +270,15 @@ def _grid_search(prob: _Problem, terms: int) -> tuple[tuple[float, ...], float]:
             continue
         ss = yy - float(coef @ b)
         here = (tuple(float(BETA_GRID[i]) for i in sel), ss)
-        if ss < best_any[1]:
-            best_any = here
-        if ss < best[1] and not np.any(coef[: prob.k_lin] < 0.0):
-            best = here
-    return best if best[0] else best_any
+        every.append(here)
+        if not np.any(coef[: prob.k_lin] < 0.0):
+            feasible.append(here)
+    out: list[tuple[tuple[float, ...], float]] = []
+    for pool in (feasible, every):
+        for here in sorted(pool, key=lambda x: x[1])[:top]:
+            if here not in out:
+                out.append(here)
+    return out or [(tuple(float(b) for b in BETA_GRID[:terms]), math.inf)]
 
 
 def _residual(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
@@ -335,6 +351,15 @@ def _refine(
     return np.concatenate([coef, np.exp(best_x)]), float(r @ r)
 
 
+def _merged(theta: np.ndarray, k: int, terms: int) -> bool:
+    """Two hump terms whose rates merged (within :data:`MERGED_RATES` in log): their amplitudes
+    run off to +-A with A (b1 - b2) fixed."""
+    if terms < 2:
+        return False
+    b1, b2 = float(theta[k + terms]), float(theta[k + terms + 1])
+    return abs(math.log(b1 / b2)) < MERGED_RATES
+
+
 def _linear_lower(prob: _Problem) -> np.ndarray:
     """Lower bounds of the columns of ``prob.a``: 0 for the base parameters, none for the
     effects' coefficients."""
@@ -349,22 +374,38 @@ def _bounded_linear(prob: _Problem, extra: list[np.ndarray], k: int) -> np.ndarr
     return optimize.lsq_linear(a, prob.y, bounds=(lo, np.inf), method="bvls").x
 
 
-def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int | None = None) -> JointFit:
+def joint_fit(
+    rows: list[RunRows],
+    scale: tuple[str, float],
+    *,
+    hump_terms: int | None = None,
+    warm_rates: tuple[float, ...] | None = None,
+) -> JointFit:
     """Fit every parameter on the rows of ``rows`` with ``scale = (name, value)`` held.
 
-    ``hump_terms`` forces the number of hump terms (default: chosen on the data)."""
+    ``hump_terms`` forces the number of hump terms (default: chosen on the data);
+    ``warm_rates`` (with ``hump_terms`` = their number, > 0) refines from these rates alone, no
+    grid: a fit next to one already made (a lag's profile, one time constant to the next)."""
+    if warm_rates is not None and (hump_terms is None or len(warm_rates) != hump_terms or not hump_terms):
+        raise ValueError(f"warm_rates: {warm_rates!r} needs hump_terms = its length (> 0)")
     negative = sum(r.negative_upper for r in rows) >= NEGATIVE_MIN_WINDOWS
     free_lin = _free_linear(scale[0], negative)
     prob = _Problem(rows, scale, free_lin)
     k = prob.a.shape[1]
     fits: dict[int, tuple[np.ndarray, float]] = {}
     for terms in (0, 1, 2) if hump_terms is None else (hump_terms,):
-        betas, _ = _grid_search(prob, terms)
         if terms == 0:
             coef = _bounded_linear(prob, [], k)
             fits[0] = (coef, float(np.sum(_residual(prob, coef, 0) ** 2)))
         else:
-            fits[terms] = _refine(prob, betas)
+            starts = (
+                [tuple(float(b) for b in warm_rates)]
+                if warm_rates is not None
+                else [b for b, _ in _grid_starts(prob, terms, GRID_STARTS)]
+            )
+            fits[terms] = min(
+                (_refine(prob, betas) for betas in starts), key=lambda f: (_merged(f[0], k, terms), f[1])
+            )
             if terms == 2 and 1 in fits:
                 # also grow the one-term fit by a second term (so that two terms never fit worse than
                 # one): its rate the best on the grid with the first term held
@@ -373,7 +414,7 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
                 best = min(BETA_GRID, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
                 start = np.concatenate([one[:k], [one[k], 0.0], [b1, best]])
                 grown = _refine(prob, (b1, float(best)), start=start)
-                if grown[1] < fits[2][1]:
+                if (_merged(grown[0], k, 2), grown[1]) < (_merged(fits[2][0], k, 2), fits[2][1]):
                     fits[2] = grown
     tests: dict[str, float] = {}
     if hump_terms is None:
@@ -383,6 +424,10 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
         d10 = (fits[0][1] - fits[1][1]) / s2
         d21 = (fits[1][1] - fits[2][1]) / s2
         d20 = (fits[0][1] - fits[2][1]) / s2
+        if _merged(fits[2][0], k, 2):
+            # two terms only as one rate with amplitudes +-A (a derivative of one term, not a
+            # friction curve of eq. 14): not a second term
+            d21 = d20 = -math.inf
         tests = {"one_term_vs_none": d10, "two_terms_vs_one": d21, "two_terms_vs_none": d20, "threshold": thr}
         if d21 > thr:
             chosen = 2
@@ -429,9 +474,25 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
         var_jk = (runs.size - 1) / runs.size * np.sum((loo_a - loo_a.mean(axis=0)) ** 2, axis=0)
     else:
         var_jk = np.zeros(p)
+    # block sandwich (cluster-robust) covariance: the score summed over blocks of SANDWICH_BLOCK
+    # neighbouring windows of a run, so that errors correlated from window to window and a
+    # misfit that differs along the run (not in the per-window noise model) widen the interval
+    score = jac * res[:, None]
+    blocks = []
+    for i in runs:
+        idx = np.flatnonzero(prob.run_of_row == i)
+        for a in range(0, idx.size, SANDWICH_BLOCK):
+            blocks.append(score[idx[a : a + SANDWICH_BLOCK]].sum(axis=0))
+    if len(blocks) > p:
+        sb = np.array(blocks)
+        meat = sb.T @ sb * (len(blocks) / (len(blocks) - p))
+        var_sw = np.diag(cov_info @ meat @ cov_info)
+    else:
+        var_sw = np.zeros(p)
     sd_model = np.sqrt(np.maximum(np.diag(cov_model), 0.0))
     sd_jk = np.sqrt(var_jk)
-    sd = np.maximum(sd_model, sd_jk)
+    sd_sw = np.sqrt(np.maximum(var_sw, 0.0))
+    sd = np.maximum(np.maximum(sd_model, sd_jk), sd_sw)
     corr = cov_model / np.outer(np.maximum(sd_model, 1e-300), np.maximum(sd_model, 1e-300))
     cov = corr * np.outer(sd, sd)
     # how much of each parameter's information comes from constant-voltage runs
@@ -456,6 +517,7 @@ def joint_fit(rows: list[RunRows], scale: tuple[str, float], *, hump_terms: int 
         cov=cov,
         sd_model=sd_model,
         sd_jackknife=sd_jk,
+        sd_sandwich=sd_sw,
         sd_information=np.sqrt(np.maximum(np.diag(cov_info), 0.0)),
         hump_terms=chosen,
         hump_tests=tests,

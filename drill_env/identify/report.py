@@ -192,6 +192,12 @@ def _rounds_section(search: Any) -> list[str]:
             f"{', '.join(r.named) or '-'} | {', '.join(r.added) or '-'} | {_fmt(r.gap_before, 3)} | {after} | {ch} |"
         )
     lines += ["", f"Stopped: {search.stopped}.", ""]
+    if getattr(search, "halves", False):
+        lines += [
+            "Fewer than four runs: each run was cut into two halves (`NAMEa`, `NAMEb`) so that the tests "
+            "have runs the fit has not seen; the parameters are fitted on the halves.",
+            "",
+        ]
     for r in search.rounds:
         lines.append(
             f"- Round {r.number}: {r.reason}" + (f" (signature: {r.signature})" if r.signature else "")

@@ -161,7 +161,12 @@ def _cols_friction_memory(eq: RunEquations, tau: float):
     w = np.empty_like(speed)
     w[0] = speed[0]
     w[1:] = w_next[:-1]
-    basis = -np.sign(eq.speed_l) * (stribeck(p, w) - stribeck(p, speed))
+    # the Stribeck part at the measured speed is the same for every tau: once per run and model
+    cached = getattr(eq, "_stribeck_at_speed", None)
+    if cached is None or cached[0] is not p or cached[1] is not eq.speed_l:
+        cached = (p, eq.speed_l, stribeck(p, speed))
+        eq._stribeck_at_speed = cached
+    basis = -np.sign(eq.speed_l) * (stribeck(p, w) - cached[2])
     return _zeros(len(eq.upper), 1), eq.kernel(basis, "lower")[:, None]
 
 
