@@ -239,7 +239,7 @@ def markdown(rows: list[dict], header: dict) -> str:
         f"largest action difference of either runner over all policies is {header['max_rig']:.2e} (action "
         f"units, 1 = 5 V); target at most {TOL:g}: {'met' if header['passed'] else 'MISSED'}.** Over the whole "
         f"observation space (uniform over its bounds: speeds up to 100 times their scale, far beyond a rig's) "
-        f"it is {header['max_space']:.2e}: float32 rounding of the large pre-activations such inputs give. "
+        f"it is {header['max_space']:.2e} (column 'whole space'). "
         f"Largest over all observations: ONNX Runtime {header['max_onnx']:.2e}, numpy runner "
         f"{header['max_numpy']:.2e}.",
         "",

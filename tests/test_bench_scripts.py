@@ -19,6 +19,8 @@ ROOT = Path(__file__).resolve().parent.parent
         "bench_vec_env.py",
         "bench_env.py",
         pytest.param("bench_family.py", marks=pytest.mark.slow),
+        # two policies exported, then run by three runners on 400 observations: a minute under load
+        pytest.param("bench_export.py", marks=pytest.mark.slow),
     ],
 )
 def test_bench_script_runs_quick(script):
