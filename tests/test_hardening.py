@@ -718,11 +718,8 @@ def _hand_written_run(path: Path, volts: float, speed: float) -> None:
 
 @pytest.mark.parametrize(
     ("moving", "words"),
-    [
-        ((), ["no run in which the rig turns", "run01 (0 V)", "run02 (0 V)"]),
-        (("run02",), ["1 of 2 runs never turn", "run01 (0 V)", "move them out"]),
-    ],
-    ids=["every-run-still", "one-run-still"],
+    [((), ["no run in which the rig turns", "run01 (0 V)", "run02 (0 V)"])],
+    ids=["every-run-still"],
 )
 def test_discrepancy_on_a_motionless_dataset_names_the_runs_and_what_they_lack(tmp_path, moving, words):
     data = tmp_path / "still"
@@ -739,6 +736,32 @@ def test_discrepancy_on_a_motionless_dataset_names_the_runs_and_what_they_lack(t
     if moving:
         assert "run02" not in line  # the run that turns is not named
     assert not (tmp_path / "o").exists()  # refused before anything was written
+
+
+def test_a_run_that_never_turns_is_left_out_of_the_discrepancy_comparison_and_named(tmp_path):
+    """A stuck run among turning ones (a lab's 0.05 V run below the break-away, as the
+    identification plan records for the stick boundary) holds nothing to compare: the workflow
+    leaves it out, says so in the output, the report and result.json, and analyses the rest."""
+    from drill_env.recordings.synth import SynthConfig, make_dataset, write_synthetic
+
+    cfg = SynthConfig(preset="brake", voltages=(0.05, 0.5, 1.0, 2.0, 3.0), random_runs=1, duration_s=30.0)
+    write_synthetic(
+        make_dataset("none", seed=3, config=cfg), tmp_path / "d", tmp_path / "a.json", preset="brake"
+    )
+    res = runner.invoke(
+        app, ["discrepancy", str(tmp_path / "d"), "--out", str(tmp_path / "o"), "--no-figures"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "verdict: none" in res.output
+    assert "1 run(s) left out of the comparison: run01 (0.05 V): stuck throughout" in res.output
+    result = json.loads((tmp_path / "o" / "result.json").read_text())
+    assert list(result["left_out"]) == ["run01"]
+    assert "left out of the comparison: run01 (0.05 V)" in (tmp_path / "o" / "report.md").read_text()
+    # holding out the stuck run is refused in one line
+    res = runner.invoke(
+        app, ["discrepancy", str(tmp_path / "d"), "--out", str(tmp_path / "o2"), "--heldout", "run01,run03"]
+    )
+    assert res.exit_code == 2 and "run01 never turn(s)" in _one_error_line(res)
 
 
 def test_identify_on_runs_that_barely_excite_the_rig_reports_instead_of_a_traceback(tmp_path):

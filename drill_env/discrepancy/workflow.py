@@ -97,6 +97,8 @@ class DiscrepancyResult:
     measurement: MeasurementModel | None = None
     # the voltage column's timing against the angles (a recording issue, see timing.py)
     voltage_lag: VoltageLag | None = None
+    # runs in which neither disk turns (stuck throughout): left out of every comparison, with why
+    left_out: dict[str, str] = dataclasses.field(default_factory=dict)
 
     @property
     def model_rejected(self) -> bool:
@@ -125,7 +127,13 @@ class DiscrepancyResult:
     def validity_warnings(self) -> list[str]:
         """Where the data leave the range the preset's model was identified on (the loader
         already refuses voltages beyond the rig's +-5 V): one sentence each."""
-        return validity_warnings(self.params.name, max_speed=self.max_lower_speed)
+        notes = validity_warnings(self.params.name, max_speed=self.max_lower_speed)
+        if self.left_out:
+            notes = notes + [
+                f"{len(self.left_out)} run(s) left out of the comparison: "
+                + "; ".join(self.left_out.values())
+            ]
+        return notes
 
     def result_json(self) -> dict[str, Any]:
         d = self.decision
@@ -139,6 +147,7 @@ class DiscrepancyResult:
             "model_written": self.corrected is not None and not self.model_rejected,
             "measurement": self.measurement.to_dict() if self.measurement is not None else {},
             "model_check": self.model_check,
+            "left_out": dict(self.left_out),
             "voltage_lag": {
                 "found": bool(self.voltage_lag is not None and self.voltage_lag.found),
                 "samples": self.voltage_lag.lag if self.voltage_lag is not None else 0,
@@ -315,39 +324,37 @@ def _measurement(decision: Decision, second: dict[str, Any] | None = None) -> Me
     return MeasurementModel(**fields_) if fields_ else None
 
 
-def refuse_still_runs(dataset: MeasuredDataset, eqs: list[RunEquations]) -> None:
-    """Refuse, in one line naming them, the runs in which neither disk ever turns (0 V, or a
-    voltage below the break-away: stuck throughout): they hold no equation-error window, so
-    there is nothing in them to compare with the model (their statistics would be empty and
-    every score undefined). Raises :class:`DatasetError`."""
+def still_runs(dataset: MeasuredDataset, eqs: list[RunEquations]) -> dict[str, str]:
+    """The runs in which neither disk ever turns (0 V, or a voltage below the break-away: stuck
+    throughout), each with why it holds nothing to compare: no equation-error window. A
+    dataset of such runs alone is refused in one line (:class:`DatasetError`); where others turn,
+    the still runs are left out of the comparison and named in the report (they still tell the
+    stick boundary to ``drill-env identify``)."""
     still = [eq for eq in eqs if len(eq.upper) == 0 and len(eq.lower) == 0]
     if not still:
-        return
+        return {}
     eq0 = still[0]
     window = eq0.stride * eq0.dt
     vmin = eq0.config.min_speed_rad_s
 
     def turned(eq: RunEquations) -> str:
         counts = max(float(np.ptp(eq.run.theta_u)), float(np.ptp(eq.run.theta_l))) / dataset.encoder_step
-        return f"{eq.run.label} turns {counts:.0f} encoder counts at most"
+        return f"turns {counts:.0f} encoder counts at most"
 
-    named = ", ".join(turned(eq) for eq in still[:6]) + (
-        f" and {len(still) - 6} more" if len(still) > 6 else ""
-    )
-    where = f"dataset {dataset.path}" if dataset.path is not None else "dataset"
     lack = (
         f"neither disk turns one way at {vmin:g} rad/s or more for a whole {window:.2g} s window (stuck "
         "throughout), so they hold nothing to compare with the model"
     )
     if len(still) == len(eqs):
+        named = ", ".join(f"{eq.run.label} {turned(eq)}" for eq in still[:6]) + (
+            f" and {len(still) - 6} more" if len(still) > 6 else ""
+        )
+        where = f"dataset {dataset.path}" if dataset.path is not None else "dataset"
         raise DatasetError(
             f"{where}: no run in which the rig turns ({named}): {lack}; record runs at voltages that "
             "turn the rig (above its break-away voltage)"
         )
-    raise DatasetError(
-        f"{where}: {len(still)} of {len(eqs)} runs never turn ({named}): {lack}; move them out of the "
-        "dataset folder (or record them at a voltage that turns the rig)"
-    )
+    return {eq.run.name: f"{eq.run.label}: stuck throughout, {turned(eq)}" for eq in still}
 
 
 def analyse(
@@ -388,7 +395,17 @@ def analyse(
         if progress:
             progress("equation error", i + 1, len(dataset.runs))
     timings["equation_error"] = time.perf_counter() - t0
-    refuse_still_runs(dataset, eqs)
+    left_out = still_runs(dataset, eqs)
+    if left_out:
+        if heldout is not None and set(heldout) & set(left_out):
+            bad = sorted(set(heldout) & set(left_out))
+            raise ValueError(
+                f"heldout: {', '.join(bad)} never turn(s) (stuck throughout): nothing to compare there; "
+                f"hold out runs in which the rig turns"
+            )
+        dataset = dataclasses.replace(dataset, runs=tuple(r for r in dataset.runs if r.name not in left_out))
+        eqs = [eq for eq in eqs if eq.run.name not in left_out]
+        stats = {n: v for n, v in stats.items() if n not in left_out}
     if heldout is None:
         train, held = split_runs(dataset.runs)
     else:
@@ -688,6 +705,7 @@ def analyse(
         model_check=model_check,
         measurement=measurement,
         voltage_lag=voltage_lag,
+        left_out=left_out,
     )
 
 
