@@ -343,10 +343,7 @@ def write_curves(runs: list[dict], out: Path) -> None:
     """``curves.csv`` (one row per check) and ``learning_curves_<rig>.png``: 1 - the smaller
     of the two cycle regimes' suppression and the training return against env-steps and
     training wall seconds, the median over seeds with the range of the seeds shaded."""
-    import numpy as np
     import pandas as pd
-
-    from drill_env._figures import subplots
 
     rows = []
     for r in runs:
@@ -379,7 +376,17 @@ def write_curves(runs: list[dict], out: Path) -> None:
             )
     df = pd.DataFrame(rows)
     df.to_csv(out / "curves.csv", index=False)
-    df["worst"] = df[[f"suppression_{g}" for g in CYCLE_REGIMES]].min(axis=1)
+    draw_curves(df, runs, out)
+
+
+def draw_curves(df, runs: list[dict], out: Path) -> list[Path]:
+    """``learning_curves_<rig>.png`` in ``out`` from the rows of ``curves.csv`` (``df``; the
+    runs of ``time_to_policy.json`` name the env each config trained on); returns the files."""
+    import numpy as np
+
+    from drill_env._figures import subplots
+
+    df = df.assign(worst=df[[f"suppression_{g}" for g in CYCLE_REGIMES]].min(axis=1))
     colours = {"ppo": "tab:purple", "sac": "tab:brown"}
     for preset, dp in df.groupby("preset"):
         font = 9.0  # [pt] on a figure 8 in wide: legible where the docs draw it (drill_env._figures)
@@ -430,6 +437,7 @@ def write_curves(runs: list[dict], out: Path) -> None:
         height = leg.get_window_extent(fig.canvas.get_renderer()).height / (fig.dpi * fig.get_figheight())
         fig.tight_layout(rect=(0, height + 0.01, 1, 1))
         fig.savefig(out / f"learning_curves_{preset}.png", dpi=110)
+    return [out / f"learning_curves_{p}.png" for p in sorted(set(df["preset"]))]
 
 
 def _s(t: float | None) -> str:
@@ -593,6 +601,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="rewrite curves.csv, the figures and summary.md of --out from its time_to_policy.json (no training)",
     )
+    ap.add_argument(
+        "--figures-only",
+        action="store_true",
+        help="draw learning_curves_*.png of --out again from its curves.csv (the env ids from "
+        "time_to_policy.json's configs); no other file is rewritten, nothing is trained",
+    )
     a = ap.parse_args(argv)
     for name in ("steps", "sac_steps", "repeats", "check_every", "check_every_sac", "jobs"):
         if getattr(a, name) < 1:
@@ -629,6 +643,17 @@ def main(argv: list[str] | None = None) -> int:
                 f"--presets {trial_preset}"
             )
         a.config = a.config.resolve()
+    if a.figures_only:
+        if a.report_only:
+            ap.error("--figures-only and --report-only: give one (--report-only also draws the figures)")
+        if a.out is None or not all((a.out / f).is_file() for f in ("curves.csv", "time_to_policy.json")):
+            ap.error("--figures-only: --out must name a folder holding curves.csv and time_to_policy.json")
+        import pandas as pd
+
+        runs = json.loads((a.out / "time_to_policy.json").read_text())["runs"]
+        paths = draw_curves(pd.read_csv(a.out / "curves.csv"), runs, a.out)
+        print(f"drew {', '.join(str(p) for p in paths)} from {a.out / 'curves.csv'}", flush=True)
+        return 0
     if a.report_only:
         if a.out is None or not (a.out / "time_to_policy.json").is_file():
             ap.error("--report-only: --out must name a folder holding time_to_policy.json")

@@ -172,3 +172,71 @@ def test_contrib_throughput_is_timed_against_the_same_sac_baseline():
         assert r["vs_shipped_sac"] == pytest.approx(r["steps_per_s"] / sac["shipped"])
     bad = bench_training("--algos", "ppo", "--contrib", timeout=60)
     assert bad.returncode == 2 and "--contrib" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def _bench_training_module():
+    import importlib
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        return importlib.import_module("bench_training")
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+
+
+@pytest.mark.skipif(not (TRAINING / "curves.csv").is_file(), reason="results/training not generated")
+@pytest.mark.parametrize("seeds", ["all", "one"])
+def test_the_learning_curves_are_legible_at_the_docs_width(tmp_path, monkeypatch, seeds):
+    """The learning curves drawn from the committed curves.csv (every seed, and the first seed
+    alone) pass the size rule of the docs, one legend entry per algorithm."""
+    from matplotlib.figure import Figure
+
+    from drill_env._figures import MAX_WIDTH_IN, legibility_problems
+
+    drawn = []
+    save = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: (drawn.append(self), save(self, *a, **k)))
+    df = pd.read_csv(TRAINING / "curves.csv")
+    if seeds == "one":
+        df = df[df["seed"] == df["seed"].min()]
+    runs = json.loads((TRAINING / "time_to_policy.json").read_text())["runs"]
+    paths = _bench_training_module().draw_curves(df, runs, tmp_path)
+    assert [p.name for p in paths] == ["learning_curves_brake.png", "learning_curves_no_brake.png"]
+    assert len(drawn) == 2
+    for fig in drawn:
+        assert fig.get_figwidth() <= MAX_WIDTH_IN
+        assert legibility_problems(fig) == [], fig.get_suptitle()
+        assert len(fig.legends[0].get_texts()) == df["algo"].nunique()
+
+
+@pytest.mark.skipif(not (TRAINING / "curves.csv").is_file(), reason="results/training not generated")
+def test_figures_only_draws_the_learning_curves_and_nothing_else(tmp_path):
+    """`bench_training.py --figures-only --out DIR` draws learning_curves_*.png from DIR's
+    curves.csv and leaves every other file as it was; a folder without curves.csv is refused
+    with exit code 2."""
+    import shutil
+
+    from PIL import Image
+
+    out = tmp_path / "training"
+    out.mkdir()
+    for name in ("curves.csv", "time_to_policy.json"):
+        shutil.copy(TRAINING / name, out / name)
+    res = bench_training("--figures-only", "--out", str(out), timeout=120)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert f"from {out / 'curves.csv'}" in res.stdout
+    assert sorted(p.name for p in out.iterdir()) == [
+        "curves.csv",
+        "learning_curves_brake.png",
+        "learning_curves_no_brake.png",
+        "time_to_policy.json",
+    ]
+    for name in ("curves.csv", "time_to_policy.json"):
+        assert (out / name).read_bytes() == (TRAINING / name).read_bytes()
+    for preset in ("brake", "no_brake"):
+        with Image.open(out / f"learning_curves_{preset}.png") as im:
+            assert im.width == 8 * 110
+    (out / "curves.csv").unlink()
+    bad = bench_training("--figures-only", "--out", str(out), timeout=60)
+    assert bad.returncode == 2 and "--figures-only: --out must name a folder holding curves.csv" in bad.stderr
+    assert "Traceback" not in bad.stderr

@@ -681,8 +681,6 @@ AWAITING_REDRAW = {
     "results/identify/identified/friction.png": "python examples/identify_own_rig.py --out results/identify",
     "results/identify/identified/heldout.png": "python examples/identify_own_rig.py --out results/identify",
     "results/identify/identified/bifurcation.png": "python examples/identify_own_rig.py --out results/identify",
-    "results/training/learning_curves_brake.png": "python benchmarks/bench_training.py ... --out results/training",
-    "results/training/learning_curves_no_brake.png": "python benchmarks/bench_training.py ... --out results/training",
 }
 
 
