@@ -757,9 +757,14 @@ def test_a_run_that_never_turns_is_left_out_of_the_discrepancy_comparison_and_na
     result = json.loads((tmp_path / "o" / "result.json").read_text())
     assert list(result["left_out"]) == ["run01"]
     assert "left out of the comparison: run01 (0.05 V)" in (tmp_path / "o" / "report.md").read_text()
-    # holding out the stuck run is refused in one line
+    # a stuck run among the held-out ones is left out as well; holding out only stuck runs is refused
     res = runner.invoke(
         app, ["discrepancy", str(tmp_path / "d"), "--out", str(tmp_path / "o2"), "--heldout", "run01,run03"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "Held-out runs: run03." in (tmp_path / "o2" / "report.md").read_text()
+    res = runner.invoke(
+        app, ["discrepancy", str(tmp_path / "d"), "--out", str(tmp_path / "o3"), "--heldout", "run01"]
     )
     assert res.exit_code == 2 and "run01 never turn(s)" in _one_error_line(res)
 
