@@ -820,3 +820,27 @@ def test_ctrl_c_ends_a_long_command_within_2_s_with_exit_130(tmp_path, command):
     assert "Traceback" not in err and "Exception ignored" not in err
     assert [ln for ln in err.splitlines() if ln.startswith("interrupted (Ctrl-C)")], err
     assert took < 2.0, took
+
+
+def test_identify_names_why_no_rig_file_when_the_fit_makes_no_valid_rig(tmp_path, monkeypatch):
+    """Every needed parameter identified, yet the fitted values make no valid rig (e.g. one
+    closed-loop run): the error line says so and why, never an empty list of parameters."""
+    from drill_env.identify import identification
+    from drill_env.params import ParameterError
+    from drill_env.recordings.synth import SynthConfig, make_dataset, write_synthetic
+
+    cfg = SynthConfig(preset="brake", voltages=(0.5, 1.0, 2.0, 3.0), random_runs=1, duration_s=20.0)
+    write_synthetic(
+        make_dataset("none", seed=1, config=cfg), tmp_path / "d", tmp_path / "a.json", preset="brake"
+    )
+
+    def invalid(*args, **kwargs):
+        raise ParameterError("lower_static: must be > 0 (got -0.01)")
+
+    monkeypatch.setattr(identification, "fitted_params", invalid)
+    res = runner.invoke(app, ["identify", str(tmp_path / "d"), "--out", str(tmp_path / "o"), "--no-effects"])
+    assert res.exit_code == 1, res.output
+    line = next(x for x in res.output.splitlines() if x.startswith("error: no rig.yaml"))
+    assert "the fitted parameters make no valid rig (lower_static: must be > 0 (got -0.01))" in line
+    assert "do not identify ;" not in res.output
+    assert not (tmp_path / "o" / "rig.yaml").exists()

@@ -154,13 +154,16 @@ def identify(
     files = ", ".join(k for k in ("rig.yaml", "identification.json", "report.md") if written.get(k))
     typer.echo(f"wrote {files} to {out} ({res.timings.get('total', 0):.0f} s)")
     if res.params is None:
-        typer.secho(
-            "error: no rig.yaml: the data do not identify "
+        reason = (
+            "the data do not identify "
             + ", ".join(p.name for p in res.blocking)
-            + "; record the runs named in report.md (drill-env identify --plan)",
-            fg=typer.colors.RED,
-            err=True,
+            + "; record the runs named in report.md (drill-env identify --plan)"
+            if res.blocking
+            else "the fitted parameters make no valid rig ("
+            + (getattr(res, "invalid", "") or "outside the model's range")
+            + "); record runs that excite the rig more widely (drill-env identify --plan)"
         )
+        typer.secho(f"error: no rig.yaml: {reason}", fg=typer.colors.RED, err=True)
         raise typer.Exit(code=1)
 
 

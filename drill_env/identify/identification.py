@@ -125,6 +125,7 @@ class Identification:
     effects: dict[str, EffectResult] = field(default_factory=dict)
     lag_profiles: dict[str, dict[float, float]] = field(default_factory=dict)  # lag -> profile
     measurement: Any = None  # MeasurementModel of a fitted encoder eccentricity (None: exact readings)
+    invalid: str = ""  # why the fitted parameters make no valid rig (params None with nothing blocking)
 
     @property
     def not_identifiable(self) -> list[ParameterResult]:
@@ -538,13 +539,14 @@ def identify(
     if found:
         desc += "; with " + ", ".join(found) + " (fitted jointly)"
     params = None
+    invalid = ""
     if not blocking:
         try:
             params = _with_effects(
                 fitted_params(fit, name=f"{structure}-identified", description=desc), found
             )
-        except ParameterError:
-            params = None
+        except ParameterError as exc:
+            params, invalid = None, str(exc)
     train_params = None
     if train_fit is not None and params is not None:
         try:
@@ -576,6 +578,7 @@ def identify(
         effects=found,
         lag_profiles=profiles,
         measurement=measurement,
+        invalid=invalid,
     )
     if simulate_heldout and held and train_params is not None:
         from drill_env.recordings.compare import compare_run
