@@ -677,11 +677,7 @@ def shown_figures() -> dict:
 
 # Shown figures whose code draws them 8 in wide but whose committed files are older, each with
 # the command of results/README.md that redraws them (a figure leaves this list when redrawn).
-AWAITING_REDRAW = {
-    "results/identify/identified/friction.png": "python examples/identify_own_rig.py --out results/identify",
-    "results/identify/identified/heldout.png": "python examples/identify_own_rig.py --out results/identify",
-    "results/identify/identified/bifurcation.png": "python examples/identify_own_rig.py --out results/identify",
-}
+AWAITING_REDRAW: dict[str, str] = {}
 
 
 def test_every_figure_the_docs_show_fits_the_docs_width():
@@ -764,3 +760,22 @@ def test_the_discrepancy_study_figures_are_redrawn_legibly_from_study_json(tmp_p
         assert legibility_problems(f) == [], f.axes[0].get_title()
     r = CliRunner().invoke(app, ["discrepancy-study", "--figures-only", "--out", str(tmp_path / "none")])
     assert r.exit_code == 2 and "no study.json" in r.output
+
+
+def test_identifys_bifurcation_figure_of_a_rig_with_an_effect_is_its_base_models(tmp_path):
+    """A rig identified with an effect (its rig.yaml carries it) gets the bifurcation figure of
+    its base model, said so -- as `drill-env bifurcation` treats the same rig file -- not a
+    missing figure; the points are the base model's (the paper's braked rig: A 0.116 V, B 0.583 V)."""
+    from types import SimpleNamespace
+
+    from drill_env import load_params
+    from drill_env.identify.report import _bifurcation_figure
+
+    p = load_params("brake", lower_position_amp_1=0.1)
+    out = _bifurcation_figure(SimpleNamespace(states=[], structure="brake"), p, tmp_path / "bifurcation.png")
+    assert "error" not in out, out
+    assert out["effects_left_out"] == ["lower_position_amp_1"]
+    assert out["points"]["A"] == pytest.approx(0.1164, abs=2e-3)
+    assert out["points"]["B"] == pytest.approx(0.583, abs=2e-3)
+    width, dpi = _png_size(tmp_path / "bifurcation.png")
+    assert width <= 10 * dpi
