@@ -698,3 +698,41 @@ def test_recordings_of_the_loop_go_through_identify_and_discrepancy(tmp_path):
     )  # fmt: skip
     assert p.returncode == 0, p.stderr
     assert json.loads((tmp_path / "disc" / "result.json").read_text())
+
+
+def test_a_recording_with_lost_readings_loads_as_its_parts_and_earlier_runs_stay(tmp_path):
+    """Readings lost on the wire leave gaps in the recording's clock: the run is written with
+    ``split_at_gaps`` so that identify and discrepancy read it as it is (the parts between the
+    gaps as runs); a run added later leaves the earlier runs' files byte for byte."""
+    from types import SimpleNamespace
+
+    from drill_env.recordings.dataset import load_dataset
+    from drill_env.rig.loop import write_recording
+
+    def fake(gap: bool):
+        ticks = np.arange(30_000)
+        if gap:  # 50 readings lost at 15 s
+            ticks = np.concatenate([ticks[:15_000], ticks[15_050:]])
+        counts = (ticks * 0.5).astype(np.int64)
+        res = SimpleNamespace(
+            info=SimpleNamespace(sample_period=0.001, counts_per_rev=2000),
+            settings=SimpleNamespace(preset="brake"),
+            gaps=1 if gap else 0,
+        )
+        res.samples = lambda: {
+            "tick": ticks,
+            "u": np.full(ticks.size, 1.0),
+            "theta_u": counts * 2 * np.pi / 2000,
+            "theta_l": (counts - 40) * 2 * np.pi / 2000,
+        }
+        return res
+
+    write_recording(fake(False), tmp_path / "rec", "lqi_1V")
+    first = (tmp_path / "rec" / "lqi_1V.csv").read_bytes()
+    assert "split_at_gaps" not in (tmp_path / "rec" / "dataset.json").read_text()
+    write_recording(fake(True), tmp_path / "rec", "lqi_2V")
+    assert (tmp_path / "rec" / "lqi_1V.csv").read_bytes() == first
+    ds = load_dataset(tmp_path / "rec")
+    assert sorted(r.name for r in ds.runs) == ["lqi_1V", "lqi_2V@1", "lqi_2V@2"]
+    with pytest.raises(Exception, match="already holds a run named 'lqi_2V'"):
+        write_recording(fake(True), tmp_path / "rec", "lqi_2V")

@@ -57,6 +57,7 @@ __all__ = [
     "COLUMNS",
     "DatasetError",
     "MeasuredRun",
+    "add_run",
     "MeasuredDataset",
     "load_dataset",
     "write_dataset",
@@ -707,16 +708,23 @@ def write_dataset(
     preset: str,
     encoder_counts_per_rev: int,
     description: str = "",
+    split_at_gaps: bool = False,
 ) -> Path:
     """Write runs and ``dataset.json`` in the measured-data format (the folder held meanwhile,
-    see :func:`drill_env.outputs.output_lock`)."""
+    see :func:`drill_env.outputs.output_lock`). ``split_at_gaps``: a run whose clock has gaps
+    (samples lost) is analysed as the parts between them (``"split_at_gaps": true``)."""
     folder = Path(folder)
     with output_lock(folder, "dataset"):
-        return _write_dataset(folder, runs, preset, encoder_counts_per_rev, description)
+        return _write_dataset(folder, runs, preset, encoder_counts_per_rev, description, split_at_gaps)
 
 
 def _write_dataset(
-    folder: Path, runs: list[MeasuredRun], preset: str, encoder_counts_per_rev: int, description: str
+    folder: Path,
+    runs: list[MeasuredRun],
+    preset: str,
+    encoder_counts_per_rev: int,
+    description: str,
+    split_at_gaps: bool = False,
 ) -> Path:
     import pandas as pd
 
@@ -726,6 +734,8 @@ def _write_dataset(
         meta["sample_rate_hz"] = rates[0]
     if description:
         meta["description"] = description
+    if split_at_gaps:
+        meta["split_at_gaps"] = True
     # dataset.json is what makes the folder a dataset: removed first and written last, so that
     # a write interrupted (Ctrl-C, a full disk) leaves a folder that never loads as complete
     (folder / "dataset.json").unlink(missing_ok=True)
@@ -734,4 +744,27 @@ def _write_dataset(
         with atomic_file(folder / f"{r.name}.csv", "w", newline="") as f:
             df.to_csv(f, index=False, float_format="%.12g")
     atomic_write_text(folder / "dataset.json", json.dumps(meta, indent=2) + "\n")
+    return folder
+
+
+def add_run(folder: str | Path, run: MeasuredRun, *, split_at_gaps: bool = False) -> Path:
+    """Add one run to the dataset in ``folder`` without rewriting its other runs (their files
+    stay byte for byte); ``dataset.json`` keeps its fields, gains ``"split_at_gaps": true`` when
+    asked, and is written last. The dataset must load before (:func:`load_dataset` refuses
+    what does not) and the run's name must be new there."""
+    import pandas as pd
+
+    folder = Path(folder)
+    with output_lock(folder, "dataset"):
+        meta = json.loads((folder / "dataset.json").read_text(encoding="utf-8"))
+        if (folder / f"{run.name}.csv").exists():
+            raise DatasetError(f"{folder}: already holds a run named {run.name!r}")
+        if split_at_gaps:
+            meta["split_at_gaps"] = True
+        if "sample_rate_hz" in meta and abs(float(meta["sample_rate_hz"]) * run.dt - 1.0) > 1e-6:
+            del meta["sample_rate_hz"]  # runs at more than one rate: each CSV's own clock
+        df = pd.DataFrame({"t": run.t, "u": run.u, "theta_u": run.theta_u, "theta_l": run.theta_l})
+        with atomic_file(folder / f"{run.name}.csv", "w", newline="") as f:
+            df.to_csv(f, index=False, float_format="%.12g")
+        atomic_write_text(folder / "dataset.json", json.dumps(meta, indent=2) + "\n")
     return folder

@@ -326,10 +326,10 @@ def write_recording(res: LoopResult, folder: Path, run_name: str) -> Path | None
     run = _recording_run(res, run_name)
     if run.t.size < 2:
         return None
-    meta = folder / "dataset.json"
-    others = []
-    if meta.is_file():
-        from drill_env.recordings.dataset import load_dataset
+    # readings lost on the wire leave gaps in the clock: the parts between them are analysed
+    split = bool(res.gaps)
+    if (folder / "dataset.json").is_file():
+        from drill_env.recordings.dataset import add_run, load_dataset
 
         old = load_dataset(folder)
         if old.preset != res.settings.preset or old.encoder_counts_per_rev != res.info.counts_per_rev:
@@ -337,14 +337,16 @@ def write_recording(res: LoopResult, folder: Path, run_name: str) -> Path | None
                 f"--record: {folder} holds runs of preset {old.preset!r} at {old.encoder_counts_per_rev} "
                 f"counts/rev; this run is {res.settings.preset!r} at {res.info.counts_per_rev}"
             )
-        others = [r for r in old.runs if r.name != run_name]
-    write_dataset(
-        folder,
-        [*others, run],
-        preset=res.settings.preset,
-        encoder_counts_per_rev=res.info.counts_per_rev,
-        description="recorded by drill-env run-controller",
-    )
+        add_run(folder, run, split_at_gaps=split)  # the earlier runs' files stay as they are
+    else:
+        write_dataset(
+            folder,
+            [run],
+            preset=res.settings.preset,
+            encoder_counts_per_rev=res.info.counts_per_rev,
+            description="recorded by drill-env run-controller",
+            split_at_gaps=split,
+        )
     return folder / f"{run_name}.csv"
 
 
