@@ -293,6 +293,14 @@ def main(prog_name: str | None = None) -> None:  # entry point (``drill-env``, `
         if exc.code == INTERRUPTED_EXIT:
             _exit_now(INTERRUPTED_EXIT)
         raise
+    except KeyboardInterrupt:  # one that escaped a command's own handling (e.g. while it started)
+        typer.secho(
+            "interrupted (Ctrl-C): the command was stopped; every file written is complete (each is "
+            "replaced whole)",
+            fg=typer.colors.YELLOW,
+            err=True,
+        )
+        _exit_now(INTERRUPTED_EXIT)
 
 
 def _exit_now(code: int) -> None:

@@ -114,7 +114,9 @@ def test_cli_end_to_end(tmp_path):
         "model_check",
         "measurement",
         "voltage_lag",
+        "left_out",
     }
+    assert result["left_out"] == {}  # every run turns
     assert result["model_written"] is True and result["model_check"]["worse"] == []
     assert result["measurement"] == {}  # a physical effect: the readings are exact
     # one clock: no lag claimed, none applied

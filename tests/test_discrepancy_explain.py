@@ -106,7 +106,9 @@ def test_data_beyond_the_identified_speed_are_flagged():
         run = SimpleNamespace(t=t, theta_l=speed * t + 0.3 * np.sin(t))
         # the model the warnings speak of is the nominal one, named after its preset
         return SimpleNamespace(
-            dataset=SimpleNamespace(preset=preset, runs=[run]), params=SimpleNamespace(name=preset)
+            dataset=SimpleNamespace(preset=preset, runs=[run]),
+            params=SimpleNamespace(name=preset),
+            left_out={},
         )
 
     top = DiscrepancyResult.max_lower_speed.fget(fake("brake", 13.0))

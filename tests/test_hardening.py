@@ -796,7 +796,8 @@ def test_ctrl_c_ends_a_long_command_within_2_s_with_exit_130(tmp_path, command):
     if command == "discrepancy":
         from drill_env.recordings.synth import SynthConfig, make_dataset, write_synthetic
 
-        cfg = SynthConfig(voltages=(1.0, 2.0, 3.0), random_runs=0, duration_s=20.0, pre_roll_s=2.0)
+        # long enough to be in the analysis at the signal on a quiet machine (about a minute)
+        cfg = SynthConfig(voltages=(0.5, 1.0, 2.0, 3.0, 4.0), random_runs=2, duration_s=120.0, pre_roll_s=2.0)
         write_synthetic(make_dataset("none", seed=1, config=cfg), data, tmp_path / "a.json", preset="brake")
     args = {
         "benchmark": ["benchmark", "--quick", "--controllers", "open_loop,pi_upper", "--workers", "1"],
