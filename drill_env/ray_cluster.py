@@ -52,24 +52,24 @@ def _ray_answer(target: str, *, client: bool, timeout: float) -> str | None:
     import time
 
     try:
-        import grpc
+        import grpc  # type: ignore[import-untyped]
 
         if client:
             from ray.core.generated import ray_client_pb2 as pb
             from ray.core.generated import ray_client_pb2_grpc as pb_grpc
         else:
-            from ray.core.generated import gcs_service_pb2 as pb
-            from ray.core.generated import gcs_service_pb2_grpc as pb_grpc
+            from ray.core.generated import gcs_service_pb2 as pb  # type: ignore[no-redef]
+            from ray.core.generated import gcs_service_pb2_grpc as pb_grpc  # type: ignore[no-redef]
     except ImportError:  # no Ray (said by ray_cluster) or a Ray without these modules: left to Ray
         return None
     channel = grpc.insecure_channel(target)
     try:
         if client:
-            request = pb.ClusterInfoRequest(type=pb.ClusterInfoType.PING)
+            request = pb.ClusterInfoRequest(type=pb.ClusterInfoType.PING)  # type: ignore[attr-defined]
             call = pb_grpc.RayletDriverStub(channel).ClusterInfo.future(request, timeout=timeout)
         else:
-            request = pb.GetClusterIdRequest()
-            call = pb_grpc.NodeInfoGcsServiceStub(channel).GetClusterId.future(request, timeout=timeout)
+            request = pb.GetClusterIdRequest()  # type: ignore[attr-defined]
+            call = pb_grpc.NodeInfoGcsServiceStub(channel).GetClusterId.future(request, timeout=timeout)  # type: ignore[attr-defined]
         try:
             while not call.done():
                 time.sleep(0.05)

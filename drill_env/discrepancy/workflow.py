@@ -398,13 +398,13 @@ def analyse(
     left_out = still_runs(dataset, eqs)
     if left_out:
         if heldout is not None:  # a stuck held-out run is left out as well, not compared
-            kept = [h for h in heldout if h not in left_out]
-            if heldout and not kept:
+            turning_heldout = [h for h in heldout if h not in left_out]
+            if heldout and not turning_heldout:
                 raise ValueError(
                     f"heldout: {', '.join(heldout)} never turn(s) (stuck throughout): nothing to compare "
                     "there; hold out runs in which the rig turns"
                 )
-            heldout = kept
+            heldout = turning_heldout
         dataset = dataclasses.replace(dataset, runs=tuple(r for r in dataset.runs if r.name not in left_out))
         eqs = [eq for eq in eqs if eq.run.name not in left_out]
         stats = {n: v for n, v in stats.items() if n not in left_out}

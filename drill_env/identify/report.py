@@ -568,7 +568,7 @@ def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | Non
             "",
             f"Points: {pts or 'none in the range'}. Red: the data's steady states (mean, and min/max over 0.1 s)."
             + (
-                f" The analysis covers the paper's model only: the effects {bif['effects_left_out']} are left out "
+                f" The analysis covers the paper's model only: the effects {(bif or {})['effects_left_out']} are left out "
                 "(as `drill-env bifurcation` and the env's regimes treat this rig file)."
                 if (bif or {}).get("effects_left_out")
                 else ""

@@ -165,7 +165,7 @@ def _cols_friction_memory(eq: RunEquations, tau: float):
     cached = getattr(eq, "_stribeck_at_speed", None)
     if cached is None or cached[0] is not p or cached[1] is not eq.speed_l:
         cached = (p, eq.speed_l, stribeck(p, speed))
-        eq._stribeck_at_speed = cached
+        eq._stribeck_at_speed = cached  # type: ignore[attr-defined]
     basis = -np.sign(eq.speed_l) * (stribeck(p, w) - cached[2])
     return _zeros(len(eq.upper), 1), eq.kernel(basis, "lower")[:, None]
 
