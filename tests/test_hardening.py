@@ -31,6 +31,17 @@ runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _ctrl_c_after(proc: subprocess.Popen, seconds: float) -> tuple[str, float]:
+    """Send Ctrl-C to a command still running after ``seconds``; its stderr and the seconds it
+    took to end after the signal."""
+    time.sleep(seconds)
+    assert proc.poll() is None, proc.communicate()
+    t = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    return err, time.perf_counter() - t
+
+
 def _one_error_line(res, code: int = 2) -> str:
     assert res.exit_code == code, (res.exit_code, res.output)
     assert "Traceback" not in res.output
@@ -522,12 +533,7 @@ def test_ctrl_c_stops_python_m_drill_env_within_2_s_and_exits_130():
     drill_env.simulate("brake", 2.0, 60.0)  # the kernels in the cache the command reads
     args = [sys.executable, "-m", "drill_env", "simulate", "--duration", "1e7", "--dt", "10"]
     proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(8.0)  # started and in the run (hours long)
-    assert proc.poll() is None, proc.communicate()
-    t = time.perf_counter()
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
-    took = time.perf_counter() - t
+    err, took = _ctrl_c_after(proc, 8.0)  # started and in the run (hours long)
     assert proc.returncode == 130, err
     assert "Traceback" not in err and "interrupted (Ctrl-C)" in err
     assert took < 2.0, took
@@ -811,12 +817,7 @@ def test_ctrl_c_ends_a_long_command_within_2_s_with_exit_130(tmp_path, command):
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(10.0)  # past the start-up, in the work (each takes minutes)
-    assert proc.poll() is None, proc.communicate()
-    t = time.perf_counter()
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
-    took = time.perf_counter() - t
+    err, took = _ctrl_c_after(proc, 10.0)  # past the start-up, in the work (each takes minutes)
     assert proc.returncode == 130, err
     assert "Traceback" not in err and "Exception ignored" not in err
     assert [ln for ln in err.splitlines() if ln.startswith("interrupted (Ctrl-C)")], err
