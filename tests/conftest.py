@@ -29,6 +29,14 @@ settings.register_profile(
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (pyproject.toml's addopts): two workers more than the cores. Many tests wait
+    rather than compute (real-time loops of the rig protocol, timeouts, a Ctrl-C's end, the
+    processes of a command under test), and two more workers keep the cores busy meanwhile; on a
+    machine shared with other work they also keep the run's share of it."""
+    return (os.cpu_count() or 1) + 2
+
+
 def pytest_collection_modifyitems(config, items):
     """Property tests marked slow run with the "slow" profile (unless they set their own)."""
     slow = settings.get_profile("slow")

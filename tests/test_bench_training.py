@@ -43,6 +43,7 @@ def bench_training(*args: str, timeout: float) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow  # trains PPO to the quick check's end (about 20 s of CPU)
 def test_time_to_policy_writes_the_json_curves_and_figures(tmp_path):
     out = tmp_path / "training"
     res = bench_training(

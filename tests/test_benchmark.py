@@ -176,6 +176,7 @@ def test_process_pool_matches_sequential(tmp_path, sequential):
     )
 
 
+@pytest.mark.slow  # starts a local Ray instance (its own server, raylet and worker processes)
 def test_ray_backend_on_a_local_instance(tmp_path, sequential):
     ray = pytest.importorskip("ray")
     from drill_env.agents.evaluation.plants import standard_family

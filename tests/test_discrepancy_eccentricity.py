@@ -317,6 +317,7 @@ def test_synth_plant_with_a_bad_measurement_section_exits_2(tmp_path):
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.slow  # one study row (100 s runs); the rule's own arithmetic is checked below it too
 def test_a_reading_error_is_named_second_only_where_the_readings_show_it():
     """The study's one false discovery before the readings check: position friction at the
     lower disk under 8 % time-stamp jitter and 5 % parameter errors (seed 15202), where a 0.6

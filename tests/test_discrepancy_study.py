@@ -281,7 +281,7 @@ def test_study_command_defaults_to_a_fresh_run_folder(tmp_path, monkeypatch):
     assert out.name.startswith("study_") and not (tmp_path / "results").exists()
 
 
-@pytest.mark.parametrize("seed", [31000, 31010])
+@pytest.mark.parametrize("seed", [31000, pytest.param(31010, marks=pytest.mark.slow)])
 def test_parameter_errors_on_an_undithered_encoder_are_no_structure(seed):
     # no effect, every parameter up to 5 % off, a perfect 2000-count encoder, the study's full
     # design: on these seeds (outside the study's) the residual at the first calibration's

@@ -325,6 +325,7 @@ def test_an_unusable_cache_dir_falls_back_to_a_private_one(tmp_path, monkeypatch
     assert os.environ[_cache.ENV_VAR] == str(path.parent)  # worker processes share it
 
 
+@pytest.mark.slow  # compiles every kernel of a simulation afresh (the in-process check above is in the default run)
 def test_an_unusable_cache_dir_gives_a_warning_and_current_results_in_a_process(tmp_path):
     (tmp_path / "file").write_text("")
     bad = tmp_path / "file" / "cache"  # mkdir fails here, even as root

@@ -88,7 +88,7 @@ def test_upgrading_a_former_residual_file_changes_its_objects_and_nothing_else(t
     assert stored_policy_class(path) == ("stable_baselines3.common.policies", "ActorCriticPolicy")
     before = _entries(path)
     policy = load_policy(path, trusted=True)
-    obs = _observations(policy.observation_space, 64)
+    obs = _observations(policy.observation_space, 16)
     actions_before = policy.predict(obs)[0]
     model_before = policy.policy.model
     assert upgrade_policy_file(path, trusted=True) == [

@@ -41,7 +41,7 @@ def _without_record(src: Path, dst: Path) -> None:
                 zout.writestr(info, zin.read(info.filename))
 
 
-def _observations(space, n: int = 64) -> np.ndarray:
+def _observations(space, n: int = 16) -> np.ndarray:
     rng = np.random.default_rng(7)
     low, high = np.clip(space.low, -3, 3), np.clip(space.high, -3, 3)
     return rng.uniform(low, high, size=(n, *space.shape)).astype(np.float32)

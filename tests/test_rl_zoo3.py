@@ -100,6 +100,7 @@ def test_zoo_files_mirror_the_training_configs(algo):
         assert ("normalize" in hp) == cfg.normalize_reward
 
 
+@pytest.mark.slow
 def test_rl_zoo3_trains_ppo_with_the_shipped_file(tmp_path):
     # the command: python -m rl_zoo3.train --algo ppo --env DrillString-v3
     #   --gym-packages drill_env -conf configs/agents/rl_zoo3/ppo.yml -n 5000

@@ -66,7 +66,17 @@ def small_config(algo: str, steps: int) -> TrainConfig:
     return TrainConfig(**cfg)
 
 
-@pytest.mark.parametrize(("algo", "steps"), [("ppo", 256), ("sac", 300), ("tqc", 300), ("crossq", 300)])
+# tqc and crossq run through the same training loop as sac (the contrib test below trains crossq in
+# the default run); their few hundred steps each are in the slow run
+@pytest.mark.parametrize(
+    ("algo", "steps"),
+    [
+        ("ppo", 256),
+        ("sac", 300),
+        pytest.param("tqc", 300, marks=pytest.mark.slow),
+        pytest.param("crossq", 300, marks=pytest.mark.slow),
+    ],
+)
 def test_a_few_hundred_steps_of_training(tmp_path, algo, steps):
     cfg = small_config(algo, steps)
     summary = train(cfg, 3, tmp_path / "out", tmp_path / "run", progress_bar=False)
