@@ -359,14 +359,18 @@ def _results(
                     RUN_THAT_IDENTIFIES[name],
                 )
             else:  # a hump term the curve does not need
+                # not an identified zero: the data cannot tell this term from none (a hump that
+                # saturates below the slowest slip seen, or one the viscous slope absorbs over
+                # the speeds seen), so it has no interval and is not marked identified
                 out[name] = ParameterResult(
                     name,
                     0.0,
-                    (0.0, 0.0),
+                    (math.nan, math.nan),
                     "not needed by the data (no hump term)",
-                    True,
+                    False,
                     f"the lower friction curve needs {fit.hump_terms} hump term(s): adding this one does not "
-                    "lower the equation error significantly; set to 0",
+                    "lower the equation error significantly; set to 0, its value not determined",
+                    RUN_THAT_IDENTIFIES[name],
                 )
             continue
         sd = fit.sd(name)
