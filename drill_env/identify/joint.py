@@ -139,6 +139,9 @@ class JointFit:
         default_factory=dict
     )  # share of information from constant-voltage runs
     relative_sd: dict[str, float] = field(default_factory=dict)
+    # range of each base parameter over the friction curves that fit as well (see
+    # _alternative_ranges): what the data cannot tell apart
+    alternatives: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def residual_variance(self) -> float:
@@ -393,19 +396,21 @@ def joint_fit(
     prob = _Problem(rows, scale, free_lin)
     k = prob.a.shape[1]
     fits: dict[int, tuple[np.ndarray, float]] = {}
+    candidates: list[tuple[np.ndarray, float, int]] = []  # every friction curve fitted (not merged)
     for terms in (0, 1, 2) if hump_terms is None else (hump_terms,):
         if terms == 0:
             coef = _bounded_linear(prob, [], k)
             fits[0] = (coef, float(np.sum(_residual(prob, coef, 0) ** 2)))
+            candidates.append((fits[0][0], fits[0][1], 0))
         else:
             starts = (
                 [tuple(float(b) for b in warm_rates)]
                 if warm_rates is not None
                 else [b for b, _ in _grid_starts(prob, terms, GRID_STARTS)]
             )
-            fits[terms] = min(
-                (_refine(prob, betas) for betas in starts), key=lambda f: (_merged(f[0], k, terms), f[1])
-            )
+            refined = [_refine(prob, betas) for betas in starts]
+            candidates += [(f[0], f[1], terms) for f in refined if not _merged(f[0], k, terms)]
+            fits[terms] = min(refined, key=lambda f: (_merged(f[0], k, terms), f[1]))
             if terms == 2 and 1 in fits:
                 # also grow the one-term fit by a second term (so that two terms never fit worse than
                 # one): its rate the best on the grid with the first term held
@@ -414,6 +419,8 @@ def joint_fit(
                 best = min(BETA_GRID, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
                 start = np.concatenate([one[:k], [one[k], 0.0], [b1, best]])
                 grown = _refine(prob, (b1, float(best)), start=start)
+                if not _merged(grown[0], k, 2):
+                    candidates.append((grown[0], grown[1], 2))
                 if (_merged(grown[0], k, 2), grown[1]) < (_merged(fits[2][0], k, 2), fits[2][1]):
                     fits[2] = grown
     tests: dict[str, float] = {}
@@ -511,6 +518,7 @@ def joint_fit(
         values["upper_static_neg"] = values["upper_static_pos"]
         values["upper_viscous_neg"] = values["upper_viscous_pos"]
     rel = {n: float(sd[i] / abs(values[n])) if values[n] != 0.0 else math.inf for i, n in enumerate(names)}
+    alternatives = _alternative_ranges(prob, candidates, ss, s2, chosen, k, tests.get("threshold"), free_lin)
     return JointFit(
         values=values,
         free=names,
@@ -530,7 +538,55 @@ def joint_fit(
             n: float(info_const[i] / info_all[i]) if info_all[i] > 0 else 0.0 for i, n in enumerate(names)
         },
         relative_sd=rel,
+        alternatives=alternatives,
     )
+
+
+def _curve_values(theta: np.ndarray, terms: int, k: int, free_lin: list[str]) -> dict[str, float]:
+    """The base parameters of one fitted curve, its hump terms in the paper's order."""
+    out = {n: float(theta[i]) for i, n in enumerate(free_lin)}
+    amps = [float(theta[k + t]) for t in range(terms)]
+    rates = [float(theta[k + terms + t]) for t in range(terms)]
+    order = sorted(range(terms), key=lambda t: -rates[t])  # beta_1 >= beta_2
+    for slot in range(2):
+        t = order[slot] if slot < terms else None
+        out[HUMP_AMPLITUDES[slot]] = amps[t] if t is not None else 0.0
+        out[HUMP_RATES[slot]] = rates[t] if t is not None else 0.0
+    return out
+
+
+def _alternative_ranges(
+    prob: _Problem,
+    candidates: list[tuple[np.ndarray, float, int]],
+    ss: float,
+    s2: float,
+    chosen: int,
+    k: int,
+    threshold: float | None,
+    free_lin: list[str],
+) -> dict[str, tuple[float, float]]:
+    """The range of each base parameter over the friction curves that fit the data as
+    well as the chosen one: a curve with another number of hump terms that the term test does
+    not tell from it (its sum of squares within the test's threshold), or another basin of the
+    rates within the 95 % level of one parameter (chi^2_1 = 3.84, in units of the misfit). The
+    local covariance of the chosen curve cannot show these: two humps that nearly cancel, a slow
+    hump the viscous slope mimics over the speeds seen, a sharp one the static level absorbs."""
+    if not candidates:
+        return {}
+    same = float(stats.chi2.isf(0.05, 1)) * s2
+    other = (threshold if threshold is not None else same) * s2
+    vals: dict[str, list[float]] = {}
+    for theta, ss_c, terms in candidates:
+        if not math.isfinite(ss_c):
+            continue
+        limit = same if terms == chosen else other
+        if ss_c > ss + limit:
+            continue
+        if terms > chosen and ss_c > ss:  # a further term that lowers nothing is no alternative
+            continue
+        for n, v in _curve_values(theta, terms, k, free_lin).items():
+            vals.setdefault(n, []).append(v)
+    return {n: (min(v), max(v)) for n, v in vals.items() if len(v) > 1}
 
 
 def fitted_params(fit: JointFit, *, name: str, description: str) -> RigParams:
