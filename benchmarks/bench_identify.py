@@ -1,6 +1,7 @@
 """Speed of ``drill-env identify`` with the structure search, against the base-only fit (``--no-effects``).
 
     python benchmarks/bench_identify.py [--seed 0] [--rate 500] [--effect motor_inductance] [--quick]
+    python benchmarks/bench_identify.py --study FIRST_SEED COUNT
 
 Records a rig with every parameter x0.35-x3 of the paper's (:func:`drill_env.identify.draw_rig`)
 with one library effect hidden on a lab's week of runs (the ``mixed`` protocol of
@@ -140,7 +141,16 @@ def main() -> int:
     ap.add_argument("--structure", default="brake", choices=("brake", "no_brake"))
     ap.add_argument("--effect", default="motor_inductance", choices=sorted(FIELDS))
     ap.add_argument("--quick", action="store_true", help="30 s runs: a smoke test, no target")
+    ap.add_argument(
+        "--study", type=int, nargs=2, metavar=("FIRST_SEED", "COUNT"), help="the accuracy study instead"
+    )
     args = ap.parse_args()
+    if args.study is not None:
+        first, count = args.study
+        if count < 1:
+            print(f"--study: COUNT {count}; allowed: 1 or more", file=sys.stderr)
+            return 2
+        return study(first, count)
     try:
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core
     except (AttributeError, OSError):
