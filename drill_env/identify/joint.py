@@ -45,6 +45,9 @@ HUMP_RATES = ("lower_hump_rate_1", "lower_hump_rate_2")
 LINEAR: tuple[str, ...] = tuple(p for p in IDENTIFIED_PARAMETERS if p not in HUMP_AMPLITUDES + HUMP_RATES)
 BETA_GRID = np.geomspace(0.02, 60.0, 26)  # [s/rad] Stribeck rates tried before refining
 BETA_BOUNDS = (1e-3, 500.0)  # [s/rad]
+# a hump term this close to saturation (tanh(beta w/2)) at the slowest slip of the data is
+# the static level over every window: its rate is bounded so that it is not (see _Problem)
+SATURATED = 0.99
 HUMP_ALPHA = 1e-4  # level at which a hump term is kept
 SANDWICH_BLOCK = 10  # neighbouring windows per block of the sandwich covariance
 MERGED_RATES = 0.02  # two rates this close in log are one (see _merged)
@@ -205,6 +208,15 @@ class _Problem:
         self.inv_sigma = np.concatenate([1.0 / r.sigma[k_] for r, k_ in zip(rows, keep, strict=True)])
         self.run_of_row = np.concatenate([np.full(int(k_.sum()), i) for i, k_ in enumerate(keep)])
         self._h: dict[float, np.ndarray] = {}
+        # the fastest hump the data can see: one that has saturated below the slowest lower-disk
+        # slip of the windows is T_sl over every window, and T_sl - T and a hump of amplitude T
+        # trade exactly (T_sl 720 N m against a hump of -720 N m at 90 s/rad on one rig)
+        slowest = [float(r.speed_l.min()) for r in rows if r.speed_l.size]
+        w_min = max(min(slowest), 1e-6) if slowest else 1e-6
+        self.beta_max = float(min(BETA_BOUNDS[1], 2.0 * math.atanh(SATURATED) / w_min))
+        self.beta_grid = BETA_GRID[BETA_GRID <= self.beta_max]
+        if self.beta_grid.size < 2:
+            self.beta_grid = BETA_GRID[:2]
 
     @property
     def n(self) -> int:
@@ -245,7 +257,8 @@ def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float
         return [((), prob.lstsq([])[1])]
     # normal equations, with the hump columns precomputed on the grid
     a, y = prob.a, prob.y
-    h = np.column_stack([prob.hump(b) for b in BETA_GRID])
+    grid = prob.beta_grid
+    h = np.column_stack([prob.hump(b) for b in grid])
     g_aa, g_ay = a.T @ a, a.T @ y
     g_ah, g_hh, g_hy = a.T @ h, h.T @ h, h.T @ y
     yy = float(y @ y)
@@ -255,9 +268,9 @@ def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float
     every: list[tuple[tuple[float, ...], float]] = []
     k = a.shape[1]
     pairs = (
-        [(i,) for i in range(BETA_GRID.size)]
+        [(i,) for i in range(grid.size)]
         if terms == 1
-        else [(i, j) for i in range(BETA_GRID.size) for j in range(i)]
+        else [(i, j) for i in range(grid.size) for j in range(i)]
     )
     for sel in pairs:
         s = list(sel)
@@ -272,7 +285,7 @@ def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float
         except np.linalg.LinAlgError:
             continue
         ss = yy - float(coef @ b)
-        here = (tuple(float(BETA_GRID[i]) for i in sel), ss)
+        here = (tuple(float(grid[i]) for i in sel), ss)
         every.append(here)
         if not np.any(coef[: prob.k_lin] < 0.0):
             feasible.append(here)
@@ -281,7 +294,7 @@ def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float
         for here in sorted(pool, key=lambda x: x[1])[:top]:
             if here not in out:
                 out.append(here)
-    return out or [(tuple(float(b) for b in BETA_GRID[:terms]), math.inf)]
+    return out or [(tuple(float(b) for b in grid[:terms]), math.inf)]
 
 
 def _residual(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
@@ -313,7 +326,7 @@ def _refine(
     terms = len(betas)
     k = prob.a.shape[1]
     b0 = np.asarray(betas if start is None else np.asarray(start)[k + terms :], dtype=float)
-    b0 = np.clip(b0, BETA_BOUNDS[0], BETA_BOUNDS[1])
+    b0 = np.clip(b0, BETA_BOUNDS[0], prob.beta_max)
     lo_lin = np.concatenate([_linear_lower(prob), np.full(terms, -np.inf)])
     memo: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
@@ -341,7 +354,7 @@ def _refine(
         lambda lb: inner(lb)[1],
         x0,
         jac=jac,
-        bounds=(np.log(BETA_BOUNDS[0]), np.log(BETA_BOUNDS[1])),
+        bounds=(np.log(BETA_BOUNDS[0]), np.log(prob.beta_max)),
         method="trf",
         x_scale=1.0,
         max_nfev=100,
@@ -416,7 +429,7 @@ def joint_fit(
                 # one): its rate the best on the grid with the first term held
                 one = fits[1][0]
                 b1 = float(one[k + 1])
-                best = min(BETA_GRID, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
+                best = min(prob.beta_grid, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
                 start = np.concatenate([one[:k], [one[k], 0.0], [b1, best]])
                 grown = _refine(prob, (b1, float(best)), start=start)
                 if not _merged(grown[0], k, 2):
