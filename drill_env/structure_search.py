@@ -104,10 +104,17 @@ class StructureSearch:
 
     @property
     def verdict(self) -> str:
-        """``none``, ``recalibrated``, ``unexplained`` or the effects found (``a+b``)."""
+        """``none``, ``recalibrated``, ``unexplained`` or the effects found (``a+b``). An effect
+        the tests named that the model could not take (its re-fit not physical, or failed) leaves
+        the residual unexplained: the model has no effect that explains it."""
         if self.effects:
             return "+".join(self.effects)
-        return self.rounds[-1].verdict if self.rounds else "none"
+        if not self.rounds:
+            return "none"
+        last = self.rounds[-1]
+        if last.verdict in ("none", "recalibrated", "unexplained") or last.refused:
+            return last.verdict  # a name the user did not allow (--effects) is reported as named
+        return "unexplained"
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -281,7 +288,17 @@ def identify_structure(
         current = nxt
     else:
         stopped = f"the bound of {max_rounds} rounds"
-    suspect = _suspect(current) if rounds and rounds[-1].verdict == "unexplained" else []
+    # the residual is unexplained when the tests say so, or when what they named is not in the
+    # final model (a re-fit with it that failed or was not physical)
+    left = rounds and (
+        rounds[-1].verdict == "unexplained"
+        or (
+            rounds[-1].verdict not in ("none", "recalibrated")
+            and not rounds[-1].added
+            and not rounds[-1].refused
+        )
+    )
+    suspect = _suspect(current) if left else []
     if simulate_heldout and current.train_params is not None and held:
         _simulate_heldout(current, dataset)
     return StructureSearch(

@@ -403,3 +403,28 @@ def test_study_on_lab_protocols():
                         missed.append(f"{case}:{k}")
     print(f"truths inside their 95 % intervals: {inside}/{total} = {inside / total:.1%}; outside: {missed}")
     assert inside >= 0.9 * total, (inside, total, missed)
+
+
+def test_an_effect_the_model_could_not_take_leaves_the_residual_unexplained():
+    """The tests name an effect, but the re-fit with it is not physical (or fails): the model the
+    search returns has no effect, so its verdict is unexplained, never the effect's name; a name
+    the user did not allow (--effects) is reported as named."""
+    from types import SimpleNamespace
+
+    from drill_env.structure_search import Round, StructureSearch
+
+    def search(**kw) -> StructureSearch:
+        rnd = Round(1, [], "string_damping", 1.0, "", ["string_damping"], [], 5.0, **kw)
+        ident = SimpleNamespace(effects={})
+        return StructureSearch(identification=ident, base=ident, rounds=[rnd], allowed=(), stopped="")
+
+    assert search().verdict == "unexplained"
+    assert search(refused=["string_damping"]).verdict == "string_damping"
+    none = StructureSearch(
+        identification=SimpleNamespace(effects={}),
+        base=None,
+        rounds=[Round(1, [], "none", 0.9, "", [], [], 1.0)],
+        allowed=(),
+        stopped="",
+    )
+    assert none.verdict == "none"

@@ -204,14 +204,16 @@ def lag_profile(
     ci = _profile_interval(np.log(taus), prof, math.log(best_tau))
     # on a coarse grid the crossing is poorly placed: the curvature of the profile at its
     # minimum (a parabola through the three nearest points) gives the half-width, widened as
-    # the fit widens every other interval (misfit and run-to-run spread over the window noise)
+    # the fit widens its other intervals (misfit and run-to-run spread over the window noise)
     j = int(np.argmin(np.abs(taus - best_tau)))
     if 0 < j < taus.size - 1:
         a = np.polyfit(np.log(taus[j - 1 : j + 2]), prof[j - 1 : j + 2], 2)[0]
         if a > 0:
             sd_all = np.sqrt(np.maximum(np.diag(best.cov), 0.0))
             ratio = sd_all / np.maximum(best.sd_information * math.sqrt(s2), 1e-300)
-            widen = max(1.0, float(np.median(ratio))) if ratio.size else 1.0
+            # the lag's own widening is not known (no sandwich of a profiled parameter): the
+            # largest of the fit's, so that correlated windows widen it as much as any parameter
+            widen = max(1.0, float(np.max(ratio[np.isfinite(ratio)], initial=1.0))) if ratio.size else 1.0
             half = widen * math.sqrt(CHI2_95_1 / a)
             x0 = math.log(best_tau)
             ci = (min(ci[0], x0 - half), max(ci[1], x0 + half))

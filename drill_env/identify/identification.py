@@ -359,14 +359,18 @@ def _results(
                     RUN_THAT_IDENTIFIES[name],
                 )
             else:  # a hump term the curve does not need
+                # not an identified zero: the data cannot tell this term from none (a hump that
+                # saturates below the slowest slip seen, or one the viscous slope absorbs over
+                # the speeds seen), so it has no interval and is not marked identified
                 out[name] = ParameterResult(
                     name,
                     0.0,
-                    (0.0, 0.0),
+                    (math.nan, math.nan),
                     "not needed by the data (no hump term)",
-                    True,
+                    False,
                     f"the lower friction curve needs {fit.hump_terms} hump term(s): adding this one does not "
-                    "lower the equation error significantly; set to 0",
+                    "lower the equation error significantly; set to 0, its value not determined",
+                    RUN_THAT_IDENTIFIES[name],
                 )
             continue
         sd = fit.sd(name)
@@ -377,13 +381,33 @@ def _results(
         # but is named in the report, not taken for a lack of excitation)
         limit = MAX_RELATIVE_HALF_WIDTH if name in ESSENTIAL else NOT_DETERMINED_HALF_WIDTH
         identified = 1.96 * fit.sd_excited(name) <= limit * abs(v)
+        if name not in ESSENTIAL:
+            # a term the model can run without: an interval wider than the limit (whatever widened
+            # it: the runs' spread, correlated windows) leaves it not determined
+            identified = identified and 1.96 * sd <= limit * abs(v)
         note = needs = ""
+        alt = fit.alternatives.get(name)
+        if alt is not None:
+            # another friction curve fits the data as well: the interval spans its value too, and a
+            # value the curves disagree on by more than the limit is not determined
+            lo, hi = min(lo, alt[0]), max(hi, alt[1])
+            if max(v - alt[0], alt[1] - v) > limit * abs(v):
+                identified = False
+                note = (
+                    f"another lower friction curve fits these data as well with {name} from "
+                    f"{alt[0]:.4g} to {alt[1]:.4g}"
+                )
         if not identified:
             needs = RUN_THAT_IDENTIFIES[name]
             if name in HUMP_AMPLITUDES + HUMP_RATES + ("lower_viscous",):
-                note = (
-                    "the friction curve is fixed better than this term of it: the hump terms and the "
-                    "viscous slope trade off over the speeds in the data"
+                note = "; ".join(
+                    x
+                    for x in (
+                        note,
+                        "the friction curve is fixed better than this term of it: the hump terms and the "
+                        "viscous slope trade off over the speeds in the data",
+                    )
+                    if x
                 )
         out[name] = ParameterResult(
             name,

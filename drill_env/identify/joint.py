@@ -45,6 +45,9 @@ HUMP_RATES = ("lower_hump_rate_1", "lower_hump_rate_2")
 LINEAR: tuple[str, ...] = tuple(p for p in IDENTIFIED_PARAMETERS if p not in HUMP_AMPLITUDES + HUMP_RATES)
 BETA_GRID = np.geomspace(0.02, 60.0, 26)  # [s/rad] Stribeck rates tried before refining
 BETA_BOUNDS = (1e-3, 500.0)  # [s/rad]
+# a hump term this close to saturation (tanh(beta w/2)) at the slowest slip of the data is
+# the static level over every window: its rate is bounded so that it is not (see _Problem)
+SATURATED = 0.99
 HUMP_ALPHA = 1e-4  # level at which a hump term is kept
 SANDWICH_BLOCK = 10  # neighbouring windows per block of the sandwich covariance
 MERGED_RATES = 0.02  # two rates this close in log are one (see _merged)
@@ -139,6 +142,9 @@ class JointFit:
         default_factory=dict
     )  # share of information from constant-voltage runs
     relative_sd: dict[str, float] = field(default_factory=dict)
+    # range of each base parameter over the friction curves that fit as well (see
+    # _alternative_ranges): what the data cannot tell apart
+    alternatives: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def residual_variance(self) -> float:
@@ -202,6 +208,15 @@ class _Problem:
         self.inv_sigma = np.concatenate([1.0 / r.sigma[k_] for r, k_ in zip(rows, keep, strict=True)])
         self.run_of_row = np.concatenate([np.full(int(k_.sum()), i) for i, k_ in enumerate(keep)])
         self._h: dict[float, np.ndarray] = {}
+        # the fastest hump the data can see: one that has saturated below the slowest lower-disk
+        # slip of the windows is T_sl over every window, and T_sl - T and a hump of amplitude T
+        # trade exactly (T_sl 720 N m against a hump of -720 N m at 90 s/rad on one rig)
+        slowest = [float(r.speed_l.min()) for r in rows if r.speed_l.size]
+        w_min = max(min(slowest), 1e-6) if slowest else 1e-6
+        self.beta_max = float(min(BETA_BOUNDS[1], 2.0 * math.atanh(SATURATED) / w_min))
+        self.beta_grid = BETA_GRID[BETA_GRID <= self.beta_max]
+        if self.beta_grid.size < 2:
+            self.beta_grid = BETA_GRID[:2]
 
     @property
     def n(self) -> int:
@@ -242,7 +257,8 @@ def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float
         return [((), prob.lstsq([])[1])]
     # normal equations, with the hump columns precomputed on the grid
     a, y = prob.a, prob.y
-    h = np.column_stack([prob.hump(b) for b in BETA_GRID])
+    grid = prob.beta_grid
+    h = np.column_stack([prob.hump(b) for b in grid])
     g_aa, g_ay = a.T @ a, a.T @ y
     g_ah, g_hh, g_hy = a.T @ h, h.T @ h, h.T @ y
     yy = float(y @ y)
@@ -252,9 +268,9 @@ def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float
     every: list[tuple[tuple[float, ...], float]] = []
     k = a.shape[1]
     pairs = (
-        [(i,) for i in range(BETA_GRID.size)]
+        [(i,) for i in range(grid.size)]
         if terms == 1
-        else [(i, j) for i in range(BETA_GRID.size) for j in range(i)]
+        else [(i, j) for i in range(grid.size) for j in range(i)]
     )
     for sel in pairs:
         s = list(sel)
@@ -269,7 +285,7 @@ def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float
         except np.linalg.LinAlgError:
             continue
         ss = yy - float(coef @ b)
-        here = (tuple(float(BETA_GRID[i]) for i in sel), ss)
+        here = (tuple(float(grid[i]) for i in sel), ss)
         every.append(here)
         if not np.any(coef[: prob.k_lin] < 0.0):
             feasible.append(here)
@@ -278,7 +294,7 @@ def _grid_starts(prob: _Problem, terms: int, top: int) -> list[tuple[tuple[float
         for here in sorted(pool, key=lambda x: x[1])[:top]:
             if here not in out:
                 out.append(here)
-    return out or [(tuple(float(b) for b in BETA_GRID[:terms]), math.inf)]
+    return out or [(tuple(float(b) for b in grid[:terms]), math.inf)]
 
 
 def _residual(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
@@ -310,7 +326,7 @@ def _refine(
     terms = len(betas)
     k = prob.a.shape[1]
     b0 = np.asarray(betas if start is None else np.asarray(start)[k + terms :], dtype=float)
-    b0 = np.clip(b0, BETA_BOUNDS[0], BETA_BOUNDS[1])
+    b0 = np.clip(b0, BETA_BOUNDS[0], prob.beta_max)
     lo_lin = np.concatenate([_linear_lower(prob), np.full(terms, -np.inf)])
     memo: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
@@ -338,7 +354,7 @@ def _refine(
         lambda lb: inner(lb)[1],
         x0,
         jac=jac,
-        bounds=(np.log(BETA_BOUNDS[0]), np.log(BETA_BOUNDS[1])),
+        bounds=(np.log(BETA_BOUNDS[0]), np.log(prob.beta_max)),
         method="trf",
         x_scale=1.0,
         max_nfev=100,
@@ -393,27 +409,31 @@ def joint_fit(
     prob = _Problem(rows, scale, free_lin)
     k = prob.a.shape[1]
     fits: dict[int, tuple[np.ndarray, float]] = {}
+    candidates: list[tuple[np.ndarray, float, int]] = []  # every friction curve fitted (not merged)
     for terms in (0, 1, 2) if hump_terms is None else (hump_terms,):
         if terms == 0:
             coef = _bounded_linear(prob, [], k)
             fits[0] = (coef, float(np.sum(_residual(prob, coef, 0) ** 2)))
+            candidates.append((fits[0][0], fits[0][1], 0))
         else:
             starts = (
                 [tuple(float(b) for b in warm_rates)]
                 if warm_rates is not None
                 else [b for b, _ in _grid_starts(prob, terms, GRID_STARTS)]
             )
-            fits[terms] = min(
-                (_refine(prob, betas) for betas in starts), key=lambda f: (_merged(f[0], k, terms), f[1])
-            )
+            refined = [_refine(prob, betas) for betas in starts]
+            candidates += [(f[0], f[1], terms) for f in refined if not _merged(f[0], k, terms)]
+            fits[terms] = min(refined, key=lambda f: (_merged(f[0], k, terms), f[1]))
             if terms == 2 and 1 in fits:
                 # also grow the one-term fit by a second term (so that two terms never fit worse than
                 # one): its rate the best on the grid with the first term held
                 one = fits[1][0]
                 b1 = float(one[k + 1])
-                best = min(BETA_GRID, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
+                best = min(prob.beta_grid, key=lambda b2: prob.lstsq([prob.hump(b1), prob.hump(b2)])[1])
                 start = np.concatenate([one[:k], [one[k], 0.0], [b1, best]])
                 grown = _refine(prob, (b1, float(best)), start=start)
+                if not _merged(grown[0], k, 2):
+                    candidates.append((grown[0], grown[1], 2))
                 if (_merged(grown[0], k, 2), grown[1]) < (_merged(fits[2][0], k, 2), fits[2][1]):
                     fits[2] = grown
     tests: dict[str, float] = {}
@@ -511,6 +531,7 @@ def joint_fit(
         values["upper_static_neg"] = values["upper_static_pos"]
         values["upper_viscous_neg"] = values["upper_viscous_pos"]
     rel = {n: float(sd[i] / abs(values[n])) if values[n] != 0.0 else math.inf for i, n in enumerate(names)}
+    alternatives = _alternative_ranges(prob, candidates, ss, s2, chosen, k, tests.get("threshold"), free_lin)
     return JointFit(
         values=values,
         free=names,
@@ -530,7 +551,55 @@ def joint_fit(
             n: float(info_const[i] / info_all[i]) if info_all[i] > 0 else 0.0 for i, n in enumerate(names)
         },
         relative_sd=rel,
+        alternatives=alternatives,
     )
+
+
+def _curve_values(theta: np.ndarray, terms: int, k: int, free_lin: list[str]) -> dict[str, float]:
+    """The base parameters of one fitted curve, its hump terms in the paper's order."""
+    out = {n: float(theta[i]) for i, n in enumerate(free_lin)}
+    amps = [float(theta[k + t]) for t in range(terms)]
+    rates = [float(theta[k + terms + t]) for t in range(terms)]
+    order = sorted(range(terms), key=lambda t: -rates[t])  # beta_1 >= beta_2
+    for slot in range(2):
+        t = order[slot] if slot < terms else None
+        out[HUMP_AMPLITUDES[slot]] = amps[t] if t is not None else 0.0
+        out[HUMP_RATES[slot]] = rates[t] if t is not None else 0.0
+    return out
+
+
+def _alternative_ranges(
+    prob: _Problem,
+    candidates: list[tuple[np.ndarray, float, int]],
+    ss: float,
+    s2: float,
+    chosen: int,
+    k: int,
+    threshold: float | None,
+    free_lin: list[str],
+) -> dict[str, tuple[float, float]]:
+    """The range of each base parameter over the friction curves that fit the data as
+    well as the chosen one: a curve with another number of hump terms that the term test does
+    not tell from it (its sum of squares within the test's threshold), or another basin of the
+    rates within the 95 % level of one parameter (chi^2_1 = 3.84, in units of the misfit). The
+    local covariance of the chosen curve cannot show these: two humps that nearly cancel, a slow
+    hump the viscous slope mimics over the speeds seen, a sharp one the static level absorbs."""
+    if not candidates:
+        return {}
+    same = float(stats.chi2.isf(0.05, 1)) * s2
+    other = (threshold if threshold is not None else same) * s2
+    vals: dict[str, list[float]] = {}
+    for theta, ss_c, terms in candidates:
+        if not math.isfinite(ss_c):
+            continue
+        limit = same if terms == chosen else other
+        if ss_c > ss + limit:
+            continue
+        if terms > chosen and ss_c > ss:  # a further term that lowers nothing is no alternative
+            continue
+        for n, v in _curve_values(theta, terms, k, free_lin).items():
+            vals.setdefault(n, []).append(v)
+    return {n: (min(v), max(v)) for n, v in vals.items() if len(v) > 1}
 
 
 def fitted_params(fit: JointFit, *, name: str, description: str) -> RigParams:

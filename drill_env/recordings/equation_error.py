@@ -110,6 +110,8 @@ class EquationErrorConfig:
     noise_lag_s: float = 0.01  # lag of the third differences that estimate the angle noise [s]
     quantisation_harmonics: int = 256  # harmonics of the quantisation error treated as spectral lines
     rate_span_factors: tuple[int, ...] = (1, 3, 9, 27)  # spans tried for the count rate [x window support]
+    accel_window_s: float = 0.2  # cubic Savitzky-Golay window of the acceleration bound [s]
+    accel_margin: float = 1.5  # factor on the largest smoothed acceleration (a jump is smoothed)
 
 
 def stribeck(params: RigParams, w: np.ndarray) -> np.ndarray:
@@ -635,6 +637,65 @@ class RunEquations:
         c = self.upper.centers if disk == "upper" else self.lower.centers
         return self.gather(delta, c) @ w / self.h**2
 
+    def _turns_one_way(self, disk: str, centers: np.ndarray, sign: np.ndarray) -> np.ndarray:
+        """Per window, whether the readings show the disk turning one way throughout its kernel
+        support (friction of one sign): the smoothed speed alone cannot tell, since at a coarse
+        encoder it is a long window's, which averages a short stop or reversal away (a
+        binary sequence that reverses the voltage while the disk is slow).
+
+        A disk that stops (or reverses) at t* with |theta''| <= A moves at most
+        A (t - t*)^2 / 2 away from its angle there. So, for an encoder without dither, the count
+        it is in at t* is held at least sqrt(2 step / A) (it must cover a whole count on both
+        sides of t*), and a reversal shows as a count against the direction; a window is kept
+        only when no count is held that long and none goes back. With dither (readings that
+        flicker by ``k`` counts), every span of length T about the support must advance by more
+        than A T^2/4 + (1 + 2k) step, T = 2 sqrt((1 + 2k) step / A). A is the largest acceleration
+        in the support of a cubic Savitzky-Golay fit (``accel_window_s``), times
+        ``accel_margin``, plus three standard deviations of its noise: it depends on the
+        readings alone, so the windows are the same for every model tested."""
+        if centers.size == 0:
+            return np.zeros(0, dtype=bool)
+        cfg = self.config
+        theta = self.theta_u if disk == "upper" else self.theta_l
+        dt, step, L = self.dt, self.step, self.L
+        g = max(2, int(round(0.5 * cfg.accel_window_s / dt)))
+        acc = np.abs(_savgol(theta, g, deriv=2, delta=dt))
+        coef = savgol_coeffs(2 * g + 1, 3, deriv=2, delta=dt)
+        noise = self.noise.upper if disk == "upper" else self.noise.lower
+        a_noise = 3.0 * noise * float(np.sqrt(coef @ coef))
+        a_max = cfg.accel_margin * maximum_filter1d(acc, 2 * L + 1, mode="nearest")[centers] + a_noise
+        a_max = np.maximum(a_max, 1e-12)
+        counts = np.round(theta / step)
+        dither = self.noise.additive(disk)
+        k = int(math.ceil(4.0 * dither / step)) if dither > 0.0 else 0
+        d = np.diff(counts)
+        ok = np.ones(centers.size, dtype=bool)
+        if k == 0:
+            # counts against the direction, per sample (change i -> i+1 charged to sample i)
+            back_pos = maximum_filter1d((d < 0).astype(np.int8), 2 * L + 1, mode="nearest")
+            back_neg = maximum_filter1d((d > 0).astype(np.int8), 2 * L + 1, mode="nearest")
+            ci = np.minimum(centers, d.size - 1)
+            ok &= np.where(sign > 0, back_pos[ci] == 0, back_neg[ci] == 0)
+            # how long the count each sample reads is held (+1 sample: the crossings lie between)
+            change = np.flatnonzero(d != 0)
+            edges = np.concatenate([[-1], change, [counts.size - 1]])
+            lengths = (np.diff(edges) + 1) * dt
+            held = np.repeat(lengths, np.diff(edges))
+            longest = maximum_filter1d(held, 2 * L + 1, mode="nearest")[centers]
+            ok &= longest < np.sqrt(2.0 * step / a_max)
+            return ok
+        e = (1.0 + 2.0 * k) * step
+        for i, (c, s) in enumerate(zip(centers, sign, strict=True)):
+            T = max(1, int(round(2.0 * math.sqrt(e / a_max[i]) / dt)))
+            lo, hi = max(c - L - T // 2, 0), min(c + L + T // 2 + 1, counts.size)
+            y = s * counts[lo:hi] * step
+            if y.size <= T:
+                ok[i] = False
+                continue
+            need = a_max[i] * (T * dt) ** 2 / 4.0 + e
+            ok[i] = bool(np.all(y[T:] - y[:-T] > need))
+        return ok
+
     # -- nominal residuals ---------------------------------------------------------------------
     def _windows(self, disk, centers, speed, reach) -> DiskWindows:
         p = self.params
@@ -643,6 +704,7 @@ class RunEquations:
         bwd = maximum_filter1d(speed, 2 * reach + 1, mode="nearest")
         sign = np.where(fwd[centers] >= vmin, 1.0, np.where(bwd[centers] <= -vmin, -1.0, 0.0))
         keep = sign != 0.0
+        keep[keep] = self._turns_one_way(disk, centers[keep], sign[keep])
         c = centers[keep]
         s = sign[keep]
         if c.size == 0:  # the disk never turns one way for a whole window (a stuck run)
