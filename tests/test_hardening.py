@@ -475,6 +475,16 @@ def test_fuzz_the_api_numbers_give_a_result_or_a_value_error_naming_the_argument
 # -- 4. Ctrl-C ----------------------------------------------------------------------------------------
 
 
+@pytest.fixture
+def pythons_sigint_handler():
+    """Python's own SIGINT handler (KeyboardInterrupt), as in a terminal: a process started as a
+    shell script's background job inherits SIGINT ignored, and Python then installs none."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+@pytest.mark.usefixtures("pythons_sigint_handler")
 def test_ctrl_c_stops_a_long_simulation_in_the_api_within_a_second():
     drill_env.simulate("brake", 2.0, 60.0)  # compiled
     sent: list[float] = []
@@ -490,6 +500,7 @@ def test_ctrl_c_stops_a_long_simulation_in_the_api_within_a_second():
     assert time.perf_counter() - sent[0] < 1.0
 
 
+@pytest.mark.usefixtures("pythons_sigint_handler")
 def test_ctrl_c_stops_a_long_batch_simulation_in_the_api_within_a_second():
     from drill_env.simulator import simulate_batch
 
