@@ -341,7 +341,7 @@ def test_discrepancy_on_the_identified_rig_names_a_hidden_effect(tmp_path):
     )  # fmt: skip
     assert r.exit_code == 0, r.output
     ident = json.loads((out / "identification.json").read_text())
-    assert ident["effects"] == ["position_friction_lower"], ident["structure_search"]
+    assert list(ident["effects"]) == ["position_friction_lower"], ident["structure_search"]
     assert load_params(out / "rig.yaml").effects.lower_position_amp_1 > 0.0  # the effect is in the file
     d = CliRunner().invoke(
         app,
