@@ -109,12 +109,28 @@ def test_two_rigs_identified_within_their_intervals():
 
 @pytest.mark.slow
 def test_many_rigs_identified_within_their_intervals():
-    cases = []
+    """Twelve rigs on the small plan: each identified within 3 % and its intervals, or refused
+    because its static level is extrapolated (the data never see the lower disk slip where its
+    hump changes). A refusal counts as right only with that reason, the run that determines it,
+    and a value that would indeed have been wrong; at most one of the twelve."""
+    cases, refused = [], []
     for seed in range(10, 16):
         for structure in ("brake", "no_brake"):
             rig = draw_rig(structure, seed)
             rate = (250.0, 500.0, 1000.0)[seed % 3]
-            cases.append((rig, _identify(rig, structure, seed, rate)))
+            ident = _identify(rig, structure, seed, rate)
+            if ident.params is None:
+                refused.append((rig, ident))
+            else:
+                cases.append((rig, ident))
+    assert len(refused) <= 1, [(r.name, [p.name for p in i.blocking]) for r, i in refused]
+    for rig, ident in refused:
+        assert [p.name for p in ident.blocking] == ["lower_static"], rig.name
+        t_sl = ident.parameters["lower_static"]
+        assert "carried to zero by the hump" in t_sl.note and "stick boundary" in t_sl.needs, t_sl
+        assert abs(t_sl.value / rig.lower_static - 1.0) > 0.03, (rig.name, t_sl.value, rig.lower_static)
+        for n in ("lower_hump_1", "lower_hump_2", "lower_hump_rate_1", "lower_hump_rate_2"):
+            assert not ident.parameters[n].identified, (rig.name, n)  # tied to T_sl
     _check_rigs(cases)
 
 

@@ -9,17 +9,17 @@ from types import SimpleNamespace
 
 import pytest
 
-from drill_env.identify.identification import EXTRAPOLATED_SHARE, _extrapolated_static
+from drill_env.identify.identification import EXTRAPOLATED_SHARE, _extrapolated_static, static_extrapolated
 
 
-def _fit(slowest, t1=-0.4, b1=40.0, t_sl=1.0, b_l=0.02):
+def _fit(slowest, t1=-0.4, b1=40.0, t_sl=1.0, b_l=0.02, t2=0.0, b2=0.0):
     values = {
         "lower_static": t_sl,
         "lower_viscous": b_l,
         "lower_hump_1": t1,
         "lower_hump_rate_1": b1,
-        "lower_hump_2": 0.0,
-        "lower_hump_rate_2": 0.0,
+        "lower_hump_2": t2,
+        "lower_hump_rate_2": b2,
     }
     return SimpleNamespace(values=values, free=list(values), slowest_slip=slowest)
 
@@ -43,3 +43,17 @@ def test_a_sharp_hump_seen_only_at_its_tail_is_extrapolated():
 def test_no_hump_term_no_extrapolation_rule():
     fit = _fit(0.3, t1=0.0)
     assert _extrapolated_static(fit) is None
+
+
+def test_the_rule_refuses_an_unseen_hump_and_keeps_one_the_data_reach():
+    assert static_extrapolated(_fit(0.3))  # half its change at 0.027 rad/s, the data from 0.3 up
+    assert not static_extrapolated(_fit(0.005))  # followed down to the stick boundary
+    # a rise and a fall (a drawn rig of the study: +0.23 N m at 6.9 s/rad, -0.25 N m at 0.1 s/rad)
+    # seen from 0.23 rad/s: more than half of the spread lies below, but the sharp term does a
+    # third of its change above the slowest slip, where its curvature fixes it (T_sl came out
+    # within 0.1 %)
+    seen = _fit(0.231, t1=0.234, b1=6.92, t_sl=0.0869, b_l=0.00154, t2=-0.247, b2=0.103)
+    change, spread, _ = _extrapolated_static(seen)
+    assert abs(change) > EXTRAPOLATED_SHARE * spread
+    assert not static_extrapolated(seen)
+    assert not static_extrapolated(_fit(0.3, t1=0.004))  # a hump of 0.4 % of T_sl: nothing to refuse

@@ -339,6 +339,9 @@ def _method(name: str, fit: JointFit, scale: tuple[str, float], assumed: bool) -
 # slowest slip of the data is extrapolated: not determined (see _extrapolated_static)
 EXTRAPOLATED_SHARE = 0.5
 EXTRAPOLATED_MIN = 0.03  # ... and only when that part is this share of T_sl or more
+# ... and the hump does half its change below this share of the slowest slip: the change is
+# not seen at all (a hump whose change reaches into the data is fixed by its curvature there)
+UNSEEN_HALF = 1.0 / 3.0
 
 
 def _extrapolated_static(fit: JointFit) -> tuple[float, float, float] | None:
@@ -372,6 +375,22 @@ def _extrapolated_static(fit: JointFit) -> tuple[float, float, float] | None:
     return change, spread, half
 
 
+def static_extrapolated(fit: JointFit) -> bool:
+    """Whether the fit's static level T_sl is the hump carried below the data: more than
+    :data:`EXTRAPOLATED_SHARE` of the fitted curve's spread lies between zero and the slowest
+    slip, that part is :data:`EXTRAPOLATED_MIN` of T_sl or more, and the hump does half its
+    change below :data:`UNSEEN_HALF` of the slowest slip (so none of it is seen)."""
+    ext = _extrapolated_static(fit)
+    if ext is None:
+        return False
+    change, spread, half = ext
+    return bool(
+        abs(change) > EXTRAPOLATED_SHARE * spread
+        and abs(change) > EXTRAPOLATED_MIN * abs(fit.values["lower_static"])
+        and half < UNSEEN_HALF * fit.slowest_slip
+    )
+
+
 def _results(
     fit: JointFit, scale: tuple[str, float], assumed: bool, structure: str
 ) -> dict[str, ParameterResult]:
@@ -380,8 +399,7 @@ def _results(
     extrapolated = ""
     if ext is not None:
         change, spread, half = ext
-        t_sl = abs(fit.values["lower_static"])
-        if abs(change) > EXTRAPOLATED_SHARE * spread and abs(change) > EXTRAPOLATED_MIN * t_sl:
+        if static_extrapolated(fit):
             extrapolated = (
                 f"the lower friction is seen only down to {fit.slowest_slip:.3g} rad/s: the static level "
                 f"{fit.values['lower_static']:.4g} N m is the curve there ({fit.values['lower_static'] - change:.4g} "
