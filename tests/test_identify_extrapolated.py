@@ -57,3 +57,9 @@ def test_the_rule_refuses_an_unseen_hump_and_keeps_one_the_data_reach():
     assert abs(change) > EXTRAPOLATED_SHARE * spread
     assert not static_extrapolated(seen)
     assert not static_extrapolated(_fit(0.3, t1=0.004))  # a hump of 0.4 % of T_sl: nothing to refuse
+    # a slow hump (half its change at 1.1 rad/s) seen only from 3.2 rad/s on: tanh(1.6) = 92 % of
+    # the spread below the slowest slip, though half the change lies above a third of it
+    tail = _fit(3.2, b1=1.0, b_l=0.0)
+    change, spread, half = _extrapolated_static(tail)
+    assert half > 3.2 / 3.0 and abs(change) > 0.9 * spread
+    assert static_extrapolated(tail)

@@ -342,6 +342,9 @@ EXTRAPOLATED_MIN = 0.03  # ... and only when that part is this share of T_sl or 
 # ... and the hump does half its change below this share of the slowest slip: the change is
 # not seen at all (a hump whose change reaches into the data is fixed by its curvature there)
 UNSEEN_HALF = 1.0 / 3.0
+# ... or, whatever the rate, this share of the spread lies below the slowest slip: the data see
+# only the curve's flat tail
+TAIL_ONLY_SHARE = 0.9
 
 
 def _extrapolated_static(fit: JointFit) -> tuple[float, float, float] | None:
@@ -379,7 +382,8 @@ def static_extrapolated(fit: JointFit) -> bool:
     """Whether the fit's static level T_sl is the hump carried below the data: more than
     :data:`EXTRAPOLATED_SHARE` of the fitted curve's spread lies between zero and the slowest
     slip, that part is :data:`EXTRAPOLATED_MIN` of T_sl or more, and the hump does half its
-    change below :data:`UNSEEN_HALF` of the slowest slip (so none of it is seen)."""
+    change below :data:`UNSEEN_HALF` of the slowest slip (so none of it is seen) or
+    :data:`TAIL_ONLY_SHARE` of the spread lies below it (the data see only the flat tail)."""
     ext = _extrapolated_static(fit)
     if ext is None:
         return False
@@ -387,7 +391,7 @@ def static_extrapolated(fit: JointFit) -> bool:
     return bool(
         abs(change) > EXTRAPOLATED_SHARE * spread
         and abs(change) > EXTRAPOLATED_MIN * abs(fit.values["lower_static"])
-        and half < UNSEEN_HALF * fit.slowest_slip
+        and (half < UNSEEN_HALF * fit.slowest_slip or abs(change) > TAIL_ONLY_SHARE * spread)
     )
 
 
