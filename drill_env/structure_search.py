@@ -26,9 +26,10 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["MAX_ROUNDS", "Round", "StructureSearch", "identify_structure", "check_effect_names"]
+__all__ = ["MAX_ROUNDS", "NOT_TESTED", "Round", "StructureSearch", "identify_structure", "check_effect_names"]
 
 MAX_ROUNDS = 3
+NOT_TESTED = "not_tested"  # the verdict when the tests never ran
 MIN_RUNS_TO_HOLD_OUT = 4  # identify holds runs out from four runs on
 MIN_HALF_S = 20.0  # [s] the shortest half of a run cut in two
 # the parameters of each library effect's first estimate that are time constants of a lag
@@ -104,21 +105,29 @@ class StructureSearch:
 
     @property
     def verdict(self) -> str:
-        """``none``, ``recalibrated``, ``unexplained`` or the effects found (``a+b``). An effect
+        """``none``, ``recalibrated``, ``unexplained``, the effects found (``a+b``) or
+        ``not_tested`` (the tests never ran: the base fit was refused, or no run could be held
+        out; :attr:`stopped` says why and what to record). An effect
         the tests named that the model could not take (its re-fit not physical, or failed) leaves
         the residual unexplained: the model has no effect that explains it."""
         if self.effects:
             return "+".join(self.effects)
         if not self.rounds:
-            return "none"
+            return NOT_TESTED  # the tests never ran: a hidden effect is not ruled out
         last = self.rounds[-1]
         if last.verdict in ("none", "recalibrated", "unexplained") or last.refused:
             return last.verdict  # a name the user did not allow (--effects) is reported as named
         return "unexplained"
 
+    @property
+    def tested(self) -> bool:
+        """Whether the discrepancy tests ran at least once."""
+        return bool(self.rounds)
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "verdict": self.verdict,
+            "tested": self.tested,
             "effects": self.effects,
             "stopped": self.stopped,
             "allowed": list(self.allowed),
@@ -221,10 +230,13 @@ def identify_structure(
     stopped = f"{max_rounds} rounds"
     for number in range(1, max_rounds + 1):
         if current.params is None:
-            stopped = "the data do not identify the model (no rig file): nothing to test"
+            stopped = _refusal(current)
             break
         if not held:
-            stopped = "too few runs to hold one out: the tests need held-out runs"
+            stopped = (
+                "too few runs to hold one out: the discrepancy tests need held-out runs and never ran, so "
+                "a hidden effect is not ruled out; record more runs (drill-env identify --plan)"
+            )
             break
         d = analyse(
             dataset,
@@ -309,6 +321,29 @@ def identify_structure(
         stopped=stopped,
         suspect=suspect,
         halves=halves,
+    )
+
+
+def _refusal(ident) -> str:
+    """Why the tests cannot run on a refused base fit, with the runs that would determine what
+    it lacks."""
+    from drill_env.identify.report import SYMBOLS
+
+    blocking = ident.blocking
+    if blocking:
+        what = "; ".join(
+            f"{SYMBOLS.get(p.name, p.name)} ({p.name}) is not determined"
+            + (f": {p.note}" if p.note else "")
+            + (f"; the run that determines it: {p.needs}" if p.needs else "")
+            for p in blocking
+        )
+    else:
+        what = (
+            "the fitted parameters make no valid rig (" + (ident.invalid or "outside the model's range") + ")"
+        )
+    return (
+        f"the base fit was refused, so the discrepancy tests never ran and a hidden effect is not ruled "
+        f"out: {what}"
     )
 
 

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+import yaml
 from typer.testing import CliRunner
 
 from drill_env.cli import app
@@ -108,12 +109,28 @@ def test_two_rigs_identified_within_their_intervals():
 
 @pytest.mark.slow
 def test_many_rigs_identified_within_their_intervals():
-    cases = []
+    """Twelve rigs on the small plan: each identified within 3 % and its intervals, or refused
+    because its static level is extrapolated (the data never see the lower disk slip where its
+    hump changes). A refusal counts as right only with that reason, the run that determines it,
+    and a value that would indeed have been wrong; at most one of the twelve."""
+    cases, refused = [], []
     for seed in range(10, 16):
         for structure in ("brake", "no_brake"):
             rig = draw_rig(structure, seed)
             rate = (250.0, 500.0, 1000.0)[seed % 3]
-            cases.append((rig, _identify(rig, structure, seed, rate)))
+            ident = _identify(rig, structure, seed, rate)
+            if ident.params is None:
+                refused.append((rig, ident))
+            else:
+                cases.append((rig, ident))
+    assert len(refused) <= 1, [(r.name, [p.name for p in i.blocking]) for r, i in refused]
+    for rig, ident in refused:
+        assert [p.name for p in ident.blocking] == ["lower_static"], rig.name
+        t_sl = ident.parameters["lower_static"]
+        assert "carried to zero by the hump" in t_sl.note and "stick boundary" in t_sl.needs, t_sl
+        assert abs(t_sl.value / rig.lower_static - 1.0) > 0.03, (rig.name, t_sl.value, rig.lower_static)
+        for n in ("lower_hump_1", "lower_hump_2", "lower_hump_rate_1", "lower_hump_rate_2"):
+            assert not ident.parameters[n].identified, (rig.name, n)  # tied to T_sl
     _check_rigs(cases)
 
 
@@ -326,7 +343,9 @@ def test_plan_and_synth_on_the_plan_for_any_rig_file(tmp_path):
 
 @pytest.mark.slow
 def test_discrepancy_on_the_identified_rig_names_a_hidden_effect(tmp_path):
-    """identify, then discrepancy --params rig.yaml on data with a library effect."""
+    """identify, then discrepancy --params rig.yaml on data with a library effect: identify
+    finds the effect and writes it into rig.yaml; discrepancy takes that rig whole (the effect
+    is part of the model it compares against) and finds nothing more, never the effect again."""
     rig = draw_rig("brake", 9)
     res = _data(rig, "brake", 9, 500.0, plan="full", effect="position_friction_lower", magnitude=0.15)
     write_synthetic(res, tmp_path / "data", tmp_path / "answer.json", preset="brake")
@@ -337,6 +356,9 @@ def test_discrepancy_on_the_identified_rig_names_a_hidden_effect(tmp_path):
          "--known", f"string_stiffness={rig.string_stiffness!r}"],
     )  # fmt: skip
     assert r.exit_code == 0, r.output
+    ident = json.loads((out / "identification.json").read_text())
+    assert list(ident["effects"]) == ["position_friction_lower"], ident["structure_search"]
+    assert load_params(out / "rig.yaml").effects.lower_position_amp_1 > 0.0  # the effect is in the file
     d = CliRunner().invoke(
         app,
         ["discrepancy", str(tmp_path / "data"), "--params", str(out / "rig.yaml"), "--out", str(tmp_path / "dis"),
@@ -344,5 +366,18 @@ def test_discrepancy_on_the_identified_rig_names_a_hidden_effect(tmp_path):
     )  # fmt: skip
     assert d.exit_code == 0, d.output
     result = json.loads((tmp_path / "dis" / "result.json").read_text())
-    assert result["effect"] == "position_friction_lower", result["evidence"]["reason"]
+    assert result["effect"] in ("none", "recalibrated"), result["evidence"]["reason"]
+    assert "position_friction_lower" not in result["effects"]
     assert not math.isnan(result["confidence"])
+    # the same data on the base model alone (the effect switched off) names it: the verdict
+    # above is the effect in the file at work, not a test that cannot see it
+    base = yaml.safe_load((out / "rig.yaml").read_text())
+    base.pop("effects", None)
+    (tmp_path / "base.yaml").write_text(yaml.safe_dump(base))
+    d0 = CliRunner().invoke(
+        app,
+        ["discrepancy", str(tmp_path / "data"), "--params", str(tmp_path / "base.yaml"), "--out",
+         str(tmp_path / "dis0"), "--no-figures"],
+    )  # fmt: skip
+    assert d0.exit_code == 0, d0.output
+    assert json.loads((tmp_path / "dis0" / "result.json").read_text())["effect"] == "position_friction_lower"

@@ -266,8 +266,9 @@ def discrepancy(
     params: Path | None = typer.Option(
         None,
         "--params",
-        help="The nominal model as a rig YAML (e.g. the rig.yaml of `drill-env identify`); default: the "
-        "preset named in dataset.json.",
+        help="The nominal model as a rig YAML (e.g. the rig.yaml of `drill-env identify`, its effects "
+        "section included: those effects are part of the model, and the tests look for what is still "
+        "missing); default: the preset named in dataset.json.",
     ),
     voltage_lag: int = typer.Option(
         0,
@@ -297,10 +298,15 @@ def discrepancy(
         if params.suffix.lower() not in (".yaml", ".yml"):
             _fail(f"--params {params}: expected a rig YAML file (.yaml or .yml)")
         nominal = load_params(params)
-        if nominal.effects.active:
+        from drill_env.recordings.effects import EFFECT_FIELDS, model_effect_names
+
+        outside = model_effect_names(nominal)[1]
+        if outside:
             _fail(
-                f"--params {params}: switches on {list(nominal.effects.active)}; the nominal model of the "
-                "discrepancy workflow has no effects (effects are what it looks for)"
+                f"--params {params}: switches on {', '.join(outside)}, an effect outside the library; "
+                "allowed in the nominal model: the library's effects ("
+                + ", ".join(EFFECT_FIELDS)
+                + "), which are part of the model compared against"
             )
     check_command_folder(out, "discrepancy", "--out", own=DISCREPANCY_FILES)
     if data_dir.exists() and (

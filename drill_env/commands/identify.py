@@ -145,6 +145,13 @@ def identify(
         )
     if search is not None:
         typer.echo(f"structure: {search.verdict} ({len(search.rounds)} round(s); stopped: {search.stopped})")
+        if not search.tested:
+            typer.secho(
+                "warning: the structure was not tested (no discrepancy round ran): a hidden effect is not "
+                "ruled out",
+                fg=typer.colors.YELLOW,
+                err=True,
+            )
         if search.suspect:
             typer.secho(
                 "warning: an unexplained residual remains; suspect parameters: " + ", ".join(search.suspect),

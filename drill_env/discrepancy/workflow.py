@@ -57,7 +57,7 @@ from drill_env.outputs import atomic_write_text, output_lock
 from drill_env.params import ParameterError, RigParams, load_params, validity_warnings
 from drill_env.recordings.compare import CompareConfig, RunComparison, aggregate, compare_run
 from drill_env.recordings.dataset import DatasetError, MeasuredDataset, load_dataset
-from drill_env.recordings.effects import CANDIDATES
+from drill_env.recordings.effects import CANDIDATES, EFFECT_FIELDS, model_effect_names, with_model_effects
 from drill_env.recordings.equation_error import (
     AngleNoise,
     EquationErrorConfig,
@@ -388,8 +388,19 @@ def analyse(
     noise = estimate_angle_noise(dataset.runs, dataset.encoder_step, eq_config)
     eqs = []
     stats = {}
+    # the nominal model's own library effects are part of it: their torques leave the
+    # residual, and they are not candidates again (the tests look for what is still missing)
+    known, outside = model_effect_names(params)
+    if outside:
+        raise ValueError(
+            f"params: switches on {', '.join(outside)}, an effect outside the library; the nominal "
+            "model may hold library effects only (allowed: "
+            + ", ".join(sorted({k for ks in EFFECT_FIELDS.values() for k in ks}))
+            + ")"
+        )
+    candidates = tuple(c for c in CANDIDATES if c.name not in known)
     for i, r in enumerate(dataset.runs):
-        eq = RunEquations(r, params, noise, eq_config)
+        eq = with_model_effects(RunEquations(r, params, noise, eq_config))
         eqs.append(eq)
         stats[r.name] = run_statistics(eq)
         if progress:
@@ -437,7 +448,7 @@ def analyse(
             base=params,
             rule=cal_rule,
         )
-        moved, first_winner = first_calibration(stats, train, held, setup0, rule=rule)
+        moved, first_winner = first_calibration(stats, train, held, setup0, rule=rule, candidates=candidates)
         cand = next((c for c in CANDIDATES if c.name == first_winner), None)
         tr0 = [stats[n] for n in train]
         ho0 = [stats[n] for n in held]
@@ -452,7 +463,7 @@ def analyse(
         if base is not params:
             eqs_cal, stats_cal = [], {}
             for i, r in enumerate(dataset.runs):
-                eq = RunEquations(r, base, noise, eq_config)
+                eq = with_model_effects(RunEquations(r, base, noise, eq_config))
                 eqs_cal.append(eq)
                 stats_cal[r.name] = run_statistics(eq)
                 if progress:
@@ -484,6 +495,7 @@ def analyse(
         kinds=kinds,
         calibration=setup,
         progress=(lambda i, n: progress("bootstrap", i, n)) if progress else None,
+        candidates=candidates,
     )
     timings["decide"] = time.perf_counter() - t1
 
@@ -575,7 +587,7 @@ def analyse(
             else:
                 after = with_effect
                 effects = [decision.effect]
-                second = second_effect(decision, stats_cal, setup, rule=rule)
+                second = second_effect(decision, stats_cal, setup, rule=rule, candidates=candidates)
                 if second.get("named"):
                     kept = decision.parameters, decision.winner
                     _second_parameters(decision, second)  # the parameters refitted with both
@@ -637,7 +649,7 @@ def analyse(
         measurement = _measurement(decision)
         if decision.named:
             effects = [decision.effect]
-            second = second_effect(decision, stats_cal, setup, rule=rule)
+            second = second_effect(decision, stats_cal, setup, rule=rule, candidates=candidates)
             if second.get("named"):
                 effects.append(second["named"])
                 _second_parameters(decision, second)

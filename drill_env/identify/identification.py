@@ -27,6 +27,7 @@ stiffness when none is given (the result then says so first).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -334,11 +335,102 @@ def _method(name: str, fit: JointFit, scale: tuple[str, float], assumed: bool) -
     return "dynamic fit (joint equation-error fit; most information from the random-level runs)"
 
 
+# a static level of which the fitted curve puts more than this share of its spread below the
+# slowest slip of the data is extrapolated: not determined (see _extrapolated_static)
+EXTRAPOLATED_SHARE = 0.5
+EXTRAPOLATED_MIN = 0.03  # ... and only when that part is this share of T_sl or more
+# ... and the hump does half its change below this share of the slowest slip: the change is
+# not seen at all (a hump whose change reaches into the data is fixed by its curvature there)
+UNSEEN_HALF = 1.0 / 3.0
+# ... or, whatever the rate, this share of the spread lies below the slowest slip: the data see
+# only the curve's flat tail
+TAIL_ONLY_SHARE = 0.9
+
+
+def _extrapolated_static(fit: JointFit) -> tuple[float, float, float] | None:
+    """How much of the fitted lower friction curve lies below the slowest slip the data show.
+
+    The curve ``C(w) = T_sl + S(w) + b_l w`` is seen from the slowest slip ``w0`` up; its static
+    level ``C(0) = T_sl`` is the curve carried down to zero by the hump's form. Returns (the
+    change ``C(0) - C(w0)``, the curve's spread over [0, the fastest hump speed], the speed below
+    which half the hump's change lies [rad/s]), or None without a hump term or a slowest slip.
+    A sharp hump the data only see the tail of gives a change near the spread (the static level
+    extrapolated, whatever the fit's interval says); one the data follow down to the stick
+    boundary a change near zero."""
+    w0 = fit.slowest_slip
+    terms = [
+        (fit.values[a], fit.values[b])
+        for a, b in zip(HUMP_AMPLITUDES, HUMP_RATES, strict=True)
+        if a in fit.free and fit.values[a] != 0.0 and fit.values[b] > 0.0
+    ]
+    if not terms or not math.isfinite(w0):
+        return None
+    w_end = max(10.0 * w0, *(20.0 / b for _, b in terms))  # where every hump term has saturated
+    w = np.concatenate([[0.0], np.geomspace(1e-6 * w_end, w_end, 600)])
+    hump = sum(t * np.tanh(0.5 * b * w) for t, b in terms)
+    curve = fit.values["lower_static"] + hump + fit.values["lower_viscous"] * w
+    at_w0 = fit.values["lower_static"] + sum(t * math.tanh(0.5 * b * w0) for t, b in terms)
+    at_w0 += fit.values["lower_viscous"] * w0
+    change = float(curve[0] - at_w0)
+    spread = float(np.max(curve) - np.min(curve))
+    a = np.abs(hump)
+    half = float(w[np.argmax(a >= 0.5 * a.max())]) if a.max() > 0 else w0
+    return change, spread, half
+
+
+def static_extrapolated(fit: JointFit) -> bool:
+    """Whether the fit's static level T_sl is the hump carried below the data: more than
+    :data:`EXTRAPOLATED_SHARE` of the fitted curve's spread lies between zero and the slowest
+    slip, that part is :data:`EXTRAPOLATED_MIN` of T_sl or more, and the hump does half its
+    change below :data:`UNSEEN_HALF` of the slowest slip (so none of it is seen) or
+    :data:`TAIL_ONLY_SHARE` of the spread lies below it (the data see only the flat tail)."""
+    ext = _extrapolated_static(fit)
+    if ext is None:
+        return False
+    change, spread, half = ext
+    return bool(
+        abs(change) > EXTRAPOLATED_SHARE * spread
+        and abs(change) > EXTRAPOLATED_MIN * abs(fit.values["lower_static"])
+        and (half < UNSEEN_HALF * fit.slowest_slip or abs(change) > TAIL_ONLY_SHARE * spread)
+    )
+
+
 def _results(
     fit: JointFit, scale: tuple[str, float], assumed: bool, structure: str
 ) -> dict[str, ParameterResult]:
     out: dict[str, ParameterResult] = {}
+    ext = _extrapolated_static(fit)
+    extrapolated = ""
+    if ext is not None:
+        change, spread, half = ext
+        if static_extrapolated(fit):
+            extrapolated = (
+                f"the lower friction is seen only down to {fit.slowest_slip:.3g} rad/s: the static level "
+                f"{fit.values['lower_static']:.4g} N m is the curve there ({fit.values['lower_static'] - change:.4g} "
+                f"N m) carried to zero by the hump ({change:+.4g} N m, {abs(change) / spread:.0%} of the "
+                "fitted curve's spread), not observed"
+            )
+            ramp = (
+                f"a slow voltage ramp down to the stick boundary (the lower disk slipping slower than "
+                f"{half:.2g} rad/s, where the fitted hump does half its change; these data: "
+                f"{fit.slowest_slip:.3g} rad/s at the slowest)"
+            )
     for name in IDENTIFIED_PARAMETERS:
+        if extrapolated and name in ("lower_static", *HUMP_AMPLITUDES, *HUMP_RATES) and name in fit.free:
+            v = fit.values[name]
+            sd = fit.sd(name)
+            out[name] = ParameterResult(
+                name,
+                v,
+                (v - 1.96 * sd, v + 1.96 * sd),
+                "not identifiable from these data" if name in ESSENTIAL else "not determined by these data",
+                False,
+                extrapolated
+                if name == "lower_static"
+                else f"tied to T_sl, which is extrapolated: {extrapolated}",
+                ramp,
+            )
+            continue
         v = fit.values[name]
         if name == scale[0]:
             note = "the paper's string stiffness: give --known to fix this rig's own" if assumed else ""
@@ -422,6 +514,21 @@ def _results(
             note,
             needs,
         )
+    t_sl = out["lower_static"]
+    if not t_sl.identified:
+        # a hump's amplitude is the static level less the kinetic one (T_sl - T and a hump of T
+        # trade over the windows the data have), and its rate sets where between them: neither
+        # is determined when the static level is not
+        for name in HUMP_AMPLITUDES + HUMP_RATES:
+            p = out[name]
+            if p.identified:
+                out[name] = dataclasses.replace(
+                    p,
+                    method="not determined by these data",
+                    identified=False,
+                    note=f"tied to T_sl, which these data do not determine ({t_sl.note or t_sl.method})",
+                    needs=t_sl.needs,
+                )
     return out
 
 

@@ -48,6 +48,7 @@ BETA_BOUNDS = (1e-3, 500.0)  # [s/rad]
 # a hump term this close to saturation (tanh(beta w/2)) at the slowest slip of the data is
 # the static level over every window: its rate is bounded so that it is not (see _Problem)
 SATURATED = 0.99
+OBSERVED_QUANTILE = 0.02  # of the lower windows' mean slip: the slowest slip the curve is seen at
 HUMP_ALPHA = 1e-4  # level at which a hump term is kept
 SANDWICH_BLOCK = 10  # neighbouring windows per block of the sandwich covariance
 MERGED_RATES = 0.02  # two rates this close in log are one (see _merged)
@@ -145,6 +146,9 @@ class JointFit:
     # range of each base parameter over the friction curves that fit as well (see
     # _alternative_ranges): what the data cannot tell apart
     alternatives: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # the slowest lower-disk slip the fit sees [rad/s]: the OBSERVED_QUANTILE of the windows'
+    # mean slip (a few windows alone do not fix the curve); below it the curve is extrapolated
+    slowest_slip: float = math.nan
 
     @property
     def residual_variance(self) -> float:
@@ -214,6 +218,10 @@ class _Problem:
         slowest = [float(r.speed_l.min()) for r in rows if r.speed_l.size]
         w_min = max(min(slowest), 1e-6) if slowest else 1e-6
         self.beta_max = float(min(BETA_BOUNDS[1], 2.0 * math.atanh(SATURATED) / w_min))
+        means = [r.speed_l.mean(axis=1) for r in rows if r.speed_l.size]
+        self.slowest_slip = (
+            float(np.quantile(np.concatenate(means), OBSERVED_QUANTILE)) if means else math.nan
+        )
         self.beta_grid = BETA_GRID[BETA_GRID <= self.beta_max]
         if self.beta_grid.size < 2:
             self.beta_grid = BETA_GRID[:2]
@@ -552,6 +560,7 @@ def joint_fit(
         },
         relative_sd=rel,
         alternatives=alternatives,
+        slowest_slip=prob.slowest_slip,
     )
 
 

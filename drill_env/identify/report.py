@@ -172,6 +172,14 @@ def _effect_rows(res: Identification) -> list[str]:
 
 
 def _rounds_section(search: Any) -> list[str]:
+    if not search.rounds:
+        return [
+            "## Structure: the effects the data need",
+            "",
+            f"**Not tested (verdict `{search.verdict}`): the discrepancy tests never ran, so a hidden effect "
+            f"is not ruled out.** Why: {search.stopped}.",
+            "",
+        ]
     lines = [
         "## Structure: the effects the data need",
         "",

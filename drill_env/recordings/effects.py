@@ -37,6 +37,10 @@ __all__ = [
     "thermal_trajectory",
     "THERMAL_TIMES_S",
     "eccentricity_columns",
+    "EFFECT_FIELDS",
+    "model_effect_names",
+    "model_effect_torques",
+    "with_model_effects",
 ]
 
 
@@ -450,3 +454,91 @@ CANDIDATES = CANDIDATES + (_eccentricity("lower"), _eccentricity("upper"))
 
 def candidate_names() -> list[str]:
     return [c.name for c in CANDIDATES]
+
+
+# the fields of :class:`drill_env.params.ModelEffects` each library effect sets
+EFFECT_FIELDS: dict[str, tuple[str, ...]] = {
+    "position_friction_lower": (
+        "lower_position_amp_1",
+        "lower_position_phase_1",
+        "lower_position_amp_2",
+        "lower_position_phase_2",
+    ),
+    "position_friction_upper": (
+        "upper_position_amp_1",
+        "upper_position_phase_1",
+        "upper_position_amp_2",
+        "upper_position_phase_2",
+    ),
+    "string_damping": ("string_damping",),
+    "motor_inductance": ("motor_lag",),
+    "friction_memory": ("friction_lag",),
+    "friction_drift": ("friction_drift",),
+    "friction_temperature": ("friction_heating", "thermal_time"),
+}
+
+
+def model_effect_names(params) -> tuple[list[str], list[str]]:
+    """(library effects switched on in ``params``, effect fields on that no library effect
+    covers: the external torque)."""
+    active = set(params.effects.active)
+    named = [name for name, keys in EFFECT_FIELDS.items() if active & set(keys)]
+    covered = {k for keys in EFFECT_FIELDS.values() for k in keys}
+    return named, sorted(active - covered)
+
+
+def model_effect_torques(eq: RunEquations) -> tuple[np.ndarray, np.ndarray]:
+    """K[torque]/h^2 at the windows of each disk (upper, lower) [N m] of the library effects
+    switched on in the run's model ``eq.params``: the part of the equation error that the
+    model's effects explain. Each is its candidate's columns (:data:`CANDIDATES`) at the
+    coefficients its parameters give (a lag effect: its columns at its time constant, which
+    carry the effect whole; friction heating: its thermal state from the start of the
+    recording, :func:`thermal_trajectory`)."""
+    e = eq.params.effects
+    tu, tl = np.zeros(len(eq.upper)), np.zeros(len(eq.lower))
+    named, _ = model_effect_names(eq.params)
+    for name in named:
+        if name.startswith("position_friction_"):
+            disk = name.rsplit("_", 1)[1]
+            a1, p1 = getattr(e, f"{disk}_position_amp_1"), getattr(e, f"{disk}_position_phase_1")
+            a2, p2 = getattr(e, f"{disk}_position_amp_2"), getattr(e, f"{disk}_position_phase_2")
+            coef = np.array([a1 * math.cos(p1), a1 * math.sin(p1), a2 * math.cos(p2), a2 * math.sin(p2)])
+            xu, xl = (_cols_position_lower if disk == "lower" else _cols_position_upper)(eq)
+        elif name == "string_damping":
+            coef = np.array([e.string_damping])
+            xu, xl = _cols_string_damping(eq)
+        elif name == "motor_inductance":
+            coef = np.array([1.0])
+            xu, xl = _cols_motor_lag(eq, e.motor_lag)
+        elif name == "friction_memory":
+            coef = np.array([1.0])
+            xu, xl = _cols_friction_memory(eq, e.friction_lag)
+        elif name == "friction_drift":
+            coef = np.array([e.friction_drift])
+            xu, xl = _cols_drift(eq)
+        else:  # friction_temperature
+            if e.thermal_time <= 0.0:
+                continue  # no thermal state without a time constant (the simulator's too)
+            th = thermal_trajectory(eq, eq.params)
+            coef = np.array([e.friction_heating])
+            xu = _zeros(len(eq.upper), 1)
+            xl = eq.kernel(_lower_level(eq) * th, "lower")[:, None]
+        tu = tu + xu @ coef
+        tl = tl + xl @ coef
+    return tu, tl
+
+
+def with_model_effects(eq: RunEquations) -> RunEquations:
+    """``eq`` with each window's residual less what the model's own library effects explain
+    (:func:`model_effect_torques`): the equation error of the whole model, effects included.
+    ``eq`` itself when its model has none."""
+    import copy
+    import dataclasses
+
+    if not model_effect_names(eq.params)[0]:
+        return eq
+    tu, tl = model_effect_torques(eq)
+    out = copy.copy(eq)  # shares everything but the windows' residuals
+    out.upper = dataclasses.replace(eq.upper, residual=eq.upper.residual - tu)
+    out.lower = dataclasses.replace(eq.lower, residual=eq.lower.residual - tl)
+    return out
