@@ -800,6 +800,11 @@ def test_identify_on_runs_that_barely_excite_the_rig_reports_instead_of_a_traceb
     assert "Traceback" not in res.output
     assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
     assert res.exit_code in (0, 1, 2), res.output
+    if res.exit_code == 2 and not (tmp_path / "o").exists():
+        # refused before the fit: too few windows in which a disk turns one way (one line)
+        (line,) = res.output.strip().splitlines()
+        assert line.startswith("error:") and "turns one way" in line and "identify --plan" in line, line
+        return
     assert (tmp_path / "o" / "report.md").is_file()
     if "a 95 % half-width of inf" in (tmp_path / "o" / "report.md").read_text():  # unbounded parameters
         assert "error: no rig.yaml" in res.output and not (tmp_path / "o" / "rig.yaml").exists()
