@@ -19,7 +19,8 @@ __all__ = ["precompile"]
 
 def precompile(progress: Callable[[str, float], None] | None = None) -> dict[str, float]:
     """Compile (or load from the cache) the simulator, the sensors, the single and the
-    vector environments and the rig's emulator and observer; returns the wall time [s] of each part.
+    vector environments, the analysis (equilibria and limit cycles) and the rig's emulator and
+    observer; returns the wall time [s] of each part.
 
     ``progress(part, seconds)`` is called after each part.
     """
@@ -34,16 +35,25 @@ def precompile(progress: Callable[[str, float], None] | None = None) -> dict[str
         drill_env.simulate_batch("brake", [1.0, 2.0], 0.2)
 
     def single_env() -> None:
-        env = gym.make("DrillString-v1")
+        env = gym.make("DrillString-v3")
         env.reset(seed=0)
         env.step(np.zeros(1, dtype=np.float32))
         env.close()
 
     def vector_env() -> None:
-        venv = gym.make_vec("DrillString-v1", num_envs=2, vectorization_mode="vector_entry_point")
+        venv = gym.make_vec("DrillString-v3", num_envs=2, vectorization_mode="vector_entry_point")
         venv.reset(seed=0)
         venv.step(np.zeros((2, 1), dtype=np.float32))
         venv.close()
+
+    def analysis() -> None:
+        from drill_env.analysis import limit_cycle, slip_equilibrium
+        from drill_env.analysis.equilibria import equilibrium_jacobian
+
+        limit_cycle("brake", 2.0, settle=20.0)
+        eq = slip_equilibrium("brake", 2.0)
+        if eq is not None:
+            equilibrium_jacobian("brake", float(eq.x3))
 
     def rig() -> None:
         from drill_env.envs.config import EnvSettings
@@ -60,6 +70,7 @@ def precompile(progress: Callable[[str, float], None] | None = None) -> dict[str
         ("simulator", simulator),
         ("environment", single_env),
         ("vector environment", vector_env),
+        ("analysis", analysis),
         ("rig", rig),
     ):
         t0 = time.perf_counter()

@@ -176,6 +176,30 @@ def test_process_pool_matches_sequential(tmp_path, sequential):
     )
 
 
+def test_the_pool_computes_each_open_loop_cycle_once_for_its_workers():
+    from drill_env.agents.evaluation import episodes
+    from drill_env.agents.evaluation.benchmark.runs import open_loop_cycles_of
+    from drill_env.agents.evaluation.plants import standard_family
+
+    lag = next(p for p in standard_family() if p.name == "motor_lag")
+    cfg = tiny(voltages={"brake": (1.0, 2.0)}, plants=(Plant(), lag))
+    cycles = open_loop_cycles_of(cfg.jobs(), cfg)
+    # one per operating point of the design plant, as the analysis gives it in a fresh process
+    assert sorted(cycles) == [("brake", 1.0), ("brake", 2.0)]
+    for (preset, v), cycle in cycles.items():
+        assert cycle == episodes._analysed_open_loop_cycle(preset, v)
+    assert cycles[("brake", 2.0)]["amplitude"] > 1.0  # the stick-slip cycle at 2 V
+    # a worker takes them as they are: a planted value is what it then scores against
+    planted = dict(cycles[("brake", 1.0)], amplitude=123.0)
+    saved = dict(episodes._OPEN_LOOP_CYCLES)
+    try:
+        episodes.known_open_loop_cycles({("brake", 1.0): planted})
+        assert episodes.open_loop_cycle("brake", 1.0)["amplitude"] == 123.0
+    finally:
+        episodes._OPEN_LOOP_CYCLES.clear()
+        episodes._OPEN_LOOP_CYCLES.update(saved)
+
+
 @pytest.mark.slow  # starts a local Ray instance (its own server, raylet and worker processes)
 def test_ray_backend_on_a_local_instance(tmp_path, sequential):
     ray = pytest.importorskip("ray")

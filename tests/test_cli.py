@@ -147,5 +147,9 @@ def test_precompile_command_compiles_every_part():
 
     res = CliRunner().invoke(app, ["precompile"])
     assert res.exit_code == 0, res.output
-    for part in ("simulator", "environment", "vector environment", "done in"):
+    for part in ("simulator", "environment", "vector environment", "analysis", "rig", "done in"):
         assert part in res.output
+    from drill_env import _cache
+
+    assert f"compiling into {_cache.cache_dir()}" in res.output
+    assert _cache.cache_dir().name == _cache.source_hash()

@@ -23,26 +23,16 @@ from pathlib import Path
 from urllib.parse import unquote, urlparse
 
 import pytest
+from doc_sources import doc_sources
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
 BUILD = DOCS / "_build" / "html"
-GENERATED_DIRS = ("_build", "_generated", "tutorials")  # written by the build, not sources
 
 FENCE = re.compile(r"^```.*?^```", flags=re.M | re.S)
 INLINE_CODE = re.compile(r"`[^`\n]*`")
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 INCLUDE = re.compile(r"^```\{include\}\s+(\S+)", flags=re.M)
-
-
-def doc_sources() -> list[Path]:
-    files = [ROOT / "README.md"]
-    for md in sorted(DOCS.rglob("*.md")):
-        rel = md.relative_to(DOCS)
-        if rel.parts[0] in GENERATED_DIRS or "runs" in rel.parts:
-            continue
-        files.append(md)
-    return files
 
 
 def links(text: str) -> list[str]:

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from doc_sources import doc_sources
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV_ID = re.compile(r"\b(DrillString(?:NoBrake)?)-v(\d+)\b")
@@ -70,18 +71,12 @@ def _python_offences(path: Path, latest: dict[str, int]) -> list[str]:
     ]
 
 
-def _pages() -> list[Path]:
-    docs = ROOT / "docs"
-    pages = [p for p in docs.rglob("*.md") if not {"_build", "_generated", "tutorials"} & set(p.parts)]
-    return sorted(pages + [ROOT / "README.md"])
-
-
 def test_the_registered_versions_are_found():
     latest = _latest_versions()
     assert latest["DrillString"] >= 3 and latest["DrillStringNoBrake"] == latest["DrillString"]
 
 
-@pytest.mark.parametrize("page", _pages(), ids=lambda p: str(p.relative_to(ROOT)))
+@pytest.mark.parametrize("page", doc_sources(), ids=lambda p: str(p.relative_to(ROOT)))
 def test_a_page_names_an_old_env_version_only_in_its_history(page):
     latest = _latest_versions()
     if page.name == "history.md" and page.parent.name == "results":

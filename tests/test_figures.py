@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import pytest
+from doc_sources import doc_sources
 
 from drill_env._figures import renderer as figure_renderer
 from drill_env.analysis import bifurcation_diagram
@@ -655,9 +656,7 @@ def shown_figures() -> dict:
             shown.setdefault(path, where)
 
     included: set[str] = set()
-    for page in sorted((_ROOT / "docs").rglob("*.md")):
-        if "_generated" in page.parts or "_build" in page.parts:
-            continue
+    for page in doc_sources(readme=False):
         text = page.read_text(encoding="utf-8")
         for target in _IMAGE.findall(text):
             add(target, page.parent, str(page.relative_to(_ROOT)))

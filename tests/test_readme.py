@@ -29,6 +29,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from doc_sources import doc_sources
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
@@ -52,16 +53,6 @@ class Block:
         return f"{self.source.relative_to(ROOT).as_posix()}:{self.line}"
 
 
-def _sources() -> list[Path]:
-    files = [ROOT / "README.md"]
-    for md in sorted(DOCS.rglob("*.md")):
-        rel = md.relative_to(DOCS)
-        if rel.parts[0] in ("_build", "_generated", "tutorials") or "runs" in rel.parts:
-            continue
-        files.append(md)
-    return files
-
-
 def blocks_of(path: Path) -> list[Block]:
     text = path.read_text(encoding="utf-8")
     found = []
@@ -74,7 +65,7 @@ def blocks_of(path: Path) -> list[Block]:
     return found
 
 
-BLOCKS = [b for p in _sources() for b in blocks_of(p)]
+BLOCKS = [b for p in doc_sources() for b in blocks_of(p)]
 RUNNABLE = [b for b in BLOCKS if b.language in ("python", "bash") and b.marker != "excerpt"]
 README_BLOCKS = [b for b in BLOCKS if b.source.name == "README.md" and b.source.parent == ROOT]
 

@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from doc_sources import doc_sources
 
 import drill_env  # noqa: F401  (registers the environments)
 from drill_env.agents.learning.rl import load_config
@@ -140,8 +141,7 @@ def test_the_documented_rl_zoo3_commands_name_an_env_their_file_has():
 
     commands = [
         line
-        for page in (ROOT / "docs").rglob("*.md")
-        if "_generated" not in page.parts
+        for page in doc_sources(readme=False)
         for line in page.read_text().splitlines()
         if line.startswith("python -m rl_zoo3.train")
     ]

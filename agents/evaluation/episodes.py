@@ -54,7 +54,6 @@ Metrics (:class:`RunMetrics`), over the window unless stated:
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from collections.abc import Mapping
@@ -80,6 +79,7 @@ __all__ = [
     "env_id_of",
     "evaluate",
     "make_env",
+    "known_open_loop_cycles",
     "open_loop_cycle",
     "run_episode",
     "is_stalled",
@@ -300,11 +300,29 @@ def run_episode(
     )
 
 
-@functools.lru_cache(maxsize=512)
+_OPEN_LOOP_CYCLES: dict[tuple[str, float], dict[str, float]] = {}
+
+
 def open_loop_cycle(preset: str, voltage: float) -> dict[str, float]:
     """The open-loop limit cycle the analysis predicts at ``voltage`` on the nominal model:
     amplitude (max - min of x3, 0 if there is no stable cycle), period, stick fraction,
-    and x3 min/max (the equilibrium speed twice if there is no cycle)."""
+    and x3 min/max (the equilibrium speed twice if there is no cycle). Computed once per
+    process (or taken from :func:`known_open_loop_cycles`)."""
+    key = (str(preset), float(voltage))
+    cycle = _OPEN_LOOP_CYCLES.get(key)
+    if cycle is None:
+        cycle = _OPEN_LOOP_CYCLES[key] = _analysed_open_loop_cycle(*key)
+    return cycle
+
+
+def known_open_loop_cycles(cycles: Mapping[tuple[str, float], dict[str, float]]) -> None:
+    """Take open-loop cycles (:func:`open_loop_cycle`'s results) computed by another process:
+    the one that starts a pool of workers computes them once, so that the workers neither
+    compute them again nor compile the analysis each."""
+    _OPEN_LOOP_CYCLES.update({(str(p), float(v)): dict(c) for (p, v), c in cycles.items()})
+
+
+def _analysed_open_loop_cycle(preset: str, voltage: float) -> dict[str, float]:
     from drill_env.analysis import limit_cycle, slip_equilibrium
     from drill_env.params import load_params
 

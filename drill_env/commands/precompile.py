@@ -14,7 +14,7 @@ def register(app: typer.Typer) -> None:
         (SB3's SubprocVecEnv, the benchmark's worker pool): they then load the compiled
         kernels instead of each compiling them.
         """
-        from drill_env import _cache
+        from drill_env import _cache, _numba  # noqa: F401  # _numba sets the cache directory
         from drill_env.precompile import precompile as run
 
         typer.echo(f"compiling into {_cache.cache_dir()}", err=True)

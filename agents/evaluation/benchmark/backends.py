@@ -17,7 +17,7 @@ from drill_env.agents.evaluation.benchmark.provenance import (
     write_provenance,
 )
 from drill_env.agents.evaluation.benchmark.report import RANKING_FILE, REPORT_FIGURES, write_report
-from drill_env.agents.evaluation.benchmark.runs import _run_chunk, _worker_init, run_job
+from drill_env.agents.evaluation.benchmark.runs import _run_chunk, _worker_init, open_loop_cycles_of, run_job
 from drill_env.agents.evaluation.benchmark.store import (
     _done_keys,
     _drop_partial_row,
@@ -238,7 +238,10 @@ def _run_process_pool(todo: list[Job], cfg: BenchmarkConfig, workers: int, finis
     # Small chunks: the pool stays busy and an interruption loses little.
     size = max(1, min(8, len(todo) // (4 * workers) or 1))
     ctx = mp.get_context("spawn")  # torch and numba threads do not survive fork safely
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
+    cycles = open_loop_cycles_of(todo, cfg)
+    pool = ProcessPoolExecutor(
+        max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(cycles,)
+    )
     try:
         pending = {pool.submit(_run_chunk, chunk, cfg) for chunk in _chunks(todo, size)}
         while pending:

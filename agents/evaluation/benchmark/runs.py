@@ -43,7 +43,8 @@ def check_operating_point(job: Job, cfg: BenchmarkConfig) -> None:
 _CONTROLLERS: dict[tuple[Any, ...], Any] = {}
 
 
-def _worker_init() -> None:
+def _worker_init(cycles: dict[tuple[str, float], dict[str, float]] | None = None) -> None:
+    """Set up a worker process; ``cycles``: the open-loop cycles the starting process computed."""
     import warnings
 
     import torch
@@ -51,6 +52,10 @@ def _worker_init() -> None:
     from drill_env.envs.task import RegimeAbsentWarning
 
     torch.set_num_threads(1)
+    if cycles:
+        from drill_env.agents.evaluation.episodes import known_open_loop_cycles
+
+        known_open_loop_cycles(cycles)
     # the benchmark names the design model's regimes once, before the runs
     warnings.filterwarnings("ignore", category=RegimeAbsentWarning)
 
@@ -199,6 +204,21 @@ def _plant_open_loop(job: Job, cfg: BenchmarkConfig, env: Any) -> tuple[float, s
         amp = m.amplitude if m.amplitude >= OPEN_LOOP_FLOOR else 0.0
         _OPEN_LOOP[key] = (amp, open_loop_regime(amp, m.stick_fraction))
     return _OPEN_LOOP[key]
+
+
+def open_loop_cycles_of(jobs: list[Job], cfg: BenchmarkConfig) -> dict[tuple[str, float], dict[str, float]]:
+    """The open-loop cycles the runs on the design plant are scored against, computed in this
+    process (on an empty cache this compiles the analysis once, not once per worker)."""
+    from drill_env.agents.evaluation.episodes import open_loop_cycle
+
+    pairs = {(j.preset, float(j.voltage)) for j in jobs if cfg.is_design_plant(cfg.plant(j.plant))}
+    out = {}
+    for pair in sorted(pairs):
+        try:
+            out[pair] = open_loop_cycle(*pair)
+        except Exception:  # noqa: BLE001  # left to the run, which reports it in its row
+            continue
+    return out
 
 
 def _run_chunk(jobs: list[Job], cfg: BenchmarkConfig) -> list[dict[str, Any]]:
