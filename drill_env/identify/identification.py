@@ -197,7 +197,11 @@ class Identification:
     @property
     def blocking(self) -> list[ParameterResult]:
         """Parameters the model needs that the data do not fix."""
-        return [p for p in self.not_identifiable if p.name in ESSENTIAL and p.method != "assumed"]
+        return [
+            p
+            for p in self.not_identifiable
+            if p.name in ESSENTIAL and p.method not in ("assumed", REFUSED_METHOD)
+        ]
 
     @property
     def hump(self) -> dict[str, Any]:
@@ -693,6 +697,8 @@ def identify(
             )
         except ParameterError as exc:
             params, invalid = None, str(exc)
+    if params is None:
+        parameters = _refused(parameters, blocking, invalid, scale)
     train_params = None
     if train_fit is not None and params is not None:
         try:
@@ -744,6 +750,43 @@ def identify(
         timings["heldout"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return ident
+
+
+REFUSED_METHOD = "fitted beside a refused parameter"
+
+
+def _refused(
+    parameters: dict[str, ParameterResult],
+    blocking: list[ParameterResult],
+    invalid: str,
+    scale: tuple[str, float],
+) -> dict[str, ParameterResult]:
+    """The parameters of a refused fit: none is marked identified (the user's scale aside).
+
+    A parameter the data do not fix, fitted jointly with the others, moves them as far as it is
+    off (an inertia at -51 % beside a T_sl the data never saw): their own intervals do not say
+    so, since they hold the refused parameter at its fitted value. Each keeps its value and
+    interval, for a look, with the refusal as its note and the runs that determine the refused
+    parameters as what would identify it."""
+    if blocking:
+        why = "the fit was refused (" + ", ".join(f"{p.name} not determined" for p in blocking) + ")"
+        needs = "; ".join(dict.fromkeys(p.needs for p in blocking if p.needs))
+    else:
+        why = (
+            f"the fit was refused (the fitted parameters make no valid rig: {invalid or 'outside the range'})"
+        )
+        needs = "runs that excite the rig more widely (drill-env identify --plan)"
+    out = dict(parameters)
+    for name, p in parameters.items():
+        if p.identified and name != scale[0]:
+            out[name] = dataclasses.replace(
+                p,
+                method=REFUSED_METHOD,
+                identified=False,
+                note=f"{why}: a value fitted beside a parameter the data do not fix is not trusted",
+                needs=needs or RUN_THAT_IDENTIFIES.get(name, ""),
+            )
+    return out
 
 
 def _with_effects(params: RigParams, found: Mapping[str, EffectResult]) -> RigParams:
