@@ -366,6 +366,34 @@ UNSEEN_HALF = 1.0 / 3.0
 TAIL_ONLY_SHARE = 0.9
 
 
+# the slowest slip below which a lab rig's Stribeck hump does its change [rad/s], and the tanh
+# argument below which a hump term is a straight slope over [w0, 2 w0] (tanh(0.5) is 7.6 % below
+# its tangent): a lower friction seen only from faster slips, and straight where the data begin,
+# has its static level carried down as a line across the slips where a hump would do its change
+# (study rigs seen from 0.55, 0.99 and 1.07 rad/s up: T_sl +718 %, +90 %, +395 %, each with an
+# interval that excluded the truth); one that bends there fixes its hump by that curvature
+STICK_NEAR_RAD_S = 0.4
+STRAIGHT_TANH = 0.5
+
+
+def slip_too_fast(fit: JointFit) -> bool:
+    """Whether T_sl is the fitted curve carried down as a line from slips the data show only
+    above :data:`STICK_NEAR_RAD_S`: every fitted hump term is straight over the slowest slips
+    the data see (``b w0 <= STRAIGHT_TANH``, its tanh over [w0, 2 w0]), so the curve's value at
+    zero is that line's, not observed. A hump the data do not reach leaves no trace in them (a
+    sharp term below the slowest slip and T_sl trade exactly), so the fit's own interval, which
+    holds the curve's form, cannot say so."""
+    w0 = fit.slowest_slip
+    if not (math.isfinite(w0) and w0 > STICK_NEAR_RAD_S):
+        return False
+    rates = [
+        fit.values[b]
+        for a, b in zip(HUMP_AMPLITUDES, HUMP_RATES, strict=True)
+        if a in fit.free and fit.values[a] != 0.0 and fit.values[b] > 0.0
+    ]
+    return all(b * w0 <= STRAIGHT_TANH for b in rates)
+
+
 def _extrapolated_static(fit: JointFit) -> tuple[float, float, float] | None:
     """How much of the fitted lower friction curve lies below the slowest slip the data show.
 
@@ -398,11 +426,14 @@ def _extrapolated_static(fit: JointFit) -> tuple[float, float, float] | None:
 
 
 def static_extrapolated(fit: JointFit) -> bool:
-    """Whether the fit's static level T_sl is the hump carried below the data: more than
+    """Whether the fit's static level T_sl is carried below the data: seen only from fast slips
+    (:func:`slip_too_fast`), or by the hump: more than
     :data:`EXTRAPOLATED_SHARE` of the fitted curve's spread lies between zero and the slowest
     slip, that part is :data:`EXTRAPOLATED_MIN` of T_sl or more, and the hump does half its
     change below :data:`UNSEEN_HALF` of the slowest slip (so none of it is seen) or
     :data:`TAIL_ONLY_SHARE` of the spread lies below it (the data see only the flat tail)."""
+    if slip_too_fast(fit):
+        return True
     ext = _extrapolated_static(fit)
     if ext is None:
         return False
@@ -420,7 +451,18 @@ def _results(
     out: dict[str, ParameterResult] = {}
     ext = _extrapolated_static(fit)
     extrapolated = ""
-    if ext is not None:
+    if slip_too_fast(fit):
+        extrapolated = (
+            f"the lower friction is seen only from {fit.slowest_slip:.3g} rad/s up, where the fitted curve "
+            f"is straight: the static level {fit.values['lower_static']:.4g} N m is that line carried to "
+            f"zero across the slips below {STICK_NEAR_RAD_S:g} rad/s where a hump would do its change, "
+            "not observed"
+        )
+        ramp = (
+            "a slow voltage ramp down to the stick boundary (the lower disk slipping slower than "
+            f"{STICK_NEAR_RAD_S:g} rad/s; these data: {fit.slowest_slip:.3g} rad/s at the slowest)"
+        )
+    elif ext is not None:
         change, spread, half = ext
         if static_extrapolated(fit):
             extrapolated = (
