@@ -48,21 +48,11 @@ STUDY_EFFECTS = (
 )
 STUDY_RATES = (250.0, 500.0, 1000.0)
 STUDY_COUNTS = (1024, 2048, 4096)
-EXCITED = (
-    "motor_constant",
-    "upper_inertia",
-    "upper_static_pos",
-    "upper_static_neg",
-    "upper_viscous_pos",
-    "upper_viscous_neg",
-    "lower_inertia",
-    "lower_static",
-)
 
 
 def study(first_seed: int, count: int) -> int:
     """The accuracy study of ``--study`` (see the module docstring); the exit code."""
-    from drill_env.identify import draw_rig
+    from drill_env.identify import EXCITED_PARAMETERS, draw_rig
     from drill_env.recordings.dataset import MeasuredDataset
     from drill_env.recordings.protocols import PROTOCOLS, record_protocol
     from drill_env.structure_search import identify_structure
@@ -97,7 +87,7 @@ def study(first_seed: int, count: int) -> int:
         wrong += s.tested and not right
         errors = {
             n: ident.parameters[n].value / float(getattr(rig, n)) - 1.0
-            for n in EXCITED
+            for n in EXCITED_PARAMETERS
             if ident.parameters[n].identified
         }
         out = []

@@ -94,10 +94,6 @@ def test_effect_under_parameter_errors_is_named_and_parameters_recalibrated():
     assert out["effects"] == ["position_friction_lower"]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known regression: the one-way window check of the equation error (kept only where the readings show the disk turning one way) drops near-stick windows these seeds need",
-)
 def test_two_effects_at_once():
     # position friction with a drift of the friction level on top: both named, strongest first,
     # and the drift's mean is not mistaken for a static-friction error

@@ -100,10 +100,6 @@ def test_drift_and_no_effect_are_not_read_as_heating(effect, seed):
     assert res.effect == effect, res.decision.reason
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known regression: the one-way window check of the equation error (kept only where the readings show the disk turning one way) drops near-stick windows these seeds need",
-)
 def test_a_brake_normal_force_change_is_a_recalibration():
     # the normal force scales the static level and both humps of the lower friction alike:
     # 4 % more of it is a parameter change, not an effect

@@ -17,7 +17,7 @@ import yaml
 from typer.testing import CliRunner
 
 from drill_env.cli import app
-from drill_env.identify import ExperimentPlan, draw_rig, identify, synth_config
+from drill_env.identify import EXCITED_PARAMETERS, ExperimentPlan, draw_rig, identify, synth_config
 from drill_env.params import IDENTIFIED_PARAMETERS, load_params
 from drill_env.recordings.dataset import MeasuredDataset, load_dataset
 from drill_env.recordings.synth import make_dataset, write_synthetic
@@ -25,17 +25,6 @@ from drill_env.recordings.synth import make_dataset, write_synthetic
 # a short version of the full plan: the same kinds of run, 40 s each
 SMALL = ExperimentPlan(
     "small", (0.1, 0.3, 0.8, 2.0, 4.0), 2, (-5.0, 5.0), (0.5, 2.0), 40.0, 30.0, (250.0, 1000.0)
-)
-# parameters the runs of the plan excite: within 3 % of the truth (with the string given)
-EXCITED = (
-    "motor_constant",
-    "upper_inertia",
-    "upper_static_pos",
-    "upper_static_neg",
-    "upper_viscous_pos",
-    "upper_viscous_neg",
-    "lower_inertia",
-    "lower_static",
 )
 
 
@@ -85,7 +74,7 @@ def _coverage(cases) -> tuple[int, int, list[str]]:
 def _check_rigs(cases) -> None:
     for rig, ident in cases:
         assert ident.params is not None, [p.name for p in ident.blocking]
-        for n in EXCITED:
+        for n in EXCITED_PARAMETERS:
             assert ident.parameters[n].value == pytest.approx(getattr(rig, n), rel=0.03), (rig.name, n)
             assert ident.parameters[n].identified, (rig.name, n)
         # the lower friction curve over the speeds of the data, whatever its terms

@@ -63,3 +63,22 @@ def test_the_rule_refuses_an_unseen_hump_and_keeps_one_the_data_reach():
     change, spread, half = _extrapolated_static(tail)
     assert half > 3.2 / 3.0 and abs(change) > 0.9 * spread
     assert static_extrapolated(tail)
+
+
+def test_a_curve_straight_where_fast_data_begin_carries_a_line_down():
+    """A fitted hump that is a slope where the data begin (a study rig, PRBS: one term of
+    -0.26 N m at 0.079 s/rad seen from 1.07 rad/s up) passes the hump rule, though its T_sl came
+    out +395 %: a line carried down from a fast slip, not determined. The same curve seen from
+    0.3 rad/s, or one that bends where the data begin (a rig of the motor-lag test: terms at 1.33
+    and 0.98 s/rad seen from 0.62 rad/s, T_sl within 1 %), is left to the hump rule."""
+    from drill_env.identify.identification import STICK_NEAR_RAD_S, slip_too_fast
+
+    line = dict(t1=-0.2635, b1=0.0789, t_sl=0.2084, b_l=0.00636)
+    change, spread, half = _extrapolated_static(_fit(1.07, **line))
+    assert abs(change) < EXTRAPOLATED_SHARE * spread  # what the hump rule alone said
+    assert slip_too_fast(_fit(1.07, **line)) and static_extrapolated(_fit(1.07, **line))
+    assert not slip_too_fast(_fit(0.3, **line)) and not static_extrapolated(_fit(0.3, **line))
+    bends = dict(t1=-0.680, b1=1.331, t_sl=0.0465, b_l=0.00864, t2=1.001, b2=0.982)
+    assert not slip_too_fast(_fit(0.6155, **bends))
+    assert slip_too_fast(_fit(1.01 * STICK_NEAR_RAD_S, t1=0.0))  # no hump term at all
+    assert not slip_too_fast(_fit(0.99 * STICK_NEAR_RAD_S, t1=0.0))

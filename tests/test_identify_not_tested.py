@@ -38,3 +38,30 @@ def test_a_refused_base_fit_is_not_tested_never_none(tmp_path):
     report = (out / "report.md").read_text()
     assert "**Not tested (verdict `not_tested`)" in report
     assert "the run that determines it" in report
+
+
+def test_a_refused_fit_marks_no_parameter_identified():
+    """What a refused fit fitted beside the parameter it lacks is not identified either: the
+    refused T_sl moves the rest (an inertia at -51 % beside one), which their own intervals, holding
+    T_sl at its fitted value, do not show. Each says so, with the run that determines the refused
+    parameter; the refusal itself still names only T_sl."""
+    from drill_env.identify import identify
+    from drill_env.identify.identification import REFUSED_METHOD
+    from drill_env.recordings.dataset import MeasuredDataset
+
+    syn = make_dataset("position_friction_lower", seed=3, config=FAST_ONLY, magnitude=0.15)
+    ds = MeasuredDataset(preset="brake", encoder_counts_per_rev=2000, runs=tuple(syn.runs))
+    ident = identify(ds, known={"string_stiffness": syn.truth.string_stiffness}, simulate_heldout=False)
+    assert ident.params is None
+    assert [p.name for p in ident.blocking] == ["lower_static"]
+    lacking = ident.parameters["lower_static"].needs
+    assert "stick boundary" in lacking
+    beside = [p for p in ident.parameters.values() if p.method == REFUSED_METHOD]
+    assert {"motor_constant", "upper_inertia", "lower_inertia"} <= {p.name for p in beside}
+    for n, p in ident.parameters.items():
+        if n == "string_stiffness":
+            assert p.identified and p.method == "fixed by the user"
+            continue
+        assert not p.identified, (n, p)
+    for p in beside:
+        assert "the fit was refused (lower_static not determined)" in p.note and p.needs == lacking

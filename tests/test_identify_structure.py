@@ -16,7 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 from drill_env.cli import app
-from drill_env.identify import ExperimentPlan, draw_rig, identify, synth_config
+from drill_env.identify import EXCITED_PARAMETERS, ExperimentPlan, draw_rig, identify, synth_config
 from drill_env.params import IDENTIFIED_PARAMETERS
 from drill_env.recordings.dataset import MeasuredDataset, MeasuredRun
 from drill_env.recordings.protocols import PROTOCOLS, protocol_runs, record_protocol
@@ -24,16 +24,6 @@ from drill_env.recordings.synth import make_dataset
 
 SMALL = ExperimentPlan(
     "small", (0.1, 0.3, 0.8, 2.0, 4.0), 2, (-5.0, 5.0), (0.5, 2.0), 40.0, 30.0, (250.0, 1000.0)
-)
-EXCITED = (
-    "motor_constant",
-    "upper_inertia",
-    "upper_static_pos",
-    "upper_static_neg",
-    "upper_viscous_pos",
-    "upper_viscous_neg",
-    "lower_inertia",
-    "lower_static",
 )
 
 
@@ -59,7 +49,7 @@ def test_position_friction_fitted_jointly_with_every_base_parameter():
     joint = identify(ds, known=known, simulate_heldout=False, effects={"position_friction_lower": None})
     # the base-only fit absorbs the effect into the lower static friction
     base_err = abs(base.parameters["lower_static"].value / rig.lower_static - 1.0)
-    for n in EXCITED:
+    for n in EXCITED_PARAMETERS:
         assert joint.parameters[n].value == pytest.approx(getattr(rig, n), rel=0.03), n
     assert abs(joint.parameters["lower_static"].value / rig.lower_static - 1.0) < base_err
     eff = joint.effects["position_friction_lower"]
@@ -368,7 +358,7 @@ def test_study_on_lab_protocols():
         case = f"{structure}-{seed}-{protocol}"
         errors = {
             n: ident.parameters[n].value / float(getattr(rig, n)) - 1.0
-            for n in EXCITED
+            for n in EXCITED_PARAMETERS
             if ident.parameters[n].identified
         }
         worst = max(errors, key=lambda n: abs(errors[n])) if errors else None
@@ -387,7 +377,7 @@ def test_study_on_lab_protocols():
             if n == "string_stiffness" or not p.identified:
                 continue
             t = float(getattr(rig, n))
-            if n in EXCITED:
+            if n in EXCITED_PARAMETERS:
                 assert p.value == pytest.approx(t, rel=0.03), (case, n, p.value, t)
             total += 1
             if p.ci95[0] <= t <= p.ci95[1]:

@@ -20,6 +20,7 @@ Example::
 """
 
 from drill_env.identify.identification import (
+    EXCITED_PARAMETERS,
     SCALE_PARAMETERS,
     Identification,
     ParameterResult,
@@ -30,6 +31,7 @@ from drill_env.identify.plan import PLANS, ExperimentPlan, plan_text, synth_conf
 from drill_env.identify.rigs import draw_rig
 
 __all__ = [
+    "EXCITED_PARAMETERS",
     "ExperimentPlan",
     "Identification",
     "PLANS",

@@ -52,9 +52,24 @@ from drill_env.recordings.dataset import MeasuredDataset
 from drill_env.recordings.equation_error import EquationErrorConfig, RunEquations, estimate_angle_noise
 from drill_env.recordings.steady_state import SteadyState, UpperBalance, steady_states, upper_balance
 
-__all__ = ["Identification", "ParameterResult", "identify", "parse_known", "SCALE_PARAMETERS"]
+__all__ = [
+    "EXCITED_PARAMETERS",
+    "Identification",
+    "ParameterResult",
+    "identify",
+    "parse_known",
+    "SCALE_PARAMETERS",
+]
 
 SCALE_PARAMETERS = ("string_stiffness", "motor_constant")
+# the parameters that every protocol of a lab excites once the string stiffness is given: the
+# motor, both inertias and the friction levels (the lower viscous term and the hump terms are
+# determined only by runs that reach their speeds); the accuracy targets are stated on these
+EXCITED_PARAMETERS: tuple[str, ...] = tuple(
+    n
+    for n in IDENTIFIED_PARAMETERS
+    if n not in ("string_stiffness", "lower_viscous", *HUMP_AMPLITUDES, *HUMP_RATES)
+)
 # the parameters without which the model cannot be simulated at all
 ESSENTIAL = (
     "motor_constant",
@@ -70,8 +85,8 @@ MAX_RELATIVE_HALF_WIDTH = 1.0  # a 95 % half-width above |value| x this: not ide
 # the same for a parameter the model can run without (a hump term, a slope, the negative side):
 # a value the data leave this loose is reported as not determined, never as a plain number
 NOT_DETERMINED_HALF_WIDTH = 0.25
-FLAT_HALF_WIDTH = 0.25
-EFFECT_ITERATIONS = 3  # re-evaluations of the effects' columns at the fitted base parameters  # a direction of the fit looser than this (relative units) is flat
+FLAT_HALF_WIDTH = 0.25  # a direction of the fit looser than this (relative units) is flat
+EFFECT_ITERATIONS = 3  # re-evaluations of the effects' columns at the fitted base parameters
 
 
 @dataclass(frozen=True)
@@ -182,7 +197,11 @@ class Identification:
     @property
     def blocking(self) -> list[ParameterResult]:
         """Parameters the model needs that the data do not fix."""
-        return [p for p in self.not_identifiable if p.name in ESSENTIAL and p.method != "assumed"]
+        return [
+            p
+            for p in self.not_identifiable
+            if p.name in ESSENTIAL and p.method not in ("assumed", REFUSED_METHOD)
+        ]
 
     @property
     def hump(self) -> dict[str, Any]:
@@ -347,6 +366,34 @@ UNSEEN_HALF = 1.0 / 3.0
 TAIL_ONLY_SHARE = 0.9
 
 
+# the slowest slip below which a lab rig's Stribeck hump does its change [rad/s], and the tanh
+# argument below which a hump term is a straight slope over [w0, 2 w0] (tanh(0.5) is 7.6 % below
+# its tangent): a lower friction seen only from faster slips, and straight where the data begin,
+# has its static level carried down as a line across the slips where a hump would do its change
+# (study rigs seen from 0.55, 0.99 and 1.07 rad/s up: T_sl +718 %, +90 %, +395 %, each with an
+# interval that excluded the truth); one that bends there fixes its hump by that curvature
+STICK_NEAR_RAD_S = 0.4
+STRAIGHT_TANH = 0.5
+
+
+def slip_too_fast(fit: JointFit) -> bool:
+    """Whether T_sl is the fitted curve carried down as a line from slips the data show only
+    above :data:`STICK_NEAR_RAD_S`: every fitted hump term is straight over the slowest slips
+    the data see (``b w0 <= STRAIGHT_TANH``, its tanh over [w0, 2 w0]), so the curve's value at
+    zero is that line's, not observed. A hump the data do not reach leaves no trace in them (a
+    sharp term below the slowest slip and T_sl trade exactly), so the fit's own interval, which
+    holds the curve's form, cannot say so."""
+    w0 = fit.slowest_slip
+    if not (math.isfinite(w0) and w0 > STICK_NEAR_RAD_S):
+        return False
+    rates = [
+        fit.values[b]
+        for a, b in zip(HUMP_AMPLITUDES, HUMP_RATES, strict=True)
+        if a in fit.free and fit.values[a] != 0.0 and fit.values[b] > 0.0
+    ]
+    return all(b * w0 <= STRAIGHT_TANH for b in rates)
+
+
 def _extrapolated_static(fit: JointFit) -> tuple[float, float, float] | None:
     """How much of the fitted lower friction curve lies below the slowest slip the data show.
 
@@ -379,11 +426,14 @@ def _extrapolated_static(fit: JointFit) -> tuple[float, float, float] | None:
 
 
 def static_extrapolated(fit: JointFit) -> bool:
-    """Whether the fit's static level T_sl is the hump carried below the data: more than
+    """Whether the fit's static level T_sl is carried below the data: seen only from fast slips
+    (:func:`slip_too_fast`), or by the hump: more than
     :data:`EXTRAPOLATED_SHARE` of the fitted curve's spread lies between zero and the slowest
     slip, that part is :data:`EXTRAPOLATED_MIN` of T_sl or more, and the hump does half its
     change below :data:`UNSEEN_HALF` of the slowest slip (so none of it is seen) or
     :data:`TAIL_ONLY_SHARE` of the spread lies below it (the data see only the flat tail)."""
+    if slip_too_fast(fit):
+        return True
     ext = _extrapolated_static(fit)
     if ext is None:
         return False
@@ -401,7 +451,18 @@ def _results(
     out: dict[str, ParameterResult] = {}
     ext = _extrapolated_static(fit)
     extrapolated = ""
-    if ext is not None:
+    if slip_too_fast(fit):
+        extrapolated = (
+            f"the lower friction is seen only from {fit.slowest_slip:.3g} rad/s up, where the fitted curve "
+            f"is straight: the static level {fit.values['lower_static']:.4g} N m is that line carried to "
+            f"zero across the slips below {STICK_NEAR_RAD_S:g} rad/s where a hump would do its change, "
+            "not observed"
+        )
+        ramp = (
+            "a slow voltage ramp down to the stick boundary (the lower disk slipping slower than "
+            f"{STICK_NEAR_RAD_S:g} rad/s; these data: {fit.slowest_slip:.3g} rad/s at the slowest)"
+        )
+    elif ext is not None:
         change, spread, half = ext
         if static_extrapolated(fit):
             extrapolated = (
@@ -678,6 +739,8 @@ def identify(
             )
         except ParameterError as exc:
             params, invalid = None, str(exc)
+    if params is None:
+        parameters = _refused(parameters, blocking, invalid, scale)
     train_params = None
     if train_fit is not None and params is not None:
         try:
@@ -729,6 +792,43 @@ def identify(
         timings["heldout"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return ident
+
+
+REFUSED_METHOD = "fitted beside a refused parameter"
+
+
+def _refused(
+    parameters: dict[str, ParameterResult],
+    blocking: list[ParameterResult],
+    invalid: str,
+    scale: tuple[str, float],
+) -> dict[str, ParameterResult]:
+    """The parameters of a refused fit: none is marked identified (the user's scale aside).
+
+    A parameter the data do not fix, fitted jointly with the others, moves them as far as it is
+    off (an inertia at -51 % beside a T_sl the data never saw): their own intervals do not say
+    so, since they hold the refused parameter at its fitted value. Each keeps its value and
+    interval, for a look, with the refusal as its note and the runs that determine the refused
+    parameters as what would identify it."""
+    if blocking:
+        why = "the fit was refused (" + ", ".join(f"{p.name} not determined" for p in blocking) + ")"
+        needs = "; ".join(dict.fromkeys(p.needs for p in blocking if p.needs))
+    else:
+        why = (
+            f"the fit was refused (the fitted parameters make no valid rig: {invalid or 'outside the range'})"
+        )
+        needs = "runs that excite the rig more widely (drill-env identify --plan)"
+    out = dict(parameters)
+    for name, p in parameters.items():
+        if p.identified and name != scale[0]:
+            out[name] = dataclasses.replace(
+                p,
+                method=REFUSED_METHOD,
+                identified=False,
+                note=f"{why}: a value fitted beside a parameter the data do not fix is not trusted",
+                needs=needs or RUN_THAT_IDENTIFIES.get(name, ""),
+            )
+    return out
 
 
 def _with_effects(params: RigParams, found: Mapping[str, EffectResult]) -> RigParams:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from drill_env.identify.identification import Identification
+from drill_env.identify.identification import REFUSED_METHOD, Identification
 from drill_env.outputs import atomic_write_text, save_figure
 from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
 
@@ -444,7 +444,14 @@ def _report(res: Identification, figs: dict[str, str], bif: dict[str, Any] | Non
             "Record the runs named in the table (the plan: `drill-env identify --plan`).",
             "",
         ]
-    weak = [p for p in res.not_identifiable if p not in res.blocking]
+    beside = [p for p in res.not_identifiable if p.method == REFUSED_METHOD]
+    if beside:
+        lines += [
+            "Fitted beside the refused parameters, so not identified either (their values are in the "
+            f"table, for a look): {', '.join(f'`{p.name}`' for p in beside)}.",
+            "",
+        ]
+    weak = [p for p in res.not_identifiable if p not in res.blocking and p.method != REFUSED_METHOD]
     if weak:
         lines += ["Not identifiable from these data (named, never defaulted silently):", ""]
         for p in weak:

@@ -293,6 +293,34 @@ def _adaptive_speed_of(theta, halves, dt, travel):
     return v, choice
 
 
+@functools.lru_cache(maxsize=64)
+def speed_bias_bound(half: int, dt: float) -> float:
+    """Largest error of the cubic Savitzky-Golay speed over 2 half + 1 samples for an angle whose
+    acceleration is at most 1 rad/s^2 [rad/s per rad/s^2].
+
+    The filter ``sum_k c_k theta(t + k dt)`` is exact for a line, so by Taylor's theorem its
+    error is ``int_0^{half dt} (K+(s) theta''(t + s) + K-(s) theta''(t - s)) ds`` with the Peano
+    kernels ``K+(s) = sum_{k>0} c_k (k dt - s)_+`` and ``K-(s) = sum_{k<0} c_k (|k| dt - s)_+``;
+    the bound is ``int |K+| + int |K-|``, the kernels being linear between samples (integrated
+    exactly, zero crossings included). About a third of the cruder ``sum |c_k| (k dt)^2 / 2``.
+    """
+    c = savgol_coeffs(2 * half + 1, 3, deriv=1, delta=dt, use="dot")
+    total = 0.0
+    for side in (c[half + 1 :], c[:half][::-1]):  # c_{+k}, c_{-k} for k = 1..half
+        k = np.arange(1, half + 1, dtype=float) * dt
+        knots = np.arange(0, half + 1, dtype=float) * dt  # K at s = j dt, j = 0..half
+        vals = np.array([float(side @ np.clip(k - x, 0.0, None)) for x in knots])
+        a, b = vals[:-1], vals[1:]
+        same = a * b >= 0.0
+        seg = np.where(
+            same,
+            0.5 * np.abs(a + b),
+            0.5 * (a * a + b * b) / np.maximum(np.abs(a) + np.abs(b), 1e-300),
+        )
+        total += float(seg.sum()) * dt
+    return total
+
+
 def quantisation_weights(noise: AngleNoise, disk: str, harmonics: int) -> tuple[np.ndarray, float]:
     """Power of each spectral line of the encoder error, and the white power left [rad^2].
 
@@ -652,7 +680,14 @@ class RunEquations:
         than A T^2/4 + (1 + 2k) step, T = 2 sqrt((1 + 2k) step / A). A is the largest acceleration
         in the support of a cubic Savitzky-Golay fit (``accel_window_s``), times
         ``accel_margin``, plus three standard deviations of its noise: it depends on the
-        readings alone, so the windows are the same for every model tested."""
+        readings alone, so the windows are the same for every model tested.
+
+        The count test is needed only where the smoothing could hide a stop. Where the smoothed
+        speed itself bounds the true speed away from zero over the support (:meth:`_speed_one_way`:
+        a slow but steady slip, whose speed window is long but whose acceleration is small), the
+        window is kept without it: near the stick boundary the counts of a dithered encoder
+        advance too few steps per span for the count test, and dropping those windows loses the
+        data that sets the static friction levels."""
         if centers.size == 0:
             return np.zeros(0, dtype=bool)
         cfg = self.config
@@ -665,6 +700,14 @@ class RunEquations:
         a_noise = 3.0 * noise * float(np.sqrt(coef @ coef))
         a_max = cfg.accel_margin * maximum_filter1d(acc, 2 * L + 1, mode="nearest")[centers] + a_noise
         a_max = np.maximum(a_max, 1e-12)
+        # the speed test: per sample, the bound over that sample's own speed window
+        a_local = np.stack(
+            [
+                cfg.accel_margin * maximum_filter1d(acc, 2 * h + 1, mode="nearest") + a_noise
+                for h in self.halves
+            ]
+        )
+        by_speed = self._speed_one_way(disk, centers, sign, a_local)
         counts = np.round(theta / step)
         dither = self.noise.additive(disk)
         k = int(math.ceil(4.0 * dither / step)) if dither > 0.0 else 0
@@ -683,9 +726,11 @@ class RunEquations:
             held = np.repeat(lengths, np.diff(edges))
             longest = maximum_filter1d(held, 2 * L + 1, mode="nearest")[centers]
             ok &= longest < np.sqrt(2.0 * step / a_max)
-            return ok
+            return ok | by_speed
         e = (1.0 + 2.0 * k) * step
         for i, (c, s) in enumerate(zip(centers, sign, strict=True)):
+            if by_speed[i]:
+                continue
             T = max(1, int(round(2.0 * math.sqrt(e / a_max[i]) / dt)))
             lo, hi = max(c - L - T // 2, 0), min(c + L + T // 2 + 1, counts.size)
             y = s * counts[lo:hi] * step
@@ -695,6 +740,36 @@ class RunEquations:
             need = a_max[i] * (T * dt) ** 2 / 4.0 + e
             ok[i] = bool(np.all(y[T:] - y[:-T] > need))
         return ok
+
+    def _speed_one_way(
+        self, disk: str, centers: np.ndarray, sign: np.ndarray, a_local: np.ndarray
+    ) -> np.ndarray:
+        """Per window, whether the smoothed speed alone proves the disk turning one way over its
+        kernel support (offsets -L..L), given |theta''| <= ``a_local[j, i]`` over the speed window
+        ``j`` (of :attr:`halves`) about sample i.
+
+        The cubic Savitzky-Golay derivative ``sum_k c_k theta(t + k dt)`` is exact for a line, so
+        its error is the angle's curvature seen through the Peano kernel of the filter,
+        ``int K(s) theta''(t + s) ds``, at most ``a int |K|`` (:func:`speed_bias_bound`), plus
+        the reading error: the quantisation error spans one count, ``step/2 sum |c_k|`` at most
+        (a hard bound, since the spectral lines of an undithered encoder are not random), and the
+        dither ``4 s |c|``. The window is kept when the speed of its direction exceeds this bound,
+        plus ``a dt`` for the motion between samples, at every sample of the support."""
+        if centers.size == 0:
+            return np.zeros(0, dtype=bool)
+        dt, step = self.dt, self.step
+        speed = self.speed_u if disk == "upper" else self.speed_l
+        choice = self.choice_u if disk == "upper" else self.choice_l
+        dither = self.noise.additive(disk)
+        bias = np.array([speed_bias_bound(g, dt) for g in self.halves])
+        reading = np.array(
+            [0.5 * step * float(np.abs(c).sum()) + 4.0 * dither * float(np.sqrt(c @ c)) for c in self.sg]
+        )
+        v = sign[:, None] * self.gather(speed, centers)
+        ch = self.gather(choice, centers)
+        idx = centers[:, None] + self.offsets[None, :]
+        margin = a_local[ch, idx] * (bias[ch] + dt) + reading[ch]
+        return np.all(v > margin, axis=1)
 
     # -- nominal residuals ---------------------------------------------------------------------
     def _windows(self, disk, centers, speed, reach) -> DiskWindows:
