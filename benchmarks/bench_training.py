@@ -238,7 +238,10 @@ def time_to_policy(
         )
         stop = check()
     if not stop:
-        model.learn(cfg.total_timesteps, callback=_Check())
+        from drill_env.agents.learning.late_phase import late_phase_callback
+
+        late = late_phase_callback(cfg.late_phase, cfg.total_timesteps)  # the config's late phase, as train
+        model.learn(cfg.total_timesteps, callback=[_Check()] if late is None else [late, _Check()])
         if not state["curve"] or state["curve"][-1]["steps"] != model.num_timesteps:
             check()
     first = state["first"]

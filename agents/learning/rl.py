@@ -195,6 +195,7 @@ class TrainConfig:
     residual: Any = None  # drill_env.agents.learning.residual.ResidualConfig, or None
     warm_start: Any = None  # drill_env.agents.learning.warm_start.WarmStartConfig, or None
     ignored_observations: tuple[str, ...] = ()  # entries the policy network gets no weights from
+    late_phase: Any = None  # drill_env.agents.learning.late_phase.LatePhaseConfig, or None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -254,6 +255,13 @@ class TrainConfig:
         from drill_env.agents.learning.warm_start import WarmStartConfig
 
         object.__setattr__(self, "warm_start", WarmStartConfig.from_any(self.warm_start))
+        from drill_env.agents.learning.late_phase import LatePhaseConfig
+
+        object.__setattr__(self, "late_phase", LatePhaseConfig.from_any(self.late_phase))
+        if self.late_phase is not None and self.algo == "ppo":
+            raise ValueError("late_phase: available with the off-policy algorithms (sac, tqc, crossq), not ppo")
+        if self.late_phase is not None and self.late_phase.tau is not None and self.algo == "crossq":
+            raise ValueError("late_phase.tau: crossq has no target networks")
         ws = self.warm_start
         if ws is not None and ws.policy is None and self.residual is not None:
             raise ValueError(
@@ -314,6 +322,7 @@ class TrainConfig:
             **(
                 {"ignored_observations": list(self.ignored_observations)} if self.ignored_observations else {}
             ),
+            **({"late_phase": self.late_phase.to_dict()} if self.late_phase is not None else {}),
         }
 
 
@@ -1114,6 +1123,11 @@ def train(
         burn_in = critic_burn_in_callback(model, cfg.residual)
         if burn_in is not None:
             callbacks.append(burn_in)
+    from drill_env.agents.learning.late_phase import late_phase_callback
+
+    late = late_phase_callback(cfg.late_phase, cfg.total_timesteps)
+    if late is not None:
+        callbacks.append(late)
 
     def save(path: Path) -> None:
         with atomic_path(path, suffix=".zip") as tmp:  # never a half-written policy, never via a link
