@@ -109,3 +109,65 @@ def test_the_late_phase_recipe_on_the_rig_without_the_brake_loads():
     trial = cfg.to_dict()
     trial.pop("late_phase")
     assert trial == base  # the shipped recipe with a late phase, nothing else
+
+
+def test_the_averaged_actor_is_the_polyak_average_and_is_swapped_in_only_inside():
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from drill_env.agents.learning.late_phase import averaged_actor
+
+    model = _sac(gradient_steps=1)
+    late = LatePhaseConfig(after=0.4, actor_average=0.2)
+    cb = late_phase_callback(late, 150)
+    snapshots: list[list[torch.Tensor]] = []
+
+    class _Record(BaseCallback):  # runs after the late phase's callback, before the same train call
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= 60:
+                snapshots.append([p.detach().clone() for p in self.model.actor.parameters()])
+            return True
+
+    with averaged_actor(model, cb):  # before the switch: nothing to swap in
+        pass
+    model.learn(150, callback=[cb, _Record()])
+    expected = [t.clone() for t in snapshots[0]]  # the actor at the switch
+    for snap in snapshots[1:]:
+        expected = [0.8 * e + 0.2 * s for e, s in zip(expected, snap, strict=True)]
+    for a, e in zip(cb.average, expected, strict=True):
+        torch.testing.assert_close(a, e, rtol=1e-5, atol=1e-6)
+    own = [p.detach().clone() for p in model.actor.parameters()]
+    assert any(not torch.equal(a, o) for a, o in zip(cb.average, own, strict=True))
+    with averaged_actor(model, cb):
+        for p, a in zip(model.actor.parameters(), cb.average, strict=True):
+            assert torch.equal(p, a)
+    for p, o in zip(model.actor.parameters(), own, strict=True):
+        assert torch.equal(p, o)
+    with pytest.raises(RuntimeError, match="inside"), averaged_actor(model, cb):
+        raise RuntimeError("inside")
+    for p, o in zip(model.actor.parameters(), own, strict=True):
+        assert torch.equal(p, o)  # restored after an error too
+
+
+def test_train_evaluates_and_saves_the_averaged_actor(tmp_path):
+    """With the average started before the first gradient step and a rate of ~0 it stays the
+    initial actor: every evaluation scores that same policy, and the saved files hold it."""
+    from drill_env.agents.learning.rl import load_policy, train
+
+    cfg = load_config(CONFIGS / "experiments" / "sac_v1.yaml").to_dict()
+    cfg.update(total_timesteps=300, n_envs=1)
+    cfg["evaluation"] = {"every_steps": 100, "episodes_per_regime": 1, "seed": 7}
+    cfg["env_kwargs"] = {"warmup_time": 2.0, "warmup_jitter": 0.5}
+    cfg["hyperparameters"].update(learning_starts=100, buffer_size=1000, batch_size=32)
+    cfg["late_phase"] = {"after": 0.01, "actor_average": 1e-12}
+    train(TrainConfig(**cfg), 3, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    curve = np.genfromtxt(tmp_path / "out" / "eval.csv", delimiter=",", names=True)
+    assert len(curve) >= 4 and np.ptp(curve["mean_return"]) < 1e-6 * abs(curve["mean_return"][0])
+    kept = load_policy(tmp_path / "out" / "policy.zip", trusted=True)  # made by this test
+    final = load_policy(tmp_path / "run" / "final_policy.zip", trusted=True)
+    obs = np.random.default_rng(0).uniform(-1, 1, (16, kept.observation_space.shape[0])).astype(np.float32)
+    np.testing.assert_allclose(kept.predict(obs)[0], final.predict(obs)[0], atol=1e-6)
+    # the same run without the average trains its actor away from the initial one
+    cfg.pop("late_phase")
+    train(TrainConfig(**cfg), 3, tmp_path / "out2", tmp_path / "run2", progress_bar=False)
+    moved = load_policy(tmp_path / "run2" / "final_policy.zip", trusted=True)
+    assert np.max(np.abs(moved.predict(obs)[0] - final.predict(obs)[0])) > 1e-4

@@ -1123,14 +1123,15 @@ def train(
         burn_in = critic_burn_in_callback(model, cfg.residual)
         if burn_in is not None:
             callbacks.append(burn_in)
-    from drill_env.agents.learning.late_phase import late_phase_callback
+    from drill_env.agents.learning.late_phase import averaged_actor, late_phase_callback
 
     late = late_phase_callback(cfg.late_phase, cfg.total_timesteps)
     if late is not None:
         callbacks.append(late)
 
     def save(path: Path) -> None:
-        with atomic_path(path, suffix=".zip") as tmp:  # never a half-written policy, never via a link
+        # the late phase's averaged actor, when it has one, is the run's policy
+        with atomic_path(path, suffix=".zip") as tmp, averaged_actor(model, late):  # never half-written
             if cfg.residual is None:
                 model.save(str(tmp))
                 return
@@ -1141,8 +1142,10 @@ def train(
 
     def current_policy() -> Any:
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
-        # moment, and the learner updates them in place
-        policy: Any = SB3Policy(model, cfg.algo)
+        # moment (the late phase's averaged actor, when it has one), and the learner updates
+        # them in place
+        with averaged_actor(model, late):
+            policy: Any = SB3Policy(model, cfg.algo)
         if base is None:
             return policy
         return ResidualPolicy(policy, base, cfg.residual.scale, observe_base=cfg.residual.observe_base)
