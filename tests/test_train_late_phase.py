@@ -171,3 +171,25 @@ def test_train_evaluates_and_saves_the_averaged_actor(tmp_path):
     train(TrainConfig(**cfg), 3, tmp_path / "out2", tmp_path / "run2", progress_bar=False)
     moved = load_policy(tmp_path / "run2" / "final_policy.zip", trusted=True)
     assert np.max(np.abs(moved.predict(obs)[0] - final.predict(obs)[0])) > 1e-4
+
+
+def test_a_learning_rate_that_decays_and_is_then_held():
+    from drill_env.agents.learning.rl import algo_kwargs
+
+    lr = algo_kwargs({"learning_rate": {"start": 1.0e-3, "end": 1.0e-4, "end_fraction": 0.6}})["learning_rate"]
+    # progress_remaining runs from 1 to 0 over the run: the slope of lin_1.0e-3 over 0.6 of a 0.9 M run
+    for done, value in ((0.0, 1.0e-3), (0.3, 5.5e-4), (0.6, 1.0e-4), (0.8, 1.0e-4), (1.0, 1.0e-4)):
+        assert lr(1.0 - done) == pytest.approx(value, rel=1e-9)
+    slope = (lr(1.0) - lr(1.0 - 0.1)) / (0.1 * 900_000)
+    assert slope == pytest.approx(1.0e-3 / 600_000, rel=1e-9)
+    for bad, message in (
+        ({"start": 1e-3, "end": 1e-4}, "exactly the keys"),
+        ({"start": 1e-3, "end": 2e-3, "end_fraction": 0.5}, "0 <= end <= start"),
+        ({"start": 0.0, "end": 0.0, "end_fraction": 0.5}, "start > 0"),
+        ({"start": 1e-3, "end": 0.0, "end_fraction": 0.0}, "end_fraction"),
+        ({"start": "fast", "end": 0.0, "end_fraction": 0.5}, "learning_rate.start"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            algo_kwargs({"learning_rate": bad})
+    cfg = load_config(CONFIGS / "experiments" / "sac_floor_no_brake.yaml")
+    assert TrainConfig(**cfg.to_dict()) == cfg

@@ -14,7 +14,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML map
     torch_threads: 1
     hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...) / TQC(...) / CrossQ(...),
                                     # incl. policy_kwargs;
-                                    # learning_rate / clip_range may be lin_<value> (linear decay),
+                                    # learning_rate / clip_range may be lin_<value> (linear decay) or
+                                    # {start, end, end_fraction} (linear to end, then held),
                                     # policy_kwargs.activation_fn Tanh or ReLU
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
@@ -959,15 +960,41 @@ def linear_schedule(value: float):
     return LinearSchedule(float(value), 0.0, 1.0)
 
 
+def _piecewise_linear(key: str, spec: Mapping[str, Any]):
+    """``{start, end, end_fraction}``: from ``start`` linearly to ``end`` over the first
+    ``end_fraction`` of the run, then ``end`` (stable-baselines3's ``LinearSchedule``)."""
+    allowed = ("start", "end", "end_fraction")
+    if sorted(spec) != sorted(allowed):
+        raise ValueError(f"hyperparameters.{key}: a schedule needs exactly the keys {list(allowed)}, got {sorted(spec)}")
+    values = {}
+    for name in allowed:
+        v = spec[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"hyperparameters.{key}.{name}: expected a finite number, got {v!r}")
+        values[name] = float(v)
+    if not values["start"] > 0 or not 0 <= values["end"] <= values["start"]:
+        raise ValueError(
+            f"hyperparameters.{key}: expected start > 0 and 0 <= end <= start, got {values['start']!r} / {values['end']!r}"
+        )
+    if not 0 < values["end_fraction"] <= 1:
+        raise ValueError(f"hyperparameters.{key}.end_fraction: expected a fraction in (0, 1], got {spec['end_fraction']!r}")
+    from stable_baselines3.common.utils import LinearSchedule
+
+    return LinearSchedule(values["start"], values["end"], values["end_fraction"])
+
+
 def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
     """The algorithm's keyword arguments from a config's ``hyperparameters``:
     ``learning_rate`` and ``clip_range`` may be ``lin_<value>`` (linear decay to 0, as in
-    rl-zoo3's files); ``policy_kwargs.activation_fn`` may name a ``torch.nn`` activation
+    rl-zoo3's files) or ``{start, end, end_fraction}`` (linear from ``start`` to ``end`` over
+    that fraction of the run, then ``end``); ``policy_kwargs.activation_fn`` may name a ``torch.nn`` activation
     (``Tanh``, SB3's default, or ``ReLU``)."""
     hp = copy.deepcopy(dict(hyperparameters))
     for key in SCHEDULED:
         v = hp.get(key)
-        if isinstance(v, str):
+        if isinstance(v, Mapping):
+            hp[key] = _piecewise_linear(key, v)
+        elif isinstance(v, str):
             if not v.startswith("lin_"):
                 raise ValueError(f"hyperparameters.{key}: expected a number or 'lin_<number>', got {v!r}")
             try:
