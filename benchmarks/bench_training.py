@@ -167,6 +167,7 @@ def time_to_policy(
     from stable_baselines3.common.callbacks import BaseCallback
 
     from drill_env.agents.evaluation.target_check import TargetCheck
+    from drill_env.agents.learning.late_phase import averaged_actor, late_phase_callback
     from drill_env.agents.learning.rl import load_config
     from drill_env.envs import ENV_VERSIONS
 
@@ -174,6 +175,7 @@ def time_to_policy(
     cfg = load_config(config)
     checker = TargetCheck(preset, ENV_VERSIONS[cfg.env_id])
     model = _model(cfg, seed)
+    late = late_phase_callback(cfg.late_phase, cfg.total_timesteps)  # the config's late phase, as train's
     state: dict = {"train_s": 0.0, "cpu_s": 0.0, "t0": 0.0, "c0": 0.0, "next": check_every}
     state.update(first=None, curve=[])
     tag = f"{cfg.algo} {preset} seed {seed}"
@@ -184,7 +186,8 @@ def time_to_policy(
     def check() -> bool:
         state["train_s"] += time.perf_counter() - state["t0"]
         state["cpu_s"] += time.process_time() - state["c0"]
-        result = target_check(model, cfg, preset, checker)
+        with averaged_actor(model, late):  # the late phase's averaged actor, when it has one
+            result = target_check(model, cfg, preset, checker)
         point = {
             "steps": int(model.num_timesteps),
             "wall_s": state["train_s"],
@@ -238,7 +241,7 @@ def time_to_policy(
         )
         stop = check()
     if not stop:
-        model.learn(cfg.total_timesteps, callback=_Check())
+        model.learn(cfg.total_timesteps, callback=[_Check()] if late is None else [late, _Check()])
         if not state["curve"] or state["curve"][-1]["steps"] != model.num_timesteps:
             check()
     first = state["first"]

@@ -14,7 +14,8 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML map
     torch_threads: 1
     hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...) / TQC(...) / CrossQ(...),
                                     # incl. policy_kwargs;
-                                    # learning_rate / clip_range may be lin_<value> (linear decay),
+                                    # learning_rate / clip_range may be lin_<value> (linear decay) or
+                                    # {start, end, end_fraction} (linear to end, then held),
                                     # policy_kwargs.activation_fn Tanh or ReLU
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
@@ -195,6 +196,7 @@ class TrainConfig:
     residual: Any = None  # drill_env.agents.learning.residual.ResidualConfig, or None
     warm_start: Any = None  # drill_env.agents.learning.warm_start.WarmStartConfig, or None
     ignored_observations: tuple[str, ...] = ()  # entries the policy network gets no weights from
+    late_phase: Any = None  # drill_env.agents.learning.late_phase.LatePhaseConfig, or None
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -254,6 +256,13 @@ class TrainConfig:
         from drill_env.agents.learning.warm_start import WarmStartConfig
 
         object.__setattr__(self, "warm_start", WarmStartConfig.from_any(self.warm_start))
+        from drill_env.agents.learning.late_phase import LatePhaseConfig
+
+        object.__setattr__(self, "late_phase", LatePhaseConfig.from_any(self.late_phase))
+        if self.late_phase is not None and self.algo == "ppo":
+            raise ValueError("late_phase: available with the off-policy algorithms (sac, tqc, crossq), not ppo")
+        if self.late_phase is not None and self.late_phase.tau is not None and self.algo == "crossq":
+            raise ValueError("late_phase.tau: crossq has no target networks")
         ws = self.warm_start
         if ws is not None and ws.policy is None and self.residual is not None:
             raise ValueError(
@@ -314,6 +323,7 @@ class TrainConfig:
             **(
                 {"ignored_observations": list(self.ignored_observations)} if self.ignored_observations else {}
             ),
+            **({"late_phase": self.late_phase.to_dict()} if self.late_phase is not None else {}),
         }
 
 
@@ -950,15 +960,41 @@ def linear_schedule(value: float):
     return LinearSchedule(float(value), 0.0, 1.0)
 
 
+def _piecewise_linear(key: str, spec: Mapping[str, Any]):
+    """``{start, end, end_fraction}``: from ``start`` linearly to ``end`` over the first
+    ``end_fraction`` of the run, then ``end`` (stable-baselines3's ``LinearSchedule``)."""
+    allowed = ("start", "end", "end_fraction")
+    if sorted(spec) != sorted(allowed):
+        raise ValueError(f"hyperparameters.{key}: a schedule needs exactly the keys {list(allowed)}, got {sorted(spec)}")
+    values = {}
+    for name in allowed:
+        v = spec[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"hyperparameters.{key}.{name}: expected a finite number, got {v!r}")
+        values[name] = float(v)
+    if not values["start"] > 0 or not 0 <= values["end"] <= values["start"]:
+        raise ValueError(
+            f"hyperparameters.{key}: expected start > 0 and 0 <= end <= start, got {values['start']!r} / {values['end']!r}"
+        )
+    if not 0 < values["end_fraction"] <= 1:
+        raise ValueError(f"hyperparameters.{key}.end_fraction: expected a fraction in (0, 1], got {spec['end_fraction']!r}")
+    from stable_baselines3.common.utils import LinearSchedule
+
+    return LinearSchedule(values["start"], values["end"], values["end_fraction"])
+
+
 def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
     """The algorithm's keyword arguments from a config's ``hyperparameters``:
     ``learning_rate`` and ``clip_range`` may be ``lin_<value>`` (linear decay to 0, as in
-    rl-zoo3's files); ``policy_kwargs.activation_fn`` may name a ``torch.nn`` activation
+    rl-zoo3's files) or ``{start, end, end_fraction}`` (linear from ``start`` to ``end`` over
+    that fraction of the run, then ``end``); ``policy_kwargs.activation_fn`` may name a ``torch.nn`` activation
     (``Tanh``, SB3's default, or ``ReLU``)."""
     hp = copy.deepcopy(dict(hyperparameters))
     for key in SCHEDULED:
         v = hp.get(key)
-        if isinstance(v, str):
+        if isinstance(v, Mapping):
+            hp[key] = _piecewise_linear(key, v)
+        elif isinstance(v, str):
             if not v.startswith("lin_"):
                 raise ValueError(f"hyperparameters.{key}: expected a number or 'lin_<number>', got {v!r}")
             try:
@@ -1114,9 +1150,15 @@ def train(
         burn_in = critic_burn_in_callback(model, cfg.residual)
         if burn_in is not None:
             callbacks.append(burn_in)
+    from drill_env.agents.learning.late_phase import averaged_actor, late_phase_callback
+
+    late = late_phase_callback(cfg.late_phase, cfg.total_timesteps)
+    if late is not None:
+        callbacks.append(late)
 
     def save(path: Path) -> None:
-        with atomic_path(path, suffix=".zip") as tmp:  # never a half-written policy, never via a link
+        # the late phase's averaged actor, when it has one, is the run's policy
+        with atomic_path(path, suffix=".zip") as tmp, averaged_actor(model, late):  # never half-written
             if cfg.residual is None:
                 model.save(str(tmp))
                 return
@@ -1127,8 +1169,10 @@ def train(
 
     def current_policy() -> Any:
         # built anew for every evaluation: SB3Policy's numpy actor copies the weights of the
-        # moment, and the learner updates them in place
-        policy: Any = SB3Policy(model, cfg.algo)
+        # moment (the late phase's averaged actor, when it has one), and the learner updates
+        # them in place
+        with averaged_actor(model, late):
+            policy: Any = SB3Policy(model, cfg.algo)
         if base is None:
             return policy
         return ResidualPolicy(policy, base, cfg.residual.scale, observe_base=cfg.residual.observe_base)
