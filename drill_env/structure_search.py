@@ -12,6 +12,13 @@ held-out runs, and the joint re-fit of every base parameter with each effect the
    everything; the search stops when nothing more is named, when the verdict is ``none``,
    ``recalibrated`` or ``unexplained``, or when an effect named is not one the user allowed.
 
+A fit refused only because T_sl is extrapolated below the slowest slip of the data (it and the
+hump terms tied to it not determined, everything else the model needs determined) keeps its
+fitted model beside the refusal (``Identification.provisional``): the tests run on it at the
+slips the data cover (the lower disk's windows from the fit's slowest slip up, where T_sl does
+not enter), and the result gives their verdict beside the refusal (no rig file; T_sl with the
+run that determines it). Any other refusal leaves the structure ``not_tested``.
+
 The result is one model: the last round's (rig.yaml with its ``effects:`` and, for an eccentric
 encoder, ``measurement:`` sections), with each round's findings and gaps for the report.
 
@@ -98,6 +105,9 @@ class StructureSearch:
     stopped: str  # why the search stopped
     suspect: list[str] = field(default_factory=list)  # parameters an unexplained residual moves
     halves: bool = False  # too few runs to hold one out: each run was cut in two (NAMEa, NAMEb)
+    # the final fit was refused for an extrapolated T_sl, and the tests ran on its fitted model at
+    # the slips the data cover: what is not determined and the run that determines it ("": not so)
+    refused: str = ""
 
     @property
     def effects(self) -> list[str]:
@@ -106,8 +116,8 @@ class StructureSearch:
     @property
     def verdict(self) -> str:
         """``none``, ``recalibrated``, ``unexplained``, the effects found (``a+b``) or
-        ``not_tested`` (the tests never ran: the base fit was refused, or no run could be held
-        out; :attr:`stopped` says why and what to record). An effect
+        ``not_tested`` (the tests never ran: the base fit was refused for anything but an
+        extrapolated T_sl, or no run could be held out; :attr:`stopped` says why and what to record). An effect
         the tests named that the model could not take (its re-fit not physical, or failed) leaves
         the residual unexplained: the model has no effect that explains it."""
         if self.effects:
@@ -134,6 +144,7 @@ class StructureSearch:
             "rounds": [r.as_dict() for r in self.rounds],
             "suspect_parameters": self.suspect,
             "runs_cut_in_halves": self.halves,
+            "refused_fit": self.refused,
         }
 
 
@@ -229,7 +240,8 @@ def identify_structure(
     rounds: list[Round] = []
     stopped = f"{max_rounds} rounds"
     for number in range(1, max_rounds + 1):
-        if current.params is None:
+        model = tested_model(current)
+        if model is None or (current.params is None and not held):
             stopped = _refusal(current)
             break
         if not held:
@@ -240,9 +252,10 @@ def identify_structure(
             break
         d = analyse(
             dataset,
-            params=_base_model(current.params),
+            params=_base_model(model),
             heldout=held,
             seed=seed,
+            eq_config=_covered_slips(current),
             simulate_gaps=simulate_gaps,
             simulate_training_runs=False,  # the tests use the held-out runs' gaps alone
             progress=progress,
@@ -283,7 +296,7 @@ def identify_structure(
         except ValueError as exc:
             stopped = f"round {number}: re-identification with {', '.join(new)} failed ({exc})"
             break
-        if nxt.params is None:
+        if tested_model(nxt) is None:
             stopped = (
                 f"round {number}: with {', '.join(new)} the fitted values are not physical; kept the model "
                 "without them"
@@ -311,6 +324,12 @@ def identify_structure(
         )
     )
     suspect = _suspect(current) if left else []
+    refused = ""
+    if rounds and current.params is None:
+        # the tests ran on the refused fit's model at the slips its data cover: the verdict stands,
+        # and T_sl (with the hump terms tied to it) stays not determined, with the run that fixes it
+        refused = _refusal(current, tested=True)
+        stopped = f"{stopped}; {refused}"
     if simulate_heldout and current.train_params is not None and held:
         _simulate_heldout(current, dataset)
     return StructureSearch(
@@ -321,12 +340,39 @@ def identify_structure(
         stopped=stopped,
         suspect=suspect,
         halves=halves,
+        refused=refused,
     )
 
 
-def _refusal(ident) -> str:
+def tested_model(ident):
+    """The model the structure tests run on: the identified rig, or the fitted model kept beside
+    a fit refused only for an extrapolated T_sl (tested at the slips its data cover, see
+    :func:`_covered_slips`); None when there is none."""
+    if ident.params is not None:
+        return ident.params
+    return getattr(ident, "provisional", None)
+
+
+def _covered_slips(ident):
+    """The equation-error windows the tests compare: every one for an identified rig; for a fit
+    refused for an extrapolated T_sl, the lower disk's only where it slips at least as fast as the
+    slowest slip of the fit's data (``fit.slowest_slip``) throughout the window. Below it the
+    lower friction is the fitted curve carried down to T_sl, not observed; above it T_sl enters
+    only as the level the fitted curve is measured from, which the data fix."""
+    from drill_env.recordings.equation_error import EquationErrorConfig
+
+    if ident.params is not None:
+        return None
+    w0 = float(ident.fit.slowest_slip)
+    if not (math.isfinite(w0) and w0 > 0.0):
+        return None
+    return EquationErrorConfig(min_speed_lower_rad_s=w0)
+
+
+def _refusal(ident, tested: bool = False) -> str:
     """Why the tests cannot run on a refused base fit, with the runs that would determine what
-    it lacks."""
+    it lacks; ``tested``: the tests ran on its fitted model all the same (T_sl extrapolated
+    alone), so the sentence says what is not determined and where the tests looked."""
     from drill_env.identify.report import SYMBOLS
 
     blocking = ident.blocking
@@ -341,6 +387,14 @@ def _refusal(ident) -> str:
         what = (
             "the fitted parameters make no valid rig (" + (ident.invalid or "outside the model's range") + ")"
         )
+    if tested:
+        return (
+            f"the fit was refused, no rig file: {what}; the tests ran on the fitted model at the slips its "
+            f"data cover (the lower disk from {ident.fit.slowest_slip:.3g} rad/s up), where T_sl does not "
+            "enter"
+        )
+    if getattr(ident, "provisional", None) is not None and not ident.heldout_runs:
+        what += "; no run could be held out to test the fitted model at the slips the data cover"
     return (
         f"the base fit was refused, so the discrepancy tests never ran and a hidden effect is not ruled "
         f"out: {what}"

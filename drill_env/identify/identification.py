@@ -142,6 +142,17 @@ class Identification:
     lag_profiles: dict[str, dict[float, float]] = field(default_factory=dict)  # lag -> profile
     measurement: Any = None  # MeasurementModel of a fitted encoder eccentricity (None: exact readings)
     invalid: str = ""  # why the fitted parameters make no valid rig (params None with nothing blocking)
+    # a fit refused for one reason only, T_sl carried below the slowest slip of the data (it and
+    # the hump terms tied to it not determined, every other parameter the model needs
+    # determined): the fitted model, kept beside the refusal (never written as the rig) so that
+    # the structure tests can run at the slips the data cover (from ``fit.slowest_slip`` up,
+    # where T_sl does not enter); None otherwise
+    provisional: RigParams | None = None
+
+    @property
+    def refused_for_extrapolated_static(self) -> bool:
+        """Whether the fit was refused only because T_sl is extrapolated (see :attr:`provisional`)."""
+        return self.params is None and self.provisional is not None
 
     @property
     def not_identifiable(self) -> list[ParameterResult]:
@@ -739,6 +750,21 @@ def identify(
             )
         except ParameterError as exc:
             params, invalid = None, str(exc)
+    provisional = None
+    if params is None and [p.name for p in blocking] == ["lower_static"] and static_extrapolated(fit):
+        # refused only for an extrapolated T_sl: the model as fitted, for the structure tests at
+        # the slips the data cover (not offered as the rig)
+        try:
+            provisional = _with_effects(
+                fitted_params(
+                    fit,
+                    name=f"{structure}-fitted-refused",
+                    description=desc + "; T_sl extrapolated below the slowest slip of the data: not a rig",
+                ),
+                found,
+            )
+        except ParameterError:
+            provisional = None
     if params is None:
         parameters = _refused(parameters, blocking, invalid, scale)
     train_params = None
@@ -773,6 +799,7 @@ def identify(
         lag_profiles=profiles,
         measurement=measurement,
         invalid=invalid,
+        provisional=provisional,
     )
     if simulate_heldout and held and train_params is not None:
         from drill_env.recordings.compare import compare_run

@@ -200,6 +200,14 @@ def _rounds_section(search: Any) -> list[str]:
             f"{', '.join(r.named) or '-'} | {', '.join(r.added) or '-'} | {_fmt(r.gap_before, 3)} | {after} | {ch} |"
         )
     lines += ["", f"Stopped: {search.stopped}.", ""]
+    if getattr(search, "refused", ""):
+        lines += [
+            "**The fit was refused, and the tests ran on its fitted model all the same** (at the slips "
+            "its data cover, where the extrapolated T_sl does not enter): the verdict above stands, and "
+            "T_sl and the hump terms tied to it are not determined; no rig file is written until the run "
+            "that determines them is recorded.",
+            "",
+        ]
     if getattr(search, "halves", False):
         lines += [
             "Fewer than four runs: each run was cut into two halves (`NAMEa`, `NAMEb`) so that the tests "

@@ -107,6 +107,9 @@ class EquationErrorConfig:
     speed_windows_s: tuple[float, ...] = (0.05, 0.1, 0.2, 0.4)  # Savitzky-Golay windows [s]
     speed_counts: float = 16.0  # the shortest window over which the disk moves this many counts is used
     min_speed_rad_s: float = 0.03  # a disk slower than this in a window drops the window [rad/s]
+    # the same for the lower disk alone, when above min_speed_rad_s (None: min_speed_rad_s): a
+    # model whose lower friction is fitted only from some slip up is tested at those slips only
+    min_speed_lower_rad_s: float | None = None
     noise_lag_s: float = 0.01  # lag of the third differences that estimate the angle noise [s]
     quantisation_harmonics: int = 256  # harmonics of the quantisation error treated as spectral lines
     rate_span_factors: tuple[int, ...] = (1, 3, 9, 27)  # spans tried for the count rate [x window support]
@@ -775,6 +778,8 @@ class RunEquations:
     def _windows(self, disk, centers, speed, reach) -> DiskWindows:
         p = self.params
         vmin = self.config.min_speed_rad_s
+        if disk == "lower" and self.config.min_speed_lower_rad_s is not None:
+            vmin = max(vmin, self.config.min_speed_lower_rad_s)
         fwd = minimum_filter1d(speed, 2 * reach + 1, mode="nearest")
         bwd = maximum_filter1d(speed, 2 * reach + 1, mode="nearest")
         sign = np.where(fwd[centers] >= vmin, 1.0, np.where(bwd[centers] <= -vmin, -1.0, 0.0))
