@@ -339,11 +339,6 @@ STUDY = [
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="known gap: an extrapolated T_sl now refuses brake-45's base fit, so its structure "
-    "tests do not run (not_tested, not unexplained); coverage 51/57 = 89.5 % < 90 %",
-)
 def test_study_on_lab_protocols():
     from drill_env.structure_search import identify_structure
 

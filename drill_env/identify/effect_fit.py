@@ -82,7 +82,10 @@ def effect_rows(eq: RunEquations, effects: Mapping[str, float | None]) -> RunRow
                 raise ValueError(f"effects: {name} needs a time constant > 0, got {tau!r}")
             if len(eq.lower):
                 w = _lagged(np.abs(eq.speed_l), eq.dt, tau)
-                rows = dataclasses.replace(rows, speed_l=np.abs(eq.gather(w, eq.lower.centers)))
+                # the lag averages the reading error over its time constant: no correction for it
+                rows = dataclasses.replace(
+                    rows, speed_l=np.abs(eq.gather(w, eq.lower.centers)), speed_var_l=None
+                )
         else:
             xu, xl = cand.columns(eq)
             x = -np.vstack([xu, xl])

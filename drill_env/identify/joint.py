@@ -74,6 +74,9 @@ class RunRows:
     x_eff: np.ndarray | None = None  # (windows, len(effect_names))
     effect_names: tuple[str, ...] = ()
     backward_upper: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # their row indices
+    # (lower windows, support) variance of the reading error of |x3| [rad^2/s^2] (None: taken as
+    # exact): how far it may bend the hump columns (see :meth:`hump_correction`)
+    speed_var_l: np.ndarray | None = None
 
     def hump(self, beta: float) -> np.ndarray:
         """H(beta) on every row (zero on the upper disk's) [N m per N m of T]."""
@@ -86,6 +89,26 @@ class RunRows:
         e = np.exp(-beta * self.speed_l)  # sech^2(b w / 2) = 4 e / (1 + e)^2, without overflow
         out = np.zeros(self.sigma.size)
         out[self.lower] = self.sign_l * ((2.0 * self.speed_l * e / (1.0 + e) ** 2) @ self.kernel)
+        return out
+
+    def hump_correction(self, beta: float) -> np.ndarray:
+        """What a white reading error of the speed adds to H(beta) on every row, to second order.
+
+        The speed is measured, ``w + e``, and tanh bends: the mean of ``tanh(beta (w + e) / 2)`` is
+        ``tanh(a) + (beta / 2)^2 v tanh''(a) / 2`` (a = beta w / 2, v the variance of e), a bias
+        common to every window at that speed that the kernel's average does not remove. Returns
+        ``-(beta^2 / 4) v tanh(a) sech^2(a)`` through the kernel (the measured column less the
+        true one). How large v really is lies between zero (an encoder's quantisation error
+        that barely changes over the derivative's window, slow motion) and the white model's (a
+        dithered encoder, or many counts per sample); the fit takes the columns as measured and
+        widens its intervals by the shift this bias would give (:func:`joint_fit`)."""
+        out = np.zeros(self.sigma.size)
+        if self.speed_var_l is None:
+            return out
+        t = np.tanh(0.5 * beta * self.speed_l)
+        out[self.lower] = -self.sign_l * (
+            (0.25 * beta * beta * self.speed_var_l * t * (1.0 - t * t)) @ self.kernel
+        )
         return out
 
 
@@ -107,6 +130,9 @@ def run_rows(eq: RunEquations) -> RunRows:
             x[:nu, j] = xu[:, cal[name]]
             x[nu:, j] = xl[:, cal[name]]
     speed = np.abs(eq.gather(eq.speed_l, eq.lower.centers)) if nl else np.zeros((0, eq.w_tri.size))
+    # the correction is second order in the relative error: held to a reading error of half the
+    # speed at most (a slow window on the longest derivative, where the expansion would not hold)
+    speed_var = np.minimum(speed_reading_variance(eq), 0.25 * speed**2) if nl else np.zeros_like(speed)
     return RunRows(
         name=eq.run.name,
         constant=bool(eq.run.is_constant_voltage),
@@ -118,7 +144,17 @@ def run_rows(eq: RunEquations) -> RunRows:
         kernel=eq.w_tri / h2,
         negative_upper=int(np.sum(eq.upper.sign < 0)),
         backward_upper=np.flatnonzero(eq.upper.sign < 0),
+        speed_var_l=speed_var,
     )
+
+
+def speed_reading_variance(eq: RunEquations) -> np.ndarray:
+    """(lower windows, support) variance of the lower disk's speed reading error [rad^2/s^2]: the
+    angle noise (quantisation and dither, :class:`~drill_env.recordings.equation_error.AngleNoise`)
+    through the Savitzky-Golay derivative each sample's speed is taken with."""
+    norms = np.array([float(c @ c) for c in eq.sg])
+    choice = eq.gather(eq.choice_l, eq.lower.centers)
+    return eq.noise.lower**2 * norms[choice]
 
 
 @dataclass
@@ -149,6 +185,8 @@ class JointFit:
     # the slowest lower-disk slip the fit sees [rad/s]: the OBSERVED_QUANTILE of the windows'
     # mean slip (a few windows alone do not fix the curve); below it the curve is extrapolated
     slowest_slip: float = math.nan
+    # the shift the speed's reading error may give (its bias on the hump columns, white model)
+    sd_speed_reading: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def residual_variance(self) -> float:
@@ -240,6 +278,9 @@ class _Problem:
 
     def hump_rate(self, beta: float) -> np.ndarray:
         return self._stacked([r.hump_rate(beta) for r in self.rows])
+
+    def hump_correction(self, beta: float) -> np.ndarray:
+        return self._stacked([r.hump_correction(beta) for r in self.rows])
 
     def _stacked(self, cols: list[np.ndarray]) -> np.ndarray:
         return np.concatenate([c[k_] for c, k_ in zip(cols, self.keep, strict=True)]) * self.inv_sigma
@@ -520,7 +561,16 @@ def joint_fit(
     sd_model = np.sqrt(np.maximum(np.diag(cov_model), 0.0))
     sd_jk = np.sqrt(var_jk)
     sd_sw = np.sqrt(np.maximum(var_sw, 0.0))
-    sd = np.maximum(np.maximum(sd_model, sd_jk), sd_sw)
+    # the speed's reading error bends the hump columns (RunRows.hump_correction) by an amount
+    # between none and the white model's, which the data cannot tell apart: the shift of every
+    # parameter that the white model's bias would give (one Gauss-Newton step) is added to the
+    # interval (at 250 Hz and 4096 counts the hump terms were 3-5 standard deviations off)
+    bias = np.zeros(p)
+    if chosen:
+        bend = sum(theta[k + t] * prob.hump_correction(theta[k + chosen + t]) for t in range(chosen))
+        bias = np.linalg.solve(jn + 1e-10 * np.eye(p), -(jac.T @ bend) / norms) / norms
+    sd_speed = np.abs(bias)
+    sd = np.sqrt(np.maximum(np.maximum(sd_model, sd_jk), sd_sw) ** 2 + sd_speed**2)
     corr = cov_model / np.outer(np.maximum(sd_model, 1e-300), np.maximum(sd_model, 1e-300))
     cov = corr * np.outer(sd, sd)
     # how much of each parameter's information comes from constant-voltage runs
@@ -548,6 +598,7 @@ def joint_fit(
         sd_jackknife=sd_jk,
         sd_sandwich=sd_sw,
         sd_information=np.sqrt(np.maximum(np.diag(cov_info), 0.0)),
+        sd_speed_reading=sd_speed,
         hump_terms=chosen,
         hump_tests=tests,
         ss=ss,
