@@ -31,6 +31,13 @@ def test_a_refused_base_fit_is_not_tested_never_none(tmp_path):
     assert "structure: not_tested (0 round(s)" in r.output, r.output
     assert "structure: none" not in r.output
     assert "a hidden effect is not ruled out" in r.output
+    # what was fitted beside the refused T_sl: one warning line names them all
+    beside = [line for line in r.output.splitlines() if "fitted beside a refused parameter" in line]
+    assert len(beside) == 1, r.output
+    for n in ("motor_constant", "upper_inertia", "lower_inertia", "upper_static_pos"):
+        assert n in beside[0] and f"warning: {n} is not identifiable" not in r.output
+    assert "the fit was refused (lower_static not determined)" in beside[0]
+    assert "stick boundary" in beside[0]
     record = json.loads((out / "identification.json").read_text())
     search = record["structure_search"]
     assert search["verdict"] == "not_tested" and search["tested"] is False and search["rounds"] == []
