@@ -72,3 +72,50 @@ def test_a_refused_fit_marks_no_parameter_identified():
         assert not p.identified, (n, p)
     for p in beside:
         assert "the fit was refused (lower_static not determined)" in p.note and p.needs == lacking
+
+
+# the same fast runs, five of them: two can be held out
+FAST_FIVE = SynthConfig(
+    voltages=(2.0, 2.5, 3.0, 3.5, 4.5), random_runs=0, duration_s=30.0, pre_roll_s=30.0, sample_rate_hz=250.0
+)
+
+
+def test_a_fit_refused_for_an_extrapolated_static_level_is_tested_where_its_data_reach(tmp_path):
+    """Refused only because T_sl is the curve carried below the slowest slip: the fitted model is
+    kept beside the refusal and the structure tests run on the held-out runs at the slips the
+    data cover. The verdict is theirs (never not_tested); T_sl stays not determined, with the
+    run that determines it, and no rig file is written."""
+    from drill_env.identify.identification import static_extrapolated
+    from drill_env.recordings.dataset import MeasuredDataset
+    from drill_env.structure_search import _covered_slips, identify_structure
+
+    syn = make_dataset("position_friction_lower", seed=3, config=FAST_FIVE, magnitude=0.15)
+    ds = MeasuredDataset(preset="brake", encoder_counts_per_rev=2000, runs=tuple(syn.runs))
+    s = identify_structure(ds, known={"string_stiffness": syn.truth.string_stiffness}, simulate_heldout=False)
+    ident = s.identification
+    assert ident.params is None and [p.name for p in ident.blocking] == ["lower_static"]
+    assert static_extrapolated(ident.fit) and ident.provisional is not None
+    assert s.tested and s.verdict != "not_tested" and s.rounds
+    assert "lower_static" in s.refused and "stick boundary" in s.refused and s.refused in s.stopped
+    assert _covered_slips(ident).min_speed_lower_rad_s == ident.fit.slowest_slip
+    if s.verdict == "unexplained":
+        assert s.suspect
+    for n in ("lower_static", "lower_hump_1", "lower_hump_rate_1"):
+        p = ident.parameters[n]
+        assert not p.identified and "stick boundary" in p.needs, (n, p)
+    record = s.as_dict()
+    assert record["tested"] is True and record["refused_fit"] == s.refused
+
+
+def test_a_fit_refused_for_anything_else_stays_not_tested():
+    """T_sl not determined by a wide interval (not extrapolated): no model is kept beside the
+    refusal, and the structure stays not_tested."""
+    from drill_env.recordings.dataset import MeasuredDataset
+    from drill_env.structure_search import identify_structure
+
+    syn = make_dataset("none", seed=3, config=FAST_FIVE)
+    ds = MeasuredDataset(preset="brake", encoder_counts_per_rev=2000, runs=tuple(syn.runs))
+    s = identify_structure(ds, known={"string_stiffness": syn.truth.string_stiffness}, simulate_heldout=False)
+    assert s.identification.params is None and s.identification.provisional is None
+    assert s.verdict == "not_tested" and not s.tested and not s.refused
+    assert "discrepancy tests never ran" in s.stopped

@@ -51,3 +51,20 @@ def test_windows_where_a_coarse_encoder_disk_reverses_are_dropped():
         if np.all(s * v[c - eq.L : c + eq.L + 1] > 1.0)
     }
     assert len(fast) >= 3 and fast <= set(w.centers.tolist()), (sorted(fast), w.centers)
+
+
+def test_a_lower_disk_minimum_speed_keeps_only_its_faster_windows():
+    """``min_speed_lower_rad_s``: the lower disk's windows are those where it slips at least that
+    fast throughout; the upper disk's are untouched (the structure tests of a fit whose lower
+    friction is seen only from some slip up compare there only)."""
+    from drill_env.recordings.equation_error import EquationErrorConfig
+
+    rig, run = _prbs(4096)
+    noise = estimate_angle_noise([run], 2.0 * math.pi / 4096)
+    every = RunEquations(run, rig, noise)
+    slow = float(np.quantile(np.abs(every.gather(every.speed_l, every.lower.centers)).min(axis=1), 0.5))
+    fast = RunEquations(run, rig, noise, EquationErrorConfig(min_speed_lower_rad_s=slow))
+    assert np.array_equal(fast.upper.centers, every.upper.centers)
+    assert 0 < len(fast.lower) < len(every.lower)
+    assert set(fast.lower.centers) <= set(every.lower.centers)
+    assert np.all(np.abs(fast.gather(fast.speed_l, fast.lower.centers)) >= slow)
