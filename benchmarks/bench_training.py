@@ -479,9 +479,11 @@ def write_summary(result: dict, out: Path) -> None:
         f"{result['jobs']} training(s) at a time on {result['cpu_count']} cores, one torch thread each.",
         "",
     ]
-    for b in result.get("baseline", []):
+    baselines = result.get("baseline", [])
+    for i, b in enumerate(baselines):
+        when = "" if len(baselines) == 1 else (" before the runs" if i == 0 else " after the runs")
         lines.append(
-            f"Baseline workload (`configs/agents/{b['config']}`, {b['steps']} env-steps of `learn`): "
+            f"Baseline workload (`configs/agents/{b['config']}`, {b['steps']} env-steps of `learn`){when}: "
             f"{b['wall_s']:.1f} s wall, {b['cpu_s']:.1f} s CPU."
         )
     clock = result.get("clock", "wall")
