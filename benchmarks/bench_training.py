@@ -386,6 +386,7 @@ def draw_curves(df, runs: list[dict], out: Path) -> list[Path]:
     """``learning_curves_<rig>.png`` in ``out`` from the rows of ``curves.csv`` (``df``; the
     runs of ``time_to_policy.json`` name the env each config trained on); returns the files."""
     import numpy as np
+    from matplotlib.ticker import NullFormatter
 
     from drill_env._figures import subplots
 
@@ -427,6 +428,8 @@ def draw_curves(df, runs: list[dict], out: Path) -> list[Path]:
             )
         for row in (0, 1):  # seconds to minutes: PPO's and SAC's runs differ 10x in length
             axes[row, 1].set_xscale("log")
+            # decades labelled only: the minor labels (2x10^1, 3x10^1, ...) overlap at this width
+            axes[row, 1].xaxis.set_minor_formatter(NullFormatter())
         axes[1, 1].axvline(TIME_TO_POLICY_TARGET_S, color="gray", ls=":", lw=1)
         axes[0, 1].axvline(TIME_TO_POLICY_TARGET_S, color="gray", ls=":", lw=1)
         axes[0, 0].set_ylabel("1 - suppression, worse cycle\nregime [-] (dashed: target 0.99)", fontsize=font)
@@ -479,9 +482,11 @@ def write_summary(result: dict, out: Path) -> None:
         f"{result['jobs']} training(s) at a time on {result['cpu_count']} cores, one torch thread each.",
         "",
     ]
-    for b in result.get("baseline", []):
+    baselines = result.get("baseline", [])
+    for i, b in enumerate(baselines):
+        when = "" if len(baselines) == 1 else (" before the runs" if i == 0 else " after the runs")
         lines.append(
-            f"Baseline workload (`configs/agents/{b['config']}`, {b['steps']} env-steps of `learn`): "
+            f"Baseline workload (`configs/agents/{b['config']}`, {b['steps']} env-steps of `learn`){when}: "
             f"{b['wall_s']:.1f} s wall, {b['cpu_s']:.1f} s CPU."
         )
     clock = result.get("clock", "wall")
