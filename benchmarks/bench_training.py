@@ -453,12 +453,18 @@ def _s(t: float | None) -> str:
 def summary_line(s: dict) -> str:
     """One line of text per recipe and rig."""
     missed = f"; missed: seeds {s['missed_seeds']}" if s["missed_seeds"] else ""
+    if s["median_time_to_target_s"] is None:
+        median = "no median (half or more of the seeds missed)"
+    else:
+        median = f"median {s['median_time_to_target_s']:.0f} s wall / {s['median_cpu_to_target_s']:.0f} s CPU"
+    if s["worst_time_to_target_s"] is None:
+        worst = "no worst time (a seed missed)"
+    else:
+        worst = f"worst {s['worst_time_to_target_s']:.0f} s wall / {s['worst_cpu_to_target_s']:.0f} s CPU"
     return (
         f"{s['algo']} {s['preset']}: {s['reached']} of {len(s['seeds'])} seeds reached the target "
-        f"({s['reached_within_target']} within {TIME_TO_POLICY_TARGET_S:.0f} s {s.get('clock', 'wall')}){missed}; median "
-        f"{_s(s['median_time_to_target_s'])} s wall / {_s(s['median_cpu_to_target_s'])} s CPU, worst "
-        f"{_s(s['worst_time_to_target_s'])} s wall / {_s(s['worst_cpu_to_target_s'])} s CPU; "
-        f"{'target met' if s['met'] else 'target MISSED'}"
+        f"({s['reached_within_target']} within {TIME_TO_POLICY_TARGET_S:.0f} s {s.get('clock', 'wall')}){missed}; "
+        f"{median}, {worst}; {'target met' if s['met'] else 'target MISSED'}"
     )
 
 

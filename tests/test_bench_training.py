@@ -241,3 +241,29 @@ def test_figures_only_draws_the_learning_curves_and_nothing_else(tmp_path):
     bad = bench_training("--figures-only", "--out", str(out), timeout=60)
     assert bad.returncode == 2 and "--figures-only: --out must name a folder holding curves.csv" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_the_summary_line_says_when_a_missed_seed_leaves_no_median_or_worst_time():
+    """A seed that missed counts as infinitely slow: the line names the missing median or worst
+    time instead of printing "missed s wall"; with every seed in, both are the seconds."""
+    bench = _bench_training_module()
+    summarise, summary_line = bench.summarise, bench.summary_line
+
+    def run(seed, t):
+        return {
+            "algo": "ppo",
+            "preset": "brake",
+            "seed": seed,
+            "config": "configs/agents/ppo.yaml",
+            "time_to_target_s": t,
+            "cpu_to_target_s": None if t is None else t / 2,
+            "steps_to_target": None if t is None else 1000,
+        }
+
+    one_missed = summary_line(summarise([run(1, 10.0), run(2, None), run(3, 30.0)])[0])
+    assert "median 30 s wall / 15 s CPU" in one_missed and "no worst time (a seed missed)" in one_missed
+    assert "missed s" not in one_missed and "seeds [2]" in one_missed
+    most_missed = summary_line(summarise([run(1, 10.0), run(2, None), run(3, None)])[0])
+    assert "no median (half or more of the seeds missed)" in most_missed
+    all_in = summary_line(summarise([run(1, 10.0), run(2, 20.0), run(3, 40.0)])[0])
+    assert "median 20 s wall / 10 s CPU, worst 40 s wall / 20 s CPU" in all_in
