@@ -150,11 +150,6 @@ class Identification:
     provisional: RigParams | None = None
 
     @property
-    def refused_for_extrapolated_static(self) -> bool:
-        """Whether the fit was refused only because T_sl is extrapolated (see :attr:`provisional`)."""
-        return self.params is None and self.provisional is not None
-
-    @property
     def not_identifiable(self) -> list[ParameterResult]:
         return [p for p in self.parameters.values() if not p.identified and p.name != self.scale[0]]
 
