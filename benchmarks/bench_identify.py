@@ -17,7 +17,8 @@ the target is missed.
 ``--study FIRST_SEED COUNT``: instead of the timing, the accuracy study on COUNT untuned rigs
 (seeds FIRST_SEED, FIRST_SEED + 1, ...; brake and no_brake in turn), each recorded on one of the
 seven lab protocols in turn at 250/500/1000 Hz and 1024/2048/4096 counts, half of them with one
-library effect hidden (motor lag 20 ms, string damping 0.005, friction lag 0.1 s, in turn):
+library effect hidden (motor lag 20 ms, string damping 0.005, friction lag 0.1 s, two harmonics of
+position friction at the lower and at the upper disk, in turn):
 per rig the verdict of the structure search (right: ``none``/``recalibrated`` without an effect,
 the effect's name with one; ``not_tested`` when the base fit is refused, counted apart), the largest error of the excited parameters it marks identified,
 and which truths fall outside their 95 % intervals; then the share of truths inside them over
@@ -37,7 +38,7 @@ import time  # noqa: E402
 
 TARGET_S = 180.0
 FIELDS = {"motor_inductance": {"motor_lag": 0.025}, "string_damping": {"string_damping": 0.004}, "none": {}}
-# --study: the effect hidden in rig i (i % 6), sample rate (i % 3) and encoder (i // 3 % 3)
+# --study: the effect hidden in rig i (i % 10), sample rate (i % 3) and encoder (i // 3 % 3)
 STUDY_EFFECTS = (
     ("none", {}),
     ("motor_inductance", {"motor_lag": 0.02}),
@@ -45,7 +46,19 @@ STUDY_EFFECTS = (
     ("string_damping", {"string_damping": 0.005}),
     ("none", {}),
     ("friction_memory", {"friction_lag": 0.1}),
-)
+    ("none", {}),
+    (
+        "position_friction_lower",
+        {"lower_position_amp_1": 0.1, "lower_position_phase_1": 2.0, "lower_position_amp_2": 0.04,
+         "lower_position_phase_2": 4.5},
+    ),
+    ("none", {}),
+    (
+        "position_friction_upper",
+        {"upper_position_amp_1": 0.1, "upper_position_phase_1": 5.0, "upper_position_amp_2": 0.04,
+         "upper_position_phase_2": 1.0},
+    ),
+)  # fmt: skip
 STUDY_RATES = (250.0, 500.0, 1000.0)
 STUDY_COUNTS = (1024, 2048, 4096)
 

@@ -314,13 +314,15 @@ def identify_structure(
     else:
         stopped = f"the bound of {max_rounds} rounds"
     # the residual is unexplained when the tests say so, or when what they named is not in the
-    # final model (a re-fit with it that failed or was not physical)
+    # final model (a re-fit with it that failed or was not physical); an effect named again that
+    # the model already has is explained (the tests run on the base model, see _base_model)
     left = rounds and (
         rounds[-1].verdict == "unexplained"
         or (
             rounds[-1].verdict not in ("none", "recalibrated")
             and not rounds[-1].added
             and not rounds[-1].refused
+            and any(n not in effects for n in rounds[-1].named)
         )
     )
     suspect = _suspect(current) if left else []

@@ -30,7 +30,7 @@ import numpy as np
 from scipy import stats
 
 from drill_env.identify.joint import LINEAR, JointFit, RunRows, run_rows
-from drill_env.recordings.effects import CANDIDATES, Candidate
+from drill_env.recordings.effects import CANDIDATES, Candidate, reading_centre
 from drill_env.recordings.equation_error import RunEquations
 
 __all__ = ["EffectResult", "effect_rows", "effect_results", "candidate", "lag_profile", "LAG_EFFECTS"]
@@ -60,9 +60,19 @@ def _lagged(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return y
 
 
-def effect_rows(eq: RunEquations, effects: Mapping[str, float | None]) -> RunRows:
+def effect_rows(
+    eq: RunEquations, effects: Mapping[str, float | None], at: Mapping[str, float] | None = None
+) -> RunRows:
     """The joint fit's rows of one run with ``effects`` (name -> time constant [s] of a lag
-    effect, None for the others) fitted beside the base parameters."""
+    effect, None for the others) fitted beside the base parameters.
+
+    ``at``: the effects' coefficients of the fit before (``name:i`` -> value). A position
+    modulation of the lower friction then enters as a Gauss-Newton step of the product it is,
+    ``s(theta) (T_sl + S(w))``, rather than as columns beside an unscaled friction curve: the base
+    friction columns carry ``s`` at ``at``, the modulation's columns stay at the fitted curve, and
+    the offset ``-X c_at`` makes the coefficients fitted the modulation's own. Its fixed point is
+    the least-squares point of the product; the linear one's is not (with the friction curve's
+    slow Stribeck term, which the modulation scales too: a hump term too many and T_sl 22 % off)."""
     rows = run_rows(eq)
     cols: list[np.ndarray] = []
     names: list[str] = []
@@ -90,10 +100,25 @@ def effect_rows(eq: RunEquations, effects: Mapping[str, float | None]) -> RunRow
             xu, xl = cand.columns(eq)
             x = -np.vstack([xu, xl])
             cols.append(x)
-            names += [f"{name}:{i}" for i in range(x.shape[1])]
+            keys = [f"{name}:{i}" for i in range(x.shape[1])]
+            names += keys
+            if name == "position_friction_lower" and at is not None and len(eq.lower):
+                if all(k in at for k in keys):
+                    rows = _scaled_lower(rows, eq, np.array([float(at[k]) for k in keys]), x)
     if cols:
         rows = dataclasses.replace(rows, x_eff=np.column_stack(cols), effect_names=tuple(names))
     return rows
+
+
+def _scaled_lower(rows: RunRows, eq: RunEquations, c0: np.ndarray, x: np.ndarray) -> RunRows:
+    """``rows`` with the lower static + Stribeck columns scaled by the position modulation of
+    coefficients ``c0`` (its columns ``x``), and the offset ``-x c0`` (see :func:`effect_rows`)."""
+    th = eq.gather(reading_centre(eq, "lower"), eq.lower.centers)
+    s0 = 1.0 + c0[0] * np.cos(th) - c0[1] * np.sin(th) + c0[2] * np.cos(2 * th) - c0[3] * np.sin(2 * th)
+    x_lin = rows.x_lin.copy()
+    x_lin[len(eq.upper) :, LINEAR.index("lower_static")] = rows.sign_l * (s0 @ rows.kernel)
+    offset = (rows.offset if rows.offset is not None else 0.0) - x @ c0
+    return dataclasses.replace(rows, x_lin=x_lin, scale_l=s0, offset=offset)
 
 
 @dataclass(frozen=True)

@@ -86,7 +86,7 @@ MAX_RELATIVE_HALF_WIDTH = 1.0  # a 95 % half-width above |value| x this: not ide
 # a value the data leave this loose is reported as not determined, never as a plain number
 NOT_DETERMINED_HALF_WIDTH = 0.25
 FLAT_HALF_WIDTH = 0.25  # a direction of the fit looser than this (relative units) is flat
-EFFECT_ITERATIONS = 3  # re-evaluations of the effects' columns at the fitted base parameters
+EFFECT_ITERATIONS = 5  # re-evaluations of the effects' columns at the fitted base parameters
 
 
 @dataclass(frozen=True)
@@ -658,8 +658,8 @@ def identify(
     lag_ci: dict[str, tuple[float, float]] = {}
     profiles: dict[str, dict[float, float]] = {}
 
-    def rows_of(eq: RunEquations):
-        return effect_rows(eq, effects) if effects else run_rows(eq)
+    def rows_of(eq: RunEquations, at: Mapping[str, float] | None = None):
+        return effect_rows(eq, effects, at) if effects else run_rows(eq)
 
     def fit_pass(pass_: int, previous: JointFit | None) -> JointFit:
         t1 = time.perf_counter()
@@ -680,15 +680,21 @@ def identify(
             )
         fit = joint_fit([rows[r.name] for r in dataset.runs], scale)
         at_eqs = dict(eqs)  # the equations with the effects' columns at the latest fit
+        built_at: dict[str, float] = {}  # the fit whose effect coefficients the rows were built at
+
         for _ in range(EFFECT_ITERATIONS if (previous is not None and effects) else 0):
             # an effect that scales a friction level (position, drift, heating) has columns that
-            # depend on the base parameters: re-evaluate them at this fit's until it settles
+            # depend on the base parameters, and a position modulation's rows the coefficients of
+            # the fit before (a Gauss-Newton step, see effect_rows): re-evaluate them at this
+            # fit's until it settles
+            built_at.clear()
+            built_at.update(fit.values)
             at = _weights_params(fit, weights_at)
             for r in dataset.runs:
                 moved = copy.copy(eqs[r.name])
                 moved.params = at
                 at_eqs[r.name] = moved
-                rows[r.name] = rows_of(moved)
+                rows[r.name] = rows_of(moved, built_at)
             again = joint_fit([rows[r.name] for r in dataset.runs], scale)
             change = max(
                 abs(again.values[n] - fit.values[n]) / max(abs(fit.values[n]), 1e-12)
@@ -707,7 +713,10 @@ def identify(
             def fit_at(tau: float, name: str = name, terms: int = fit.hump_terms, warm=warm) -> JointFit:
                 effects[name] = tau
                 return joint_fit(
-                    [rows_of(at_eqs[r.name]) for r in dataset.runs], scale, hump_terms=terms, warm_rates=warm
+                    [rows_of(at_eqs[r.name], built_at or None) for r in dataset.runs],
+                    scale,
+                    hump_terms=terms,
+                    warm_rates=warm,
                 )
 
             first = effects[name]
@@ -715,7 +724,7 @@ def identify(
             tau, _, lag_ci[name], profiles[name] = lag_profile(fit_at, first, cand_bounds)
             effects[name] = tau
             for r in dataset.runs:
-                rows[r.name] = rows_of(at_eqs[r.name])
+                rows[r.name] = rows_of(at_eqs[r.name], built_at or None)
             fit = joint_fit([rows[r.name] for r in dataset.runs], scale)
         timings[f"pass_{pass_}"] = time.perf_counter() - t1
         return fit

@@ -77,18 +77,27 @@ class RunRows:
     # (lower windows, support) variance of the reading error of |x3| [rad^2/s^2] (None: taken as
     # exact): how far it may bend the hump columns (see :meth:`hump_correction`)
     speed_var_l: np.ndarray | None = None
+    # (lower windows, support) a known factor on the lower static + Stribeck friction per sample
+    # (a position modulation at its current estimate, :func:`drill_env.identify.effect_fit.effect_rows`;
+    # None: 1): the hump columns carry it, as the static level's column does
+    scale_l: np.ndarray | None = None
+    # (windows,) a known part of the residual (None: none): the Gauss-Newton step's offset
+    offset: np.ndarray | None = None
+
+    def _scaled(self, per_sample: np.ndarray) -> np.ndarray:
+        return per_sample if self.scale_l is None else per_sample * self.scale_l
 
     def hump(self, beta: float) -> np.ndarray:
         """H(beta) on every row (zero on the upper disk's) [N m per N m of T]."""
         out = np.zeros(self.sigma.size)
-        out[self.lower] = self.sign_l * (np.tanh(0.5 * beta * self.speed_l) @ self.kernel)
+        out[self.lower] = self.sign_l * (self._scaled(np.tanh(0.5 * beta * self.speed_l)) @ self.kernel)
         return out
 
     def hump_rate(self, beta: float) -> np.ndarray:
         """dH/dbeta on every row [N m per (N m s/rad)]."""
         e = np.exp(-beta * self.speed_l)  # sech^2(b w / 2) = 4 e / (1 + e)^2, without overflow
         out = np.zeros(self.sigma.size)
-        out[self.lower] = self.sign_l * ((2.0 * self.speed_l * e / (1.0 + e) ** 2) @ self.kernel)
+        out[self.lower] = self.sign_l * (self._scaled(2.0 * self.speed_l * e / (1.0 + e) ** 2) @ self.kernel)
         return out
 
     def hump_correction(self, beta: float) -> np.ndarray:
@@ -107,7 +116,7 @@ class RunRows:
             return out
         t = np.tanh(0.5 * beta * self.speed_l)
         out[self.lower] = -self.sign_l * (
-            (0.25 * beta * beta * self.speed_var_l * t * (1.0 - t * t)) @ self.kernel
+            self._scaled(0.25 * beta * beta * self.speed_var_l * t * (1.0 - t * t)) @ self.kernel
         )
         return out
 
@@ -247,6 +256,13 @@ class _Problem:
             x_eff = np.vstack([(r.x_eff / r.sigma[:, None])[k_] for r, k_ in zip(rows, keep, strict=True)])
             self.a = np.column_stack([self.a, x_eff])
         self.y = -x[:, LINEAR.index(scale[0])] * scale[1]
+        if any(r.offset is not None for r in rows):
+            self.y = self.y - np.concatenate(
+                [
+                    ((r.offset if r.offset is not None else np.zeros(r.sigma.size)) / r.sigma)[k_]
+                    for r, k_ in zip(rows, keep, strict=True)
+                ]
+            )
         self.inv_sigma = np.concatenate([1.0 / r.sigma[k_] for r, k_ in zip(rows, keep, strict=True)])
         self.run_of_row = np.concatenate([np.full(int(k_.sum()), i) for i, k_ in enumerate(keep)])
         self._h: dict[float, np.ndarray] = {}
@@ -675,6 +691,8 @@ def residual_ss(rows: list[RunRows], fit: JointFit) -> tuple[float, int]:
     ss, n = 0.0, 0
     for r in rows:
         res = r.x_lin @ p
+        if r.offset is not None:
+            res = res + r.offset
         if r.x_eff is not None and r.effect_names:
             res = res + r.x_eff @ np.array([fit.values.get(n_, 0.0) for n_ in r.effect_names])
         for amp, rate in zip(HUMP_AMPLITUDES, HUMP_RATES, strict=True):

@@ -37,6 +37,7 @@ __all__ = [
     "thermal_trajectory",
     "THERMAL_TIMES_S",
     "eccentricity_columns",
+    "reading_centre",
     "EFFECT_FIELDS",
     "model_effect_names",
     "model_effect_torques",
@@ -84,6 +85,15 @@ def _lower_level(eq: RunEquations) -> np.ndarray:
     return -np.sign(eq.speed_l) * (p.lower_static + stribeck(p, np.abs(eq.speed_l)))
 
 
+def reading_centre(eq: RunEquations, disk: str) -> np.ndarray:
+    """The disk's angle at the middle of the count each reading is in [rad]: the encoder floors
+    the angle to whole counts, so a reading lies half a count below the disk's angle on average
+    (a phase of an effect locked to the angle, fitted against the readings themselves, came out
+    half a count off, outside its interval at 1024 counts)."""
+    theta = eq.theta_l if disk == "lower" else eq.theta_u
+    return theta + 0.5 * eq.noise.step
+
+
 def _harmonics(eq: RunEquations, level: np.ndarray, theta: np.ndarray, disk: str) -> np.ndarray:
     cols = [
         level * np.cos(theta),
@@ -95,14 +105,14 @@ def _harmonics(eq: RunEquations, level: np.ndarray, theta: np.ndarray, disk: str
 
 
 def _cols_position_lower(eq: RunEquations):
-    xl = _harmonics(eq, _lower_level(eq), eq.theta_l, "lower")
+    xl = _harmonics(eq, _lower_level(eq), reading_centre(eq, "lower"), "lower")
     return _zeros(len(eq.upper), 4), xl
 
 
 def _cols_position_upper(eq: RunEquations):
     p = eq.params
     level = np.where(eq.speed_u >= 0.0, -p.upper_static_pos, p.upper_static_neg)
-    xu = _harmonics(eq, level, eq.theta_u, "upper")
+    xu = _harmonics(eq, level, reading_centre(eq, "upper"), "upper")
     return xu, _zeros(len(eq.lower), 4)
 
 
@@ -376,7 +386,7 @@ def eccentricity_columns(eq: RunEquations, encoder: str) -> tuple[np.ndarray, np
     ("upper" or "lower"): on the disk whose encoder errs, its inertia, string, viscous and
     Stribeck terms of the error; on the other disk, the string's (the twist)."""
     p = eq.params
-    theta = eq.theta_l if encoder == "lower" else eq.theta_u
+    theta = reading_centre(eq, encoder)
     speed = eq.speed_l if encoder == "lower" else eq.speed_u
     basis = [np.cos(theta), np.sin(theta)]
     rates = [-np.sin(theta) * speed, np.cos(theta) * speed]  # d/dt of the basis
