@@ -231,6 +231,9 @@ def identify_structure(
             simulate_heldout=False,
             progress=progress,
             effects=effects,
+            # a re-fit with an effect that leaves T_sl alone loose is still tested where the data
+            # reach (the effect's own parameters determined beside it)
+            keep_fitted=bool(effects),
         )
 
     base = run({})
@@ -285,6 +288,10 @@ def identify_structure(
                 + ("" if named else ": nothing more named")
             )
             break
+        # the strongest new effect alone: a second one named beside it against the base model
+        # may only soak up what the first leaves there (an eccentric encoder beside two harmonics
+        # of position friction), and the next round's tests name it again if the data need it
+        new = new[:1]
         trial = dict(effects)
         for n in new:
             est = rnd.first_estimates.get(n, {})
@@ -297,10 +304,12 @@ def identify_structure(
             stopped = f"round {number}: re-identification with {', '.join(new)} failed ({exc})"
             break
         if tested_model(nxt) is None:
-            stopped = (
-                f"round {number}: with {', '.join(new)} the fitted values are not physical; kept the model "
-                "without them"
+            why = (
+                "the fit is refused (" + ", ".join(f"{p.name} not determined" for p in nxt.blocking) + ")"
+                if nxt.blocking
+                else "the fitted values are not physical"
             )
+            stopped = f"round {number}: with {', '.join(new)} {why}; kept the model without it"
             break
         rnd.added = new
         rnd.gap_after = heldout_gap(nxt)

@@ -608,6 +608,7 @@ def identify(
     simulate_heldout: bool = True,
     progress: Callable[[str, int, int], None] | None = None,
     effects: Mapping[str, float | None] | None = None,
+    keep_fitted: bool = False,
 ) -> Identification:
     """Identify every parameter of the rig model from ``dataset`` (see the module docstring).
 
@@ -622,6 +623,9 @@ def identify(
         effects: library effects (:mod:`drill_env.recordings.effects` names) fitted jointly with
             every base parameter (:mod:`.effect_fit`): name -> the first estimate of a lag
             effect's time constant [s] (profiled about it), None for the others.
+        keep_fitted: keep the fitted model beside a fit refused for T_sl alone even when T_sl is
+            not extrapolated but loose (:attr:`Identification.provisional`): the structure
+            search's re-fit with an effect, whose tests run at the slips the data cover.
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -755,15 +759,19 @@ def identify(
         except ParameterError as exc:
             params, invalid = None, str(exc)
     provisional = None
-    if params is None and [p.name for p in blocking] == ["lower_static"] and static_extrapolated(fit):
-        # refused only for an extrapolated T_sl: the model as fitted, for the structure tests at
-        # the slips the data cover (not offered as the rig)
+    if (
+        params is None
+        and [p.name for p in blocking] == ["lower_static"]
+        and (static_extrapolated(fit) or keep_fitted)
+    ):
+        # refused only for an extrapolated (or, asked for, a loose) T_sl: the model as fitted,
+        # for the structure tests at the slips the data cover (not offered as the rig)
         try:
             provisional = _with_effects(
                 fitted_params(
                     fit,
                     name=f"{structure}-fitted-refused",
-                    description=desc + "; T_sl extrapolated below the slowest slip of the data: not a rig",
+                    description=desc + "; T_sl not determined by the data: not a rig",
                 ),
                 found,
             )
