@@ -231,9 +231,9 @@ def identify_structure(
             simulate_heldout=False,
             progress=progress,
             effects=effects,
-            # a re-fit with an effect that leaves T_sl alone loose is still tested where the data
-            # reach (the effect's own parameters determined beside it)
-            keep_fitted=bool(effects),
+            # a fit refused for a loose T_sl alone is still tested where the data reach (a hidden
+            # effect can be what leaves it loose: position friction in closed-loop PI runs)
+            keep_fitted=True,
         )
 
     base = run({})
@@ -357,7 +357,7 @@ def identify_structure(
 
 def tested_model(ident):
     """The model the structure tests run on: the identified rig, or the fitted model kept beside
-    a fit refused only for an extrapolated T_sl (tested at the slips its data cover, see
+    a fit refused only for T_sl, extrapolated or loose (tested at the slips its data cover, see
     :func:`_covered_slips`); None when there is none."""
     if ident.params is not None:
         return ident.params

@@ -86,3 +86,10 @@ def test_significance_decisions_match_the_step_up_rule(seed):
     bic = np.array([k_of[n] for n in names]) * np.log(n_h)
     expected = passed & (gains > bic) & adm
     assert [s.significant for s in scores] == list(expected)
+
+
+def test_a_candidate_whose_gain_is_not_a_number_is_never_rejected():
+    """A singular candidate fit gives a NaN gain and p-value: no evidence (p = 1), where scipy's
+    step-up rule would raise and stop the whole discrepancy test."""
+    p = np.array([1e-9, np.nan, 0.5, 1e-6])
+    np.testing.assert_array_equal(benjamini_hochberg(p, 0.01), [True, False, False, True])

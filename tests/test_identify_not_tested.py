@@ -107,15 +107,19 @@ def test_a_fit_refused_for_an_extrapolated_static_level_is_tested_where_its_data
     assert record["tested"] is True and record["refused_fit"] == s.refused
 
 
-def test_a_fit_refused_for_anything_else_stays_not_tested():
-    """T_sl not determined by a wide interval (not extrapolated): no model is kept beside the
-    refusal, and the structure stays not_tested."""
+def test_a_fit_refused_for_a_loose_static_level_is_tested_where_its_data_reach():
+    """T_sl not determined by a wide interval (not extrapolated): the fitted model is kept beside
+    the refusal for the tests at the slips the data cover, which find nothing (no effect hidden);
+    the fit stays refused, no rig, and T_sl is not marked identified. (A hidden effect can be what
+    leaves T_sl loose: two harmonics of position friction in closed-loop PI runs were not tested
+    at all, and are found and fitted so.)"""
     from drill_env.recordings.dataset import MeasuredDataset
     from drill_env.structure_search import identify_structure
 
     syn = make_dataset("none", seed=3, config=FAST_FIVE)
     ds = MeasuredDataset(preset="brake", encoder_counts_per_rev=2000, runs=tuple(syn.runs))
     s = identify_structure(ds, known={"string_stiffness": syn.truth.string_stiffness}, simulate_heldout=False)
-    assert s.identification.params is None and s.identification.provisional is None
-    assert s.verdict == "not_tested" and not s.tested and not s.refused
-    assert "discrepancy tests never ran" in s.stopped
+    assert s.identification.params is None and s.identification.provisional is not None
+    assert s.tested and s.verdict == "none", s.as_dict()
+    assert s.refused and "slips its data cover" in s.refused
+    assert not s.identification.parameters["lower_static"].identified

@@ -308,8 +308,10 @@ def _score(c: Candidate, train, held, rule: DecisionRule, cal: CalibrationSetup,
 def benjamini_hochberg(p_values, alpha: float) -> np.ndarray:
     """Which of ``p_values`` the Benjamini-Hochberg step-up rule rejects at false-discovery
     level ``alpha``: those whose BH-adjusted p-value (:func:`scipy.stats.false_discovery_control`)
-    is at most ``alpha``."""
+    is at most ``alpha``. A p-value that is not a number (a candidate whose fit came out
+    singular: its gain NaN) is no evidence, p = 1; it is never rejected."""
     p = np.asarray(p_values, dtype=float)
+    p = np.where(np.isfinite(p), np.clip(p, 0.0, 1.0), 1.0)
     if p.size == 0:
         return np.zeros(0, dtype=bool)
     return stats.false_discovery_control(p, method="bh") <= alpha

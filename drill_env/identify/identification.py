@@ -142,9 +142,9 @@ class Identification:
     lag_profiles: dict[str, dict[float, float]] = field(default_factory=dict)  # lag -> profile
     measurement: Any = None  # MeasurementModel of a fitted encoder eccentricity (None: exact readings)
     invalid: str = ""  # why the fitted parameters make no valid rig (params None with nothing blocking)
-    # a fit refused for one reason only, T_sl carried below the slowest slip of the data (it and
-    # the hump terms tied to it not determined, every other parameter the model needs
-    # determined): the fitted model, kept beside the refusal (never written as the rig) so that
+    # a fit refused for one reason only, T_sl carried below the slowest slip of the data or (with
+    # keep_fitted) loose (it and the hump terms tied to it not determined, every other parameter
+    # the model needs determined): the fitted model, kept beside the refusal (never written as the rig) so that
     # the structure tests can run at the slips the data cover (from ``fit.slowest_slip`` up,
     # where T_sl does not enter); None otherwise
     provisional: RigParams | None = None
@@ -540,11 +540,11 @@ def _results(
         # but is named in the report, not taken for a lack of excitation)
         limit = MAX_RELATIVE_HALF_WIDTH if name in ESSENTIAL else NOT_DETERMINED_HALF_WIDTH
         identified = 1.96 * fit.sd_excited(name) <= limit * abs(v)
+        note = needs = ""
         if name not in ESSENTIAL:
             # a term the model can run without: an interval wider than the limit (whatever widened
             # it: the runs' spread, correlated windows) leaves it not determined
             identified = identified and 1.96 * sd <= limit * abs(v)
-        note = needs = ""
         alt = fit.alternatives.get(name)
         if alt is not None:
             # another friction curve fits the data as well: the interval spans its value too, and a
