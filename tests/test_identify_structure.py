@@ -375,7 +375,7 @@ def test_the_refusals_advice_identifies_the_rig():
 
 
 # the study: rigs x0.35-x3 of the paper's, on protocols other than the plan, with one library
-# effect hidden, none, or one outside the library (seeds 40-45: not used in development)
+# effect hidden, none, or one outside the library (seeds 40-47: not used in development)
 STUDY = [
     ("brake", 40, "mixed", {"motor_lag": 0.02}, "motor_inductance", 1000.0, 1024),
     ("no_brake", 41, "staircase", {"string_damping": 0.005}, "string_damping", 250.0, 4096),
@@ -391,7 +391,20 @@ STUDY = [
         500.0,
         2000,
     ),
-]
+    # two harmonics of position friction (seeds 46-47: run once, after the product fit was made)
+    (
+        "brake", 46, "staircase",
+        {"lower_position_amp_1": 0.1, "lower_position_phase_1": 0.7, "lower_position_amp_2": 0.04,
+         "lower_position_phase_2": 3.9},
+        "position_friction_lower", 250.0, 1024,
+    ),
+    (
+        "no_brake", 47, "prbs",
+        {"upper_position_amp_1": 0.1, "upper_position_phase_1": 4.1, "upper_position_amp_2": 0.04,
+         "upper_position_phase_2": 2.2},
+        "position_friction_upper", 1000.0, 2048,
+    ),
+]  # fmt: skip
 
 
 @pytest.mark.slow
