@@ -69,6 +69,23 @@ def test_position_friction_fitted_jointly_with_every_base_parameter():
     assert joint.fit.residual_variance < base.fit.residual_variance / 10
 
 
+def _search_on_protocol(structure, seed, protocol, hidden, rate, counts):
+    """A rig x0.35-x3 of the paper's (``seed``) with the ``hidden`` fields, recorded on a lab
+    protocol, and the structure search on it (the string stiffness given)."""
+    from drill_env.structure_search import identify_structure
+
+    rig = draw_rig(structure, seed, low=0.35, high=3.0)
+    res = record_protocol(
+        rig.replace(**hidden), protocol, seed=seed, sample_rate_hz=rate, encoder_counts_per_rev=counts,
+        preset=structure,
+    )  # fmt: skip
+    s = identify_structure(
+        _dataset(res.runs, structure, counts), known={"string_stiffness": rig.string_stiffness},
+        simulate_heldout=False,
+    )  # fmt: skip
+    return rig, s
+
+
 POSITION_CASES = [
     # the lower disk's, on a rig whose friction curve has the paper's slow Stribeck term (rate
     # 0.14 s/rad), which the modulation scales too, recorded on a staircase at 1024 counts
@@ -96,17 +113,8 @@ def test_two_harmonics_of_position_friction_are_found_and_fitted(
     count, the search names the effect, every excited parameter it marks identified is within
     3 %, the effect's amplitudes within 3 %, the residual is at the noise floor, and nothing is
     called suspect (the effect named again by the tests on the base model is explained)."""
-    from drill_env.structure_search import identify_structure
 
-    rig = draw_rig(structure, seed, low=0.35, high=3.0)
-    res = record_protocol(
-        rig.replace(**hidden), protocol, seed=seed, sample_rate_hz=rate, encoder_counts_per_rev=counts,
-        preset=structure,
-    )  # fmt: skip
-    s = identify_structure(
-        _dataset(res.runs, structure, counts), known={"string_stiffness": rig.string_stiffness},
-        simulate_heldout=False,
-    )  # fmt: skip
+    rig, s = _search_on_protocol(structure, seed, protocol, hidden, rate, counts)
     assert s.effects == [effect], s.as_dict()
     assert s.suspect == [], s.as_dict()
     ident = s.identification
@@ -409,20 +417,11 @@ STUDY = [
 
 @pytest.mark.slow
 def test_study_on_lab_protocols():
-    from drill_env.structure_search import identify_structure
 
     inside = total = 0
     missed = []
     for structure, seed, protocol, fields_, effect, rate, counts in STUDY:
-        rig = draw_rig(structure, seed, low=0.35, high=3.0)
-        res = record_protocol(
-            rig.replace(**fields_), protocol, seed=seed, sample_rate_hz=rate, encoder_counts_per_rev=counts,
-            preset=structure,
-        )  # fmt: skip
-        s = identify_structure(
-            _dataset(res.runs, structure, counts), known={"string_stiffness": rig.string_stiffness},
-            simulate_heldout=False,
-        )  # fmt: skip
+        rig, s = _search_on_protocol(structure, seed, protocol, fields_, rate, counts)
         ident = s.identification
         case = f"{structure}-{seed}-{protocol}"
         errors = {
