@@ -135,13 +135,13 @@ def identify(
         )
     if res.scale_assumed:
         typer.secho(f"warning: {res.scale_sentence()}", fg=typer.colors.YELLOW, err=True)
-    from drill_env.identify.identification import REFUSED_METHOD
+    from drill_env.identify.identification import REFUSED_METHOD, refusal_reason
 
     beside = [p for p in res.not_identifiable if p.method == REFUSED_METHOD]
     if beside:
         # a refused fit: what was fitted beside the refused parameters shares one reason and one
         # run that fixes it, so one line names them all
-        reason = beside[0].note.split(": a value fitted beside")[0]
+        reason = refusal_reason(res.blocking, res.invalid)
         needs = "; ".join(dict.fromkeys(p.needs for p in beside if p.needs))
         typer.secho(
             f"warning: not identified, fitted beside a refused parameter ({reason}): "

@@ -836,6 +836,13 @@ def identify(
 REFUSED_METHOD = "fitted beside a refused parameter"
 
 
+def refusal_reason(blocking: list[ParameterResult], invalid: str) -> str:
+    """Why a fit was refused, in the words every parameter fitted beside the refusal carries."""
+    if blocking:
+        return "the fit was refused (" + ", ".join(f"{p.name} not determined" for p in blocking) + ")"
+    return f"the fit was refused (the fitted parameters make no valid rig: {invalid or 'outside the range'})"
+
+
 def _refused(
     parameters: dict[str, ParameterResult],
     blocking: list[ParameterResult],
@@ -849,13 +856,10 @@ def _refused(
     so, since they hold the refused parameter at its fitted value. Each keeps its value and
     interval, for a look, with the refusal as its note and the runs that determine the refused
     parameters as what would identify it."""
+    why = refusal_reason(blocking, invalid)
     if blocking:
-        why = "the fit was refused (" + ", ".join(f"{p.name} not determined" for p in blocking) + ")"
         needs = "; ".join(dict.fromkeys(p.needs for p in blocking if p.needs))
     else:
-        why = (
-            f"the fit was refused (the fitted parameters make no valid rig: {invalid or 'outside the range'})"
-        )
         needs = "runs that excite the rig more widely (drill-env identify --plan)"
     out = dict(parameters)
     for name, p in parameters.items():
