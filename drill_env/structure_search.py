@@ -304,12 +304,12 @@ def identify_structure(
             stopped = f"round {number}: re-identification with {', '.join(new)} failed ({exc})"
             break
         if tested_model(nxt) is None:
-            why = (
-                "the fit is refused (" + ", ".join(f"{p.name} not determined" for p in nxt.blocking) + ")"
-                if nxt.blocking
-                else "the fitted values are not physical"
+            from drill_env.identify.identification import refusal_reason
+
+            stopped = (
+                f"round {number}: with {', '.join(new)} {refusal_reason(nxt.blocking, nxt.invalid)}; kept "
+                "the model without it"
             )
-            stopped = f"round {number}: with {', '.join(new)} {why}; kept the model without it"
             break
         rnd.added = new
         rnd.gap_after = heldout_gap(nxt)

@@ -30,7 +30,7 @@ import numpy as np
 from scipy import stats
 
 from drill_env.identify.joint import LINEAR, JointFit, RunRows, run_rows
-from drill_env.recordings.effects import CANDIDATES, Candidate, reading_centre
+from drill_env.recordings.effects import CANDIDATES, Candidate, position_harmonics, reading_centre
 from drill_env.recordings.equation_error import RunEquations
 
 __all__ = ["EffectResult", "effect_rows", "effect_results", "candidate", "lag_profile", "LAG_EFFECTS"]
@@ -114,7 +114,7 @@ def _scaled_lower(rows: RunRows, eq: RunEquations, c0: np.ndarray, x: np.ndarray
     """``rows`` with the lower static + Stribeck columns scaled by the position modulation of
     coefficients ``c0`` (its columns ``x``), and the offset ``-x c0`` (see :func:`effect_rows`)."""
     th = eq.gather(reading_centre(eq, "lower"), eq.lower.centers)
-    s0 = 1.0 + c0[0] * np.cos(th) - c0[1] * np.sin(th) + c0[2] * np.cos(2 * th) - c0[3] * np.sin(2 * th)
+    s0 = 1.0 + sum(c * h for c, h in zip(c0, position_harmonics(th), strict=True))
     x_lin = rows.x_lin.copy()
     x_lin[len(eq.upper) :, LINEAR.index("lower_static")] = rows.sign_l * (s0 @ rows.kernel)
     offset = (rows.offset if rows.offset is not None else 0.0) - x @ c0

@@ -684,15 +684,14 @@ def identify(
             )
         fit = joint_fit([rows[r.name] for r in dataset.runs], scale)
         at_eqs = dict(eqs)  # the equations with the effects' columns at the latest fit
-        built_at: dict[str, float] = {}  # the fit whose effect coefficients the rows were built at
+        built_at: dict[str, float] | None = None  # the fit whose effect coefficients the rows hold
 
         for _ in range(EFFECT_ITERATIONS if (previous is not None and effects) else 0):
             # an effect that scales a friction level (position, drift, heating) has columns that
             # depend on the base parameters, and a position modulation's rows the coefficients of
             # the fit before (a Gauss-Newton step, see effect_rows): re-evaluate them at this
             # fit's until it settles
-            built_at.clear()
-            built_at.update(fit.values)
+            built_at = fit.values
             at = _weights_params(fit, weights_at)
             for r in dataset.runs:
                 moved = copy.copy(eqs[r.name])
@@ -717,7 +716,7 @@ def identify(
             def fit_at(tau: float, name: str = name, terms: int = fit.hump_terms, warm=warm) -> JointFit:
                 effects[name] = tau
                 return joint_fit(
-                    [rows_of(at_eqs[r.name], built_at or None) for r in dataset.runs],
+                    [rows_of(at_eqs[r.name], built_at) for r in dataset.runs],
                     scale,
                     hump_terms=terms,
                     warm_rates=warm,
@@ -728,7 +727,7 @@ def identify(
             tau, _, lag_ci[name], profiles[name] = lag_profile(fit_at, first, cand_bounds)
             effects[name] = tau
             for r in dataset.runs:
-                rows[r.name] = rows_of(at_eqs[r.name], built_at or None)
+                rows[r.name] = rows_of(at_eqs[r.name], built_at)
             fit = joint_fit([rows[r.name] for r in dataset.runs], scale)
         timings[f"pass_{pass_}"] = time.perf_counter() - t1
         return fit

@@ -38,6 +38,7 @@ __all__ = [
     "THERMAL_TIMES_S",
     "eccentricity_columns",
     "reading_centre",
+    "position_harmonics",
     "EFFECT_FIELDS",
     "model_effect_names",
     "model_effect_torques",
@@ -94,14 +95,15 @@ def reading_centre(eq: RunEquations, disk: str) -> np.ndarray:
     return theta + 0.5 * eq.noise.step
 
 
+def position_harmonics(theta: np.ndarray) -> list[np.ndarray]:
+    """The basis of a position modulation, ``cos, -sin`` of ``theta`` and of ``2 theta``: its
+    coefficients ``c`` give ``1 + a1 cos(theta + phi1) + a2 cos(2 theta + phi2)`` as ``1 + sum c_i
+    h_i`` (see :func:`_position_parameters`)."""
+    return [np.cos(theta), -np.sin(theta), np.cos(2 * theta), -np.sin(2 * theta)]
+
+
 def _harmonics(eq: RunEquations, level: np.ndarray, theta: np.ndarray, disk: str) -> np.ndarray:
-    cols = [
-        level * np.cos(theta),
-        -level * np.sin(theta),
-        level * np.cos(2 * theta),
-        -level * np.sin(2 * theta),
-    ]
-    return np.column_stack([eq.kernel(c, disk) for c in cols])
+    return np.column_stack([eq.kernel(level * h, disk) for h in position_harmonics(theta)])
 
 
 def _cols_position_lower(eq: RunEquations):
