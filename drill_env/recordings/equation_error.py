@@ -477,6 +477,7 @@ class RunEquations:
         self.halves = halves
         self.step = step
         self._rates: dict[tuple[str, int], np.ndarray] = {}  # count rates, see _moving_rate
+        self._column_noise: dict[str, np.ndarray] = {}  # see column_noise
         self.q_upper = quantisation_weights(noise, "upper", cfg.quantisation_harmonics)
         self.q_lower = quantisation_weights(noise, "lower", cfg.quantisation_harmonics)
 
@@ -646,6 +647,36 @@ class RunEquations:
         rate, error, spread = self._count_rate(disk, centers, reach)
         lines = line_variance(coef, rate, spread, weights, rate_error=math.sqrt(3.0) * error)
         return white * np.sum(coef * coef, axis=1) + lines, lines
+
+    def column_noise(self, disk: str) -> np.ndarray:
+        """Covariance of the encoder error in the disk's three angle columns, per window:
+        (windows, 3, 3) for the columns of its inertia, the string stiffness and its viscous
+        friction [N m^2 per unit^2], under the same noise model as :attr:`DiskWindows.sigma`.
+
+        These columns are kernel sums of the measured angles, so they carry the reading error:
+        a fit that minimises the squared equation error is drawn towards the parameters for which
+        that error weighs least (errors in the variables). The covariance gives the shift it
+        causes (:func:`drill_env.identify.joint.joint_fit`). Computed when first asked for."""
+        cached = self._column_noise.get(disk)
+        if cached is not None:
+            return cached
+        w = self.upper if disk == "upper" else self.lower
+        other = "lower" if disk == "upper" else "upper"
+        c = w.centers
+        q = np.zeros((c.size, 3, 3))
+        if c.size:
+            basis = (self.w_d2, self.w_tri, self.w_rate)
+            var = [self._angle_variance(disk, c, b, self.L)[0] for b in basis]
+            for i in range(3):
+                q[:, i, i] = var[i]
+                for j in range(i + 1, 3):
+                    both = self._angle_variance(disk, c, basis[i] + basis[j], self.L)[0]
+                    q[:, i, j] = q[:, j, i] = 0.5 * (both - var[i] - var[j])
+            # the twist's other end: the other encoder's error, independent of this one's
+            q[:, 1, 1] += self._angle_variance(other, c, self.w_tri, self.L)[0]
+            q /= self.h**4
+        self._column_noise[disk] = q
+        return q
 
     def kernel(self, x: np.ndarray, disk: str) -> np.ndarray:
         """K[x]/h^2 at the disk's windows for a signal sampled at the samples [units of x]."""

@@ -16,7 +16,7 @@ import numpy as np
 from drill_env.params import IDENTIFIED_PARAMETERS, RigParams
 from drill_env.recordings.equation_error import RunEquations
 
-__all__ = ["CALIBRATED", "FIXED_SCALE", "calibration_columns"]
+__all__ = ["CALIBRATED", "FIXED_SCALE", "calibration_columns", "reading_error_columns", "reading_error_gram"]
 
 # The identified parameters that are refitted (RigParams field names, in column order).
 FIXED_SCALE = "string_stiffness"  # fixes the one scale the data cannot
@@ -65,3 +65,36 @@ def calibration_columns(eq: RunEquations) -> tuple[np.ndarray, np.ndarray]:
         xl[:, col["lower_hump_rate_1"]] = s * (d1 @ eq.w_tri) / h2
         xl[:, col["lower_hump_rate_2"]] = s * (d2 @ eq.w_tri) / h2
     return xu, xl
+
+
+def reading_error_columns(eq: RunEquations) -> tuple[np.ndarray, np.ndarray]:
+    """The covariance of the encoders' reading error in each window's angle columns and where
+    those columns sit: ``(q, index)``, ``q`` (windows, 3, 3) [N m^2 per unit^2] for the
+    columns of the window's disk's inertia, the string stiffness and its viscous friction
+    (:meth:`RunEquations.column_noise`), ``index`` (windows, 3) their positions in
+    :data:`~drill_env.params.IDENTIFIED_PARAMETERS`; upper windows first, as the rows of
+    :func:`calibration_columns`."""
+    pos = {n: i for i, n in enumerate(IDENTIFIED_PARAMETERS)}
+    nu, nl = len(eq.upper), len(eq.lower)
+    index = np.zeros((nu + nl, 3), dtype=int)
+    index[:nu] = [pos["upper_inertia"], pos["string_stiffness"], pos["upper_viscous_pos"]]
+    index[:nu][eq.upper.sign < 0, 2] = pos["upper_viscous_neg"]
+    index[nu:] = [pos["lower_inertia"], pos["string_stiffness"], pos["lower_viscous"]]
+    return np.concatenate([eq.column_noise("upper"), eq.column_noise("lower")]), index
+
+
+def reading_error_gram(eq: RunEquations, keep: np.ndarray | None = None) -> np.ndarray:
+    """``sum_i Q_i / sigma_i^2`` over the windows (``keep``: a mask of them) of the run, on
+    :data:`~drill_env.params.IDENTIFIED_PARAMETERS` x itself [1/unit^2]: what the reading error of
+    the angle columns adds to the expected noise-unit sum of squares of the equation error is
+    ``p' G p`` for the parameters ``p``, so a fit that minimises the measured sum is drawn
+    towards parameters for which it is small (errors in the variables). Subtracting ``p' G p``
+    from the measured sum (bias compensation) removes that pull."""
+    q, index = reading_error_columns(eq)
+    sigma = np.concatenate([eq.upper.sigma, eq.lower.sigma])
+    if keep is not None:
+        q, index, sigma = q[keep], index[keep], sigma[keep]
+    g = np.zeros((len(IDENTIFIED_PARAMETERS), len(IDENTIFIED_PARAMETERS)))
+    if sigma.size:
+        np.add.at(g, (index[:, :, None], index[:, None, :]), q / (sigma**2)[:, None, None])
+    return g
