@@ -19,8 +19,8 @@ the target is missed.
 seven lab protocols in turn at 250/500/1000 Hz and 1024/2048/4096 counts, half of them with one
 library effect hidden (motor lag 20 ms, string damping 0.005, friction lag 0.1 s, two harmonics of
 position friction at the lower and at the upper disk, in turn):
-per rig the verdict of the structure search (right: ``none``/``recalibrated`` without an effect,
-the effect's name with one; ``not_tested`` when the base fit is refused, counted apart), the largest error of the excited parameters it marks identified,
+per rig the verdict of the structure search (right: ``none``/``recalibrated`` without an effect
+or with one that changes no reading by a count, the effect's name with one; ``not_tested`` when the base fit is refused, counted apart), the largest error of the excited parameters it marks identified,
 and which truths fall outside their 95 % intervals; then the share of truths inside them over
 all (the issue's target: 90 %). Exit code 1 when a verdict is wrong, a rig is not tested or the share is below 90 %.
 """
@@ -63,6 +63,25 @@ STUDY_RATES = (250.0, 500.0, 1000.0)
 STUDY_COUNTS = (1024, 2048, 4096)
 
 
+def _unobservable(rig, syn, protocol, seed, rate, counts, structure) -> bool:
+    """Whether the hidden effect changes no reading by a count: the same runs recorded without it."""
+    import numpy as np
+
+    from drill_env.recordings.protocols import record_protocol
+
+    plain = record_protocol(
+        rig, protocol, seed=seed, sample_rate_hz=rate, encoder_counts_per_rev=counts, preset=structure
+    )
+    step = 2.0 * np.pi / counts
+    return all(
+        a.t.size == b.t.size
+        and float(np.max(np.abs(a.theta_u - b.theta_u))) <= 1.01 * step
+        and float(np.max(np.abs(a.theta_l - b.theta_l))) <= 1.01 * step
+        and np.array_equal(a.u, b.u)
+        for a, b in zip(syn.runs, plain.runs, strict=True)
+    )
+
+
 def study(first_seed: int, count: int) -> int:
     """The accuracy study of ``--study`` (see the module docstring); the exit code."""
     from drill_env.identify import EXCITED_PARAMETERS, draw_rig
@@ -85,6 +104,10 @@ def study(first_seed: int, count: int) -> int:
             preset=structure,
         )  # fmt: skip
         ds = MeasuredDataset(preset=structure, encoder_counts_per_rev=counts, runs=tuple(syn.runs))
+        if effect != "none" and _unobservable(rig, syn, protocol, seed, rate, counts, structure):
+            # the effect leaves every reading as it is (a motor lag on constant voltages recorded
+            # after a settle): the data are those of the rig without it, and `none` is right
+            effect, case = "none", case + " (leaves the readings unchanged: none is right)"
         try:
             s = identify_structure(
                 ds, known={"string_stiffness": rig.string_stiffness}, simulate_heldout=False

@@ -90,6 +90,9 @@ class CalibrationStatistics:
     name: str
     ata: np.ndarray  # A'A
     atz: np.ndarray  # A'z
+    # what the reading error of the angle columns adds to A'A (subtracted from ``ata``: the
+    # bias-compensated statistics, see _reading_compensation); None: none
+    reading: np.ndarray | None = None
     cross: dict[str, np.ndarray] = field(default_factory=dict)  # linear candidate: A'X
     cross_lag: dict[str, np.ndarray] = field(default_factory=dict)  # lag candidate: A'x per tau (p x n_tau)
     # Gram matrix of every column [z, A, each linear candidate's columns, each lag candidate's
@@ -120,9 +123,9 @@ def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatis
     # preferred for lowering that error's weight (an inertia set to zero as a motor lag takes its
     # part: a false discovery on a closed-loop run at 1 kHz and 4096 counts)
     ata, atz = a.T @ a, a.T @ z
-    q, qp = _reading_compensation(eq, ata)
+    q, qp = _reading_compensation(eq, ata, float(z @ z) / max(z.size, 1))
     ata, atz = ata - q, atz + qp
-    st = CalibrationStatistics(name=eq.run.name, ata=ata, atz=atz)
+    st = CalibrationStatistics(name=eq.run.name, ata=ata, atz=atz, reading=q)
     i, j = eq.neighbour_pairs()
     za = np.column_stack([z, a])
     d1, d2 = za[i], za[j]
@@ -162,13 +165,19 @@ def calibration_statistics(eq: RunEquations, candidates=()) -> CalibrationStatis
 MAX_COMPENSATED_SHARE = 0.9
 
 
-def _reading_compensation(eq: RunEquations, ata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _reading_compensation(
+    eq: RunEquations, ata: np.ndarray, floor_ratio: float
+) -> tuple[np.ndarray, np.ndarray]:
     """``(Q, Q p)`` on :data:`CALIBRATED`: what the reading error of the angle columns adds to the
     run's noise-unit sum of squares after a change d is ``2 d' Q p + d' Q d`` (p the run's
-    parameters, the string stiffness included; :func:`reading_error_gram`). ``Q`` is held below
+    parameters, the string stiffness included; :func:`reading_error_gram`). The noise model can
+    put the floor too high (an estimated dither where there is none): ``Q`` is scaled by the
+    run's own residual, ``floor_ratio`` (its mean square in noise units) where that is below 1
+    (over-compensated, a recalibration had moved J_u by +26 % on a closed-loop run whose residual
+    sat at 0.05-0.3 of the floor, every held-out run off), and held below
     :data:`MAX_COMPENSATED_SHARE` of ``A'A`` in every direction, so the compensated sum stays a
     sum of squares."""
-    g = reading_error_gram(eq)
+    g = reading_error_gram(eq) * min(1.0, max(floor_ratio, 0.0))
     pos = [IDENTIFIED_PARAMETERS.index(n) for n in CALIBRATED]
     p_full = np.array([float(getattr(eq.params, n)) for n in IDENTIFIED_PARAMETERS])
     q = g[np.ix_(pos, pos)]

@@ -550,7 +550,9 @@ def joint_fit(
     # the reading error of the angle columns draws the fit off (errors in the variables): the
     # bias-compensated parameters where the data allow it (see _reading_error_correction)
     norms0 = np.sqrt(np.maximum(np.sum(jac**2, axis=0), 1e-300))
-    eiv, corrected = _reading_error_correction(prob, theta, jac.T @ jac / np.outer(norms0, norms0), norms0)
+    eiv, corrected = _reading_error_correction(
+        prob, theta, jac.T @ jac / np.outer(norms0, norms0), norms0, ss / max(prob.n - jac.shape[1], 1)
+    )
     if corrected:
         moved = theta + eiv
         if np.all(moved[: prob.k_lin] >= 0.0) and (not chosen or np.all(moved[k + chosen :] > 0.0)):
@@ -661,7 +663,7 @@ def joint_fit(
 
 
 def _reading_error_correction(
-    prob: _Problem, theta: np.ndarray, jn: np.ndarray, norms: np.ndarray
+    prob: _Problem, theta: np.ndarray, jn: np.ndarray, norms: np.ndarray, floor_ratio: float
 ) -> tuple[np.ndarray, bool]:
     """The correction of the fitted parameters for the encoders' reading error in the angle
     columns (errors in the variables), and whether it was made.
@@ -677,13 +679,17 @@ def _reading_error_correction(
     one Newton step, ``(J'J - Q)^-1 sum_i Q_i p / sigma_i^2`` (exact for the linear parameters).
     Where ``J'J - Q`` is not positive definite the reading error dominates some direction of the
     data: no correction, and the returned shift is the first-order one, ``-(J'J)^-1 ...``, the
-    bias the fit carries (made part of its intervals)."""
+    bias the fit carries (made part of its intervals). Where the fit's residual lies below the
+    noise model's floor (``floor_ratio``, its mean square in noise units, below 1: the model puts
+    the reading error too high, e.g. a dither estimated where there is none) the covariance is
+    scaled down by it: the correction never assumes more reading error than the residual shows."""
     p = jn.shape[0]
     values = np.zeros(len(LINEAR))
     values[LINEAR.index(prob.scale[0])] = prob.scale[1]
     free = [LINEAR.index(n) for n in prob.free_lin]
     values[free] = theta[: len(free)]
-    hess = sum(
+    share = min(1.0, max(floor_ratio, 0.0))
+    hess = share * sum(
         (r.reading_gram for r in prob.rows if r.reading_gram is not None), np.zeros((len(LINEAR),) * 2)
     )
     grad = hess @ values
