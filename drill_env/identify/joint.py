@@ -53,6 +53,7 @@ OBSERVED_QUANTILE = 0.02  # of the lower windows' mean slip: the slowest slip th
 HUMP_ALPHA = 1e-4  # level at which a hump term is kept
 SANDWICH_BLOCK = 10  # neighbouring windows per block of the sandwich covariance
 MERGED_RATES = 0.02  # two rates this close in log are one (see _merged)
+SEPARATED_RATES = 0.05  # the least log distance of the rates of a fit held apart (see joint_fit)
 GRID_STARTS = 3  # best grid points refined (of those with linear parameters >= 0, and of all)
 NEGATIVE_MIN_WINDOWS = 10
 # the share of the reading-error correction (_reading_error_correction) taken as its uncertainty
@@ -392,7 +393,10 @@ def _jacobian(prob: _Problem, theta: np.ndarray, terms: int) -> np.ndarray:
 
 
 def _refine(
-    prob: _Problem, betas: tuple[float, ...], start: np.ndarray | None = None
+    prob: _Problem,
+    betas: tuple[float, ...],
+    start: np.ndarray | None = None,
+    min_separation: float | None = None,
 ) -> tuple[np.ndarray, float]:
     """Every free parameter together from the grid's best rates, or from ``start``'s.
 
@@ -400,7 +404,10 @@ def _refine(
     solved exactly (:func:`_bounded_linear`); the rates alone (in log units) are refined by
     bounded Gauss-Newton on the projected residual (Kaufman's Jacobian: the hump columns'
     rate derivatives projected off the span of the columns not at a bound). A few dozen
-    evaluations of the hump columns instead of hundreds for the full problem."""
+    evaluations of the hump columns instead of hundreds for the full problem.
+
+    ``min_separation`` (two terms): the rates are held at least this far apart in log, beta_2 <=
+    beta_1 exp(-min_separation) (a fit whose rates would merge otherwise, see :func:`_merged`)."""
     terms = len(betas)
     k = prob.a.shape[1]
     b0 = np.asarray(betas if start is None else np.asarray(start)[k + terms :], dtype=float)
@@ -428,16 +435,35 @@ def _refine(
         return d - q @ (q.T @ d)
 
     x0 = np.log(b0)
-    sol = optimize.least_squares(
-        lambda lb: inner(lb)[1],
-        x0,
-        jac=jac,
-        bounds=(np.log(BETA_BOUNDS[0]), np.log(prob.beta_max)),
-        method="trf",
-        x_scale=1.0,
-        max_nfev=100,
-    )
-    best_x = sol.x
+    lo_b, hi_b = np.log(BETA_BOUNDS[0]), np.log(prob.beta_max)
+    if min_separation is not None and terms == 2 and hi_b - lo_b > min_separation:
+        # (log beta_1, separation) -> (log beta_1, log beta_1 - separation)
+        tmat = np.array([[1.0, 0.0], [1.0, -1.0]])
+        hi_d = hi_b - lo_b
+        y0 = np.array([x0.max(), float(np.clip(x0.max() - x0.min(), min_separation, hi_d))])
+        y0[0] = float(np.clip(y0[0], lo_b + y0[1], hi_b))
+        sol = optimize.least_squares(
+            lambda y: inner(tmat @ y)[1],
+            y0,
+            jac=lambda y: jac(tmat @ y) @ tmat,
+            bounds=([lo_b + min_separation, min_separation], [hi_b, hi_d]),
+            method="trf",
+            x_scale=1.0,
+            max_nfev=100,
+        )
+        x0 = tmat @ y0
+        best_x = tmat @ sol.x
+    else:
+        sol = optimize.least_squares(
+            lambda lb: inner(lb)[1],
+            x0,
+            jac=jac,
+            bounds=(lo_b, hi_b),
+            method="trf",
+            x_scale=1.0,
+            max_nfev=100,
+        )
+        best_x = sol.x
     coef, r, _ = inner(best_x)
     c0, r0, _ = inner(x0)
     if float(r0 @ r0) < float(r @ r):  # never worse than where it started
@@ -514,6 +540,17 @@ def joint_fit(
                     candidates.append((grown[0], grown[1], 2))
                 if (_merged(grown[0], k, 2), grown[1]) < (_merged(fits[2][0], k, 2), fits[2][1]):
                     fits[2] = grown
+            if terms == 2 and _merged(fits[2][0], k, 2) and warm_rates is None:
+                # every two-term fit ran its rates together: the data want two close rates of
+                # opposite amplitudes (a curve of eq. 14 all the same: 0.30 and -0.25 N m at 0.81 and
+                # 0.72 s/rad on one rig, whose one-term fit left 60 times the noise floor); the best
+                # with the rates held apart is the two-term fit
+                apart = _refine(
+                    prob, tuple(float(b) for b in fits[2][0][k + 2 :]), min_separation=SEPARATED_RATES
+                )
+                if not _merged(apart[0], k, 2):
+                    candidates.append((apart[0], apart[1], 2))
+                    fits[2] = apart
     tests: dict[str, float] = {}
     if hump_terms is None:
         n_top = k + 4
