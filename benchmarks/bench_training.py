@@ -42,6 +42,8 @@ Two measurements:
    ``--clock cpu`` counts the budget and the 5-minute target in CPU seconds of the training
    process instead of wall seconds: on a machine shared with other work, the time the
    training would take on an idle core (both are reported either way).
+   ``--config FILE`` measures a trial config instead (its algorithm and rig); TD3 (``--algos
+   td3``) has no shipped recipe and is measured only that way.
    ``--jobs 2`` runs two trainings at a time (each on one torch thread, as configured).
    ``--out DIR`` writes ``time_to_policy.json``, ``curves.csv``, ``learning_curves_<rig>.png``
    and ``summary.md`` there.
@@ -607,7 +609,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--from-scratch", action="store_true", help="the from-scratch configs (see above)")
     ap.add_argument(
-        "--algos", default="ppo,sac", help="algorithms measured (ppo, sac; td3 with --time-to-policy --config)"
+        "--algos",
+        default="ppo,sac",
+        help="algorithms measured (ppo, sac; td3 with --time-to-policy --config)",
     )
     ap.add_argument("--presets", default="brake,no_brake", help="rigs of --time-to-policy")
     ap.add_argument("--seeds", default="1", help="training seeds of --time-to-policy, e.g. 1,2,3 or 100-109")

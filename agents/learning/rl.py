@@ -222,7 +222,9 @@ class TrainConfig:
                 raise ValueError(f"hyperparameters: {key!r} is set by the training command")
         algo_kwargs(self.hyperparameters)  # lin_ schedules parse
         if self.algo == "ppo" and "action_noise_std" in self.hyperparameters:
-            raise ValueError("hyperparameters.action_noise_std: available with the off-policy algorithms, not ppo")
+            raise ValueError(
+                "hyperparameters.action_noise_std: available with the off-policy algorithms, not ppo"
+            )
         e = self.evaluation
         if isinstance(e, Mapping):
             e = config_section(EvalConfig, e, "evaluation")
