@@ -42,6 +42,8 @@ Two measurements:
    ``--clock cpu`` counts the budget and the 5-minute target in CPU seconds of the training
    process instead of wall seconds: on a machine shared with other work, the time the
    training would take on an idle core (both are reported either way).
+   ``--config FILE`` measures a trial config instead (its algorithm and rig); TD3 (``--algos
+   td3``) has no shipped recipe and is measured only that way.
    ``--jobs 2`` runs two trainings at a time (each on one torch thread, as configured).
    ``--out DIR`` writes ``time_to_policy.json``, ``curves.csv``, ``learning_curves_<rig>.png``
    and ``summary.md`` there.
@@ -72,6 +74,8 @@ sys.path.insert(0, str(ROOT))
 CONTRIB_CONFIGS = {"tqc": "experiments/tqc.yaml", "crossq": "experiments/crossq.yaml"}  # --contrib
 SPEEDUP_TARGET = {"ppo": 5.0, "sac": 20.0}  # env-steps per wall second, shipped config over its baseline
 THROUGHPUT_BASELINE = {"ppo": "v0/ppo.yaml", "sac": "experiments/sac_v1.yaml"}
+# algorithms without a shipped recipe: --time-to-policy of a trial's --config only (no throughput)
+TRIAL_ALGOS = ("td3",)
 TIME_TO_POLICY_TARGET_S = 300.0  # training wall time to the target, per seed, algorithm and rig
 SEED_FRACTION_TARGET = 0.9  # of the seeds must reach it within that time
 BASELINE_STEPS = 16_384  # env-steps of the baseline workload timed before and after the runs
@@ -89,6 +93,7 @@ def config_name(algo: str, preset: str, from_scratch: bool) -> str:
 
 
 def _model(cfg, seed: int = 0):
+    import numpy as np
     import torch
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -100,9 +105,8 @@ def _model(cfg, seed: int = 0):
         venv = VecNormalize(
             venv, norm_obs=False, norm_reward=True, gamma=float(cfg.hyperparameters.get("gamma", 0.99))
         )
-    model = _algo_class(cfg.algo)(
-        "MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **algo_kwargs(cfg.hyperparameters)
-    )
+    hp = algo_kwargs(cfg.hyperparameters, n_actions=int(np.prod(venv.action_space.shape)))
+    model = _algo_class(cfg.algo)("MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **hp)
     ignore_observations(model, cfg)
     return model
 
@@ -391,7 +395,7 @@ def draw_curves(df, runs: list[dict], out: Path) -> list[Path]:
     from drill_env._figures import subplots
 
     df = df.assign(worst=df[[f"suppression_{g}" for g in CYCLE_REGIMES]].min(axis=1))
-    colours = {"ppo": "tab:purple", "sac": "tab:brown"}
+    colours = {"ppo": "tab:purple", "sac": "tab:brown", "td3": "tab:olive"}
     for preset, dp in df.groupby("preset"):
         font = 9.0  # [pt] on a figure 8 in wide: legible where the docs draw it (drill_env._figures)
         fig, axes = subplots(2, 2, figsize=(8.0, 7.4), sharey="row")
@@ -580,7 +584,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--time-to-policy", action="store_true", help="also train and run the quick benchmark")
     ap.add_argument("--check-every", type=int, default=250_000, help="PPO env-steps between quick benchmarks")
     ap.add_argument(
-        "--check-every-sac", type=int, default=50_000, help="SAC env-steps between quick benchmarks"
+        "--check-every-sac",
+        type=int,
+        default=50_000,
+        help="env-steps between quick benchmarks of the off-policy learners (SAC, TD3)",
     )
     ap.add_argument(
         "--budget", type=float, default=300.0, help="training seconds per run (on --clock) before giving up"
@@ -601,7 +608,11 @@ def main(argv: list[str] | None = None) -> int:
         "in --algos and one rig in --presets, the config's own)",
     )
     ap.add_argument("--from-scratch", action="store_true", help="the from-scratch configs (see above)")
-    ap.add_argument("--algos", default="ppo,sac", help="algorithms measured (ppo, sac)")
+    ap.add_argument(
+        "--algos",
+        default="ppo,sac",
+        help="algorithms measured (ppo, sac; td3 with --time-to-policy --config)",
+    )
     ap.add_argument("--presets", default="brake,no_brake", help="rigs of --time-to-policy")
     ap.add_argument("--seeds", default="1", help="training seeds of --time-to-policy, e.g. 1,2,3 or 100-109")
     ap.add_argument(
@@ -629,8 +640,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--budget must be > 0, got {a.budget}")
     algos = [x.strip() for x in a.algos.split(",") if x.strip()]
     presets = [x.strip() for x in a.presets.split(",") if x.strip()]
-    if not algos or any(x not in SPEEDUP_TARGET for x in algos):
-        ap.error(f"--algos: expected a comma-separated subset of {list(SPEEDUP_TARGET)}, got {a.algos!r}")
+    known = [*SPEEDUP_TARGET, *TRIAL_ALGOS]
+    if not algos or any(x not in known for x in algos):
+        ap.error(f"--algos: expected a comma-separated subset of {known}, got {a.algos!r}")
+    trial_only = [x for x in algos if x in TRIAL_ALGOS]
+    if trial_only and (a.config is None or not a.time_to_policy or not a.no_throughput):
+        ap.error(
+            f"--algos {trial_only[0]}: no shipped recipe; measured only with --no-throughput --time-to-policy "
+            "--config (a trial's config)"
+        )
     if not presets or any(x not in PRESETS for x in presets):
         ap.error(f"--presets: expected a comma-separated subset of {list(PRESETS)}, got {a.presets!r}")
     if not a.from_scratch and "sac" in algos and a.time_to_policy:

@@ -280,6 +280,46 @@ def test_cli_train_and_tune_default_to_fresh_run_folders(tmp_path, monkeypatch):
     assert (tmp_path / "agents" / "logs" / "ppo" / "final_policy.zip").is_file()
 
 
+def test_td3_trains_a_few_thousand_steps_and_its_policy_loads_and_acts(tmp_path):
+    import torch
+    from stable_baselines3 import TD3
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    cfg = load_config(CONFIGS / "experiments" / "td3.yaml").to_dict()
+    cfg.update(total_timesteps=2048, n_envs=8)
+    cfg["evaluation"] = {"every_steps": 2048, "episodes_per_regime": 1, "seed": 7}
+    cfg["env_kwargs"] = {"warmup_time": 2.0, "warmup_jitter": 0.5}
+    cfg["hyperparameters"].update(learning_starts=400, buffer_size=4000, batch_size=64, gradient_steps=1)
+    cfg = TrainConfig(**cfg)
+    summary = train(cfg, 5, tmp_path / "out", tmp_path / "run", progress_bar=False)
+    assert summary["algo"] == "td3" and summary["total_timesteps"] >= 2048 and summary["n_evaluations"] >= 2
+    assert np.isfinite(summary["best_eval_return"])
+    path = tmp_path / "out" / "policy.zip"
+    policy = load_policy(path, trusted=True)  # made by this test; the algorithm read from the zip
+    assert isinstance(policy.model, TD3) and policy._actor is not None
+    env = make_env("brake", EpisodeSettings(), policy_observation_version(path))
+    policy.check_env(env)
+    obs = np.stack([env.reset(seed=k)[0] for k in range(8)])
+    sb3, _ = policy.model.predict(obs, deterministic=True)
+    np.testing.assert_allclose(policy.predict(obs, deterministic=True)[0], sb3, atol=1e-5)
+    assert np.all(np.abs(sb3) <= 1.0) and np.ptp(sb3) > 0  # it acts, and on what it observes
+    columns = [observation_names(cfg.env_id).index(n) for n in cfg.ignored_observations]
+    for actor in (policy.model.policy.actor, policy.model.policy.actor_target):
+        first = next(m for m in actor.mu if isinstance(m, torch.nn.Linear))
+        assert torch.all(first.weight[:, columns] == 0) and torch.any(first.weight != 0)
+    noise = algo_kwargs({"action_noise_std": 0.2}, n_actions=1)["action_noise"]
+    assert isinstance(noise, NormalActionNoise) and noise._sigma.tolist() == [0.2]
+    for bad in (0, -0.1, "0.1", True):
+        with pytest.raises(ValueError, match="hyperparameters.action_noise_std: expected a number > 0"):
+            TrainConfig(algo="td3", hyperparameters={"action_noise_std": bad})
+    with pytest.raises(
+        ValueError, match="action_noise_std: available with the off-policy algorithms, not ppo"
+    ):
+        TrainConfig(algo="ppo", hyperparameters={"action_noise_std": 0.1})
+    with pytest.raises(ValueError, match="residual: available with algo ppo or sac, not td3"):
+        TrainConfig(algo="td3", env_id="DrillString-v2", residual={"base": "lqi"})
+
+
 def test_a_run_shorter_than_one_logging_interval_writes_everything(tmp_path):
     # 60 SAC steps: no episode ends, SB3 logs nothing (a blank progress.csv); the run still
     # writes its policy, summary and a learning curve that says so

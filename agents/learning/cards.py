@@ -75,7 +75,7 @@ class PolicyDescription:
     versions: Mapping[str, str] = field(default_factory=dict)
 
 
-_ALGO_NAMES = {"ppo": "PPO", "sac": "SAC", "tqc": "TQC", "crossq": "CrossQ"}
+_ALGO_NAMES = {"ppo": "PPO", "sac": "SAC", "td3": "TD3", "tqc": "TQC", "crossq": "CrossQ"}
 
 
 def algo_name(algo: str) -> str:

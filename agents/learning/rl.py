@@ -3,7 +3,7 @@ policies behind the same ``predict`` as the classical controllers.
 
 A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML mapping::
 
-    algo: ppo                       # ppo or sac (stable-baselines3); tqc or crossq (sb3-contrib)
+    algo: ppo                       # ppo, sac or td3 (stable-baselines3); tqc or crossq (sb3-contrib)
     env_id: DrillString-v1
     env_kwargs: {}                  # DrillStringEnv arguments
     n_envs: 64                      # parallel rigs
@@ -12,11 +12,13 @@ A training config (``configs/agents/ppo.yaml``, ``sac.yaml``, ...) is a YAML map
     total_timesteps: 2000000
     normalize_reward: true          # VecNormalize on the reward only (nothing needed at inference)
     torch_threads: 1
-    hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...) / TQC(...) / CrossQ(...),
-                                    # incl. policy_kwargs;
+    hyperparameters: {...}          # keyword arguments of PPO(...) / SAC(...) / TD3(...) / TQC(...) /
+                                    # CrossQ(...), incl. policy_kwargs;
                                     # learning_rate / clip_range may be lin_<value> (linear decay) or
                                     # {start, end, end_fraction} (linear to end, then held),
-                                    # policy_kwargs.activation_fn Tanh or ReLU
+                                    # policy_kwargs.activation_fn Tanh or ReLU; action_noise_std
+                                    # (off-policy): Gaussian exploration noise of this std on the
+                                    # action scaled to [-1, 1], drawn per rig (TD3's exploration)
     evaluation: {every_steps: 50000, episodes_per_regime: 4, seed: 10000}
     convergence: {fraction: 0.25, tolerance: 0.05, min_evaluations: 8}
     residual: {base: lqi, scale: 0.2}   # optional: learn a correction on a classical controller
@@ -122,7 +124,7 @@ __all__ = [
     "observation_names",
 ]
 
-ALGOS = ("ppo", "sac", "tqc", "crossq")
+ALGOS = ("ppo", "sac", "td3", "tqc", "crossq")
 # Algorithms of sb3-contrib (the ``zoo`` extra): off-policy learners with SAC's actor.
 CONTRIB_ALGOS = ("tqc", "crossq")
 VEC_ENVS = ("native", "dummy")
@@ -133,7 +135,7 @@ PACKAGED_POLICY_DIR = PACKAGE_DIR / "_results" / "agents"
 
 
 def _algo_class(algo: str):
-    """The stable-baselines3 (ppo, sac) or sb3-contrib (tqc, crossq) class of ``algo``."""
+    """The stable-baselines3 (ppo, sac, td3) or sb3-contrib (tqc, crossq) class of ``algo``."""
     if algo not in ALGOS:
         raise ValueError(f"algo: {algo!r} is not one of {list(ALGOS)}")
     if algo in CONTRIB_ALGOS:
@@ -145,9 +147,9 @@ def _algo_class(algo: str):
                 "pip install -c constraints.txt 'drill-env[zoo]'"
             ) from None
         return {"tqc": sb3_contrib.TQC, "crossq": sb3_contrib.CrossQ}[algo]
-    from stable_baselines3 import PPO, SAC
+    from stable_baselines3 import PPO, SAC, TD3
 
-    return {"ppo": PPO, "sac": SAC}[algo]
+    return {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
 
 
 @dataclass(frozen=True)
@@ -219,6 +221,10 @@ class TrainConfig:
             if key in self.hyperparameters:
                 raise ValueError(f"hyperparameters: {key!r} is set by the training command")
         algo_kwargs(self.hyperparameters)  # lin_ schedules parse
+        if self.algo == "ppo" and "action_noise_std" in self.hyperparameters:
+            raise ValueError(
+                "hyperparameters.action_noise_std: available with the off-policy algorithms, not ppo"
+            )
         e = self.evaluation
         if isinstance(e, Mapping):
             e = config_section(EvalConfig, e, "evaluation")
@@ -287,7 +293,7 @@ class TrainConfig:
             if name not in names:
                 raise ValueError(f"ignored_observations: {name!r} is not one of {list(names)}")
         object.__setattr__(self, "ignored_observations", tuple(ignored))
-        if self.algo in CONTRIB_ALGOS and (self.residual is not None or self.warm_start is not None):
+        if self.algo not in ("ppo", "sac") and (self.residual is not None or self.warm_start is not None):
             key = "residual" if self.residual is not None else "warm_start"
             raise ValueError(f"{key}: available with algo ppo or sac, not {self.algo}")
         if self.residual is not None and self.residual.critic_burn_in and self.algo != "sac":
@@ -350,11 +356,12 @@ def load_config(path: str | Path, **overrides: Any) -> TrainConfig:
 
 
 class _DeterministicActor:
-    """The deterministic action of an SB3 PPO or SAC MLP policy (flattened Box observation,
+    """The deterministic action of an SB3 PPO, SAC or TD3 MLP policy (flattened Box observation,
     Box action) as a float32 numpy forward pass: what ``model.predict(obs,
     deterministic=True)`` computes, without torch's per-call overhead (about 20x faster for
     one observation). PPO: ``action_net(policy_net(obs))`` clipped to the action space; SAC:
-    ``tanh(mu(latent_pi(obs)))`` mapped onto the action space."""
+    ``tanh(mu(latent_pi(obs)))`` mapped onto the action space; TD3: ``mu(obs)`` (ending in a
+    tanh) mapped onto it."""
 
     _ACTIVATIONS = {
         "Tanh": np.tanh,
@@ -390,6 +397,14 @@ class _DeterministicActor:
                 ):
                     return None
                 modules, squash = [*actor.latent_pi, actor.mu], True
+            elif kind == "TD3Policy":  # mu: the whole MLP, its last module the tanh
+                actor = pol.actor
+                if type(actor.features_extractor).__name__ != "FlattenExtractor":
+                    return None
+                modules, squash = [*actor.mu], True
+                if not modules or type(modules[-1]).__name__ != "Tanh":
+                    return None
+                modules = modules[:-1]  # squash applies it
             else:
                 return None
         except AttributeError:
@@ -983,13 +998,24 @@ def _piecewise_linear(key: str, spec: Mapping[str, Any]):
     return LinearSchedule(values["start"], values["end"], values["end_fraction"])
 
 
-def algo_kwargs(hyperparameters: Mapping[str, Any]) -> dict[str, Any]:
+def algo_kwargs(hyperparameters: Mapping[str, Any], n_actions: int = 1) -> dict[str, Any]:
     """The algorithm's keyword arguments from a config's ``hyperparameters``:
     ``learning_rate`` and ``clip_range`` may be ``lin_<value>`` (linear decay to 0, as in
     rl-zoo3's files) or ``{start, end, end_fraction}`` (linear from ``start`` to ``end`` over
     that fraction of the run, then ``end``); ``policy_kwargs.activation_fn`` may name a ``torch.nn`` activation
-    (``Tanh``, SB3's default, or ``ReLU``)."""
+    (``Tanh``, SB3's default, or ``ReLU``); ``action_noise_std`` becomes SB3's ``action_noise``,
+    a :class:`~stable_baselines3.common.noise.NormalActionNoise` of that std on each of the
+    ``n_actions`` action entries (scaled to [-1, 1]; SB3 draws it per rig)."""
     hp = copy.deepcopy(dict(hyperparameters))
+    if "action_noise_std" in hp:
+        std = hp.pop("action_noise_std")
+        if isinstance(std, bool) or not isinstance(std, (int, float)) or not (math.isfinite(std) and std > 0):
+            raise ValueError(f"hyperparameters.action_noise_std: expected a number > 0, got {std!r}")
+        if "action_noise" in hp:
+            raise ValueError("hyperparameters: give action_noise_std or action_noise, not both")
+        from stable_baselines3.common.noise import NormalActionNoise
+
+        hp["action_noise"] = NormalActionNoise(np.zeros(n_actions), np.full(n_actions, float(std)))
     for key in SCHEDULED:
         v = hp.get(key)
         if isinstance(v, Mapping):
@@ -1029,9 +1055,10 @@ def observation_names(env_id: str) -> tuple[str, ...]:
 
 def ignore_observations(model: Any, cfg: TrainConfig) -> None:
     """Zero the weights from ``cfg.ignored_observations`` into the first layer of the policy
-    network (PPO: the actor's MLP; SAC, TQC, CrossQ: the actor's) and keep them zero in training (their
+    network (PPO: the actor's MLP; SAC, TD3, TQC, CrossQ: the actor's) and keep them zero in training (their
     gradient is masked; Adam then never moves them). The saved policy is a plain MLP that
-    does not depend on those entries; the value networks still see them."""
+    does not depend on those entries; the value networks still see them. TD3's target actor
+    starts with the same zeros (its Polyak updates then keep them)."""
     if not cfg.ignored_observations:
         return
     import torch
@@ -1039,13 +1066,19 @@ def ignore_observations(model: Any, cfg: TrainConfig) -> None:
     names = observation_names(cfg.env_id)
     columns = [names.index(n) for n in cfg.ignored_observations]
     pol = model.policy
-    net = pol.actor.latent_pi if hasattr(pol, "actor") else pol.mlp_extractor.policy_net
+    if not hasattr(pol, "actor"):
+        net = pol.mlp_extractor.policy_net
+    else:  # TD3's actor has no latent_pi: its mu is the whole MLP
+        net = pol.actor.latent_pi if hasattr(pol.actor, "latent_pi") else pol.actor.mu
     # the first Linear (CrossQ's actor normalises its input first, feature by feature)
     first = next(m for m in net if isinstance(m, torch.nn.Linear))
     mask = torch.ones_like(first.weight)
     mask[:, columns] = 0.0
     with torch.no_grad():
         first.weight.mul_(mask)
+        target = getattr(pol, "actor_target", None)
+        if target is not None:
+            next(m for m in target.mu if isinstance(m, torch.nn.Linear)).weight.mul_(mask)
     first.weight.register_hook(lambda grad: grad * mask)
 
 
@@ -1126,7 +1159,7 @@ def train(
     if cfg.normalize_reward:
         gamma = float(cfg.hyperparameters.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=gamma)
-    hp = algo_kwargs(cfg.hyperparameters)
+    hp = algo_kwargs(cfg.hyperparameters, n_actions=int(np.prod(venv.action_space.shape)))
     model = _algo_class(cfg.algo)("MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **hp)
     ignore_observations(model, cfg)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
