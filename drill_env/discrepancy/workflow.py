@@ -481,12 +481,10 @@ def analyse(
                 if progress:
                     progress("equation error, recalibrated", i + 1, len(dataset.runs))
             cal_stats = {eq.run.name: calibration_statistics(eq, CANDIDATES) for eq in eqs_cal}
-            if first_winner is None and _recalibration_harms(stats, stats_cal, held, len(moved)):
+            if _recalibration_harms(stats, stats_cal, held, len(moved)):
                 # refitted on the training runs alone, the parameters predict the held-out runs worse
                 # than the model given (a change the training runs do not pin, extrapolated): the
-                # model given is the one tested, as without a recalibration. Not beside a candidate:
-                # refitted with it, the parameters are meant to predict with it (reverted there, a
-                # hidden motor lag of 20 ms was first estimated, and then fitted, at 8 ms)
+                # model given is the one tested, as without a recalibration
                 first_pass, moved, base = [], [], params
                 eqs_cal, stats_cal = eqs, stats
                 cal_stats = setup0.stats

@@ -548,7 +548,7 @@ def joint_fit(
                 apart = _refine(
                     prob, tuple(float(b) for b in fits[2][0][k + 2 :]), min_separation=SEPARATED_RATES
                 )
-                if not _merged(apart[0], k, 2):
+                if not _merged(apart[0], k, 2) and _dissipative(apart[0], k, 2, free_lin):
                     candidates.append((apart[0], apart[1], 2))
                     fits[2] = apart
     tests: dict[str, float] = {}
@@ -580,6 +580,18 @@ def joint_fit(
         theta = theta.copy()
         theta[[k, k + 1]] = theta[[k + 1, k]]
         theta[[k + 2, k + 3]] = theta[[k + 3, k + 2]]
+    fastest = max((float(r.speed_l.max()) for r in rows if r.speed_l.size), default=math.inf)
+    if (
+        chosen
+        and not _dissipative(theta, k, chosen, free_lin)
+        and _dissipative(theta, k, chosen, free_lin, up_to=fastest)
+    ):
+        # the curve is positive over the data's slips but turns non-dissipative beyond them (eq. 4
+        # asks for a positive friction at every speed a rig file is checked at): the best fit that
+        # keeps it positive there (within the data's slips a curve that is not stays refused)
+        held = _dissipative_fit(prob, theta, k, chosen, free_lin, beyond=fastest)
+        if held is not None:
+            theta, ss = held
     names = (
         list(free_lin) + list(prob.effect_names) + list(HUMP_AMPLITUDES[:chosen]) + list(HUMP_RATES[:chosen])
     )
@@ -592,7 +604,16 @@ def joint_fit(
     )
     if corrected:
         moved = theta + eiv
-        if np.all(moved[: prob.k_lin] >= 0.0) and (not chosen or np.all(moved[k + chosen :] > 0.0)):
+        if (
+            np.all(moved[: prob.k_lin] >= 0.0)
+            and (not chosen or np.all(moved[k + chosen :] > 0.0))
+            # nor a dissipative curve (as fitted) turned into one that is not
+            and (
+                not chosen
+                or _dissipative(moved, k, chosen, free_lin)
+                or not _dissipative(theta, k, chosen, free_lin)
+            )
+        ):
             theta = moved
             jac = _jacobian(prob, theta, chosen)
         else:  # a base parameter (or a Stribeck rate) would leave its range: not made
@@ -741,6 +762,62 @@ def _reading_error_correction(
     except np.linalg.LinAlgError:
         return np.linalg.solve(jn + reg, -g / norms) / norms, False
     return np.linalg.solve(jn - qn + reg, g / norms) / norms, True
+
+
+def _dissipative(theta: np.ndarray, k: int, terms: int, free_lin: list[str], up_to: float = math.inf) -> bool:
+    """Whether the fitted lower slip friction stays > 0 over the speeds a rig file is checked at
+    (eq. 4; :class:`~drill_env.params.RigParams`): a pair of hump terms held apart can cancel within
+    the data and part beyond them."""
+    v = _curve_values(theta, terms, k, free_lin)
+    w = np.linspace(0.0, 50.0, 2001)[1:]
+    w = w[w <= up_to]
+    curve = v.get("lower_static", 0.0) + v.get("lower_viscous", 0.0) * w
+    for a, b in zip(HUMP_AMPLITUDES, HUMP_RATES, strict=True):
+        curve = curve + v[a] * np.tanh(0.5 * v[b] * w)
+    return bool(np.all(curve > 0.0))
+
+
+def _dissipative_fit(
+    prob: _Problem, theta: np.ndarray, k: int, terms: int, free_lin: list[str], beyond: float
+) -> tuple[np.ndarray, float] | None:
+    """The least-squares fit at ``theta``'s Stribeck rates with the lower slip friction held
+    positive at the speeds above ``beyond`` (the data's fastest slip) that a rig file is checked
+    at (a linear inequality on the static level, the viscous slope and the hump amplitudes); None
+    where it fails."""
+    if "lower_static" not in free_lin or "lower_viscous" not in free_lin:
+        return None
+    rates = [float(b) for b in theta[k + terms :]]
+    a = np.column_stack([prob.a, *[prob.hump(b) for b in rates]])
+    w = np.linspace(0.0, 50.0, 2001)[1:]
+    w = w[w >= beyond]
+    if not w.size:
+        return None
+    g = np.zeros((w.size, a.shape[1]))
+    g[:, free_lin.index("lower_static")] = 1.0
+    g[:, free_lin.index("lower_viscous")] = w
+    for t, b in enumerate(rates):
+        g[:, k + t] = np.tanh(0.5 * b * w)
+    scale = np.sqrt(np.maximum(np.sum(a * a, axis=0), 1e-300))
+    an, gn = a / scale, g / scale
+    lo = _linear_lower(prob)
+    bounds = [(lo[i] * scale[i] if np.isfinite(lo[i]) else None, None) for i in range(k)] + [
+        (None, None)
+    ] * terms
+    floor = 1e-4 * float(np.max(np.abs(g @ theta[: k + terms])))
+    res = optimize.minimize(
+        lambda x: float(np.sum((an @ x - prob.y) ** 2)),
+        theta[: k + terms] * scale,
+        jac=lambda x: 2.0 * an.T @ (an @ x - prob.y),
+        method="SLSQP",
+        bounds=bounds,
+        constraints=[{"type": "ineq", "fun": lambda x: gn @ x - floor, "jac": lambda x: gn}],
+        options={"maxiter": 200, "ftol": 1e-12},
+    )
+    out = np.concatenate([res.x / scale, rates])
+    if not _dissipative(out, k, terms, free_lin):
+        return None
+    r = a @ (res.x / scale) - prob.y
+    return out, float(r @ r)
 
 
 def _curve_values(theta: np.ndarray, terms: int, k: int, free_lin: list[str]) -> dict[str, float]:
