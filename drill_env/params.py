@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "DISSIPATIVE_CHECK_SPEEDS",
     "ModelEffects",
     "RigParams",
     "ParameterError",
@@ -66,6 +67,11 @@ IDENTIFIED_PARAMETERS: tuple[str, ...] = (
     "lower_hump_rate_1",
     "lower_hump_rate_2",
 )
+
+
+# [rad/s] where a rig's lower slip friction must be positive (eq. 4, checked by RigParams)
+DISSIPATIVE_CHECK_SPEEDS = np.linspace(0.0, 50.0, 2001)
+DISSIPATIVE_CHECK_SPEEDS.flags.writeable = False
 
 
 def validity_warnings(
@@ -212,7 +218,7 @@ class RigParams:
         if not isinstance(self.effects, ModelEffects):
             raise ParameterError(f"effects: expected ModelEffects, got {type(self.effects).__name__}")
         # Eq. (4): friction is dissipative, T_lp(w) > 0 for all w >= 0.
-        w = np.linspace(0.0, 50.0, 2001)
+        w = DISSIPATIVE_CHECK_SPEEDS
         from drill_env.friction import lower_friction_curve  # compiled: imported when used
 
         slip = lower_friction_curve(self, w)

@@ -33,7 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 
-from drill_env.params import IDENTIFIED_PARAMETERS, ModelEffects, RigParams
+from drill_env.friction import hump_law
+from drill_env.params import DISSIPATIVE_CHECK_SPEEDS, IDENTIFIED_PARAMETERS, ModelEffects, RigParams
 from drill_env.recordings.equation_error import RunEquations
 from drill_env.recordings.regression import CALIBRATED, calibration_columns, reading_error_gram
 
@@ -436,34 +437,24 @@ def _refine(
 
     x0 = np.log(b0)
     lo_b, hi_b = np.log(BETA_BOUNDS[0]), np.log(prob.beta_max)
+    # the rates in log, or for rates held apart (log beta_1, separation): log_b = tmat y
+    tmat, y0, lo_y, hi_y = np.eye(terms), x0, np.full(terms, lo_b), np.full(terms, hi_b)
     if min_separation is not None and terms == 2 and hi_b - lo_b > min_separation:
-        # (log beta_1, separation) -> (log beta_1, log beta_1 - separation)
         tmat = np.array([[1.0, 0.0], [1.0, -1.0]])
-        hi_d = hi_b - lo_b
-        y0 = np.array([x0.max(), float(np.clip(x0.max() - x0.min(), min_separation, hi_d))])
-        y0[0] = float(np.clip(y0[0], lo_b + y0[1], hi_b))
-        sol = optimize.least_squares(
-            lambda y: inner(tmat @ y)[1],
-            y0,
-            jac=lambda y: jac(tmat @ y) @ tmat,
-            bounds=([lo_b + min_separation, min_separation], [hi_b, hi_d]),
-            method="trf",
-            x_scale=1.0,
-            max_nfev=100,
-        )
+        sep = float(np.clip(x0.max() - x0.min(), min_separation, hi_b - lo_b))
+        y0 = np.array([float(np.clip(x0.max(), lo_b + sep, hi_b)), sep])
+        lo_y, hi_y = np.array([lo_b + min_separation, min_separation]), np.array([hi_b, hi_b - lo_b])
         x0 = tmat @ y0
-        best_x = tmat @ sol.x
-    else:
-        sol = optimize.least_squares(
-            lambda lb: inner(lb)[1],
-            x0,
-            jac=jac,
-            bounds=(lo_b, hi_b),
-            method="trf",
-            x_scale=1.0,
-            max_nfev=100,
-        )
-        best_x = sol.x
+    sol = optimize.least_squares(
+        lambda y: inner(tmat @ y)[1],
+        y0,
+        jac=lambda y: jac(tmat @ y) @ tmat,
+        bounds=(lo_y, hi_y),
+        method="trf",
+        x_scale=1.0,
+        max_nfev=100,
+    )
+    best_x = tmat @ sol.x
     coef, r, _ = inner(best_x)
     c0, r0, _ = inner(x0)
     if float(r0 @ r0) < float(r @ r):  # never worse than where it started
@@ -766,15 +757,15 @@ def _reading_error_correction(
 
 def _dissipative(theta: np.ndarray, k: int, terms: int, free_lin: list[str], up_to: float = math.inf) -> bool:
     """Whether the fitted lower slip friction stays > 0 over the speeds a rig file is checked at
-    (eq. 4; :class:`~drill_env.params.RigParams`): a pair of hump terms held apart can cancel within
-    the data and part beyond them."""
+    up to ``up_to`` (eq. 4; :data:`~drill_env.params.DISSIPATIVE_CHECK_SPEEDS`): a pair of hump
+    terms held apart can cancel within the data and part beyond them."""
     v = _curve_values(theta, terms, k, free_lin)
-    w = np.linspace(0.0, 50.0, 2001)[1:]
+    w = DISSIPATIVE_CHECK_SPEEDS[1:]
     w = w[w <= up_to]
-    curve = v.get("lower_static", 0.0) + v.get("lower_viscous", 0.0) * w
-    for a, b in zip(HUMP_AMPLITUDES, HUMP_RATES, strict=True):
-        curve = curve + v[a] * np.tanh(0.5 * v[b] * w)
-    return bool(np.all(curve > 0.0))
+    hump = hump_law.py_func(
+        v["lower_hump_1"], v["lower_hump_rate_1"], v["lower_hump_2"], v["lower_hump_rate_2"], w
+    )
+    return bool(np.all(v.get("lower_static", 0.0) + v.get("lower_viscous", 0.0) * w + hump > 0.0))
 
 
 def _dissipative_fit(
@@ -788,7 +779,7 @@ def _dissipative_fit(
         return None
     rates = [float(b) for b in theta[k + terms :]]
     a = np.column_stack([prob.a, *[prob.hump(b) for b in rates]])
-    w = np.linspace(0.0, 50.0, 2001)[1:]
+    w = DISSIPATIVE_CHECK_SPEEDS[1:]
     w = w[w >= beyond]
     if not w.size:
         return None
@@ -796,7 +787,7 @@ def _dissipative_fit(
     g[:, free_lin.index("lower_static")] = 1.0
     g[:, free_lin.index("lower_viscous")] = w
     for t, b in enumerate(rates):
-        g[:, k + t] = np.tanh(0.5 * b * w)
+        g[:, k + t] = hump_law.py_func(1.0, b, 0.0, 0.0, w)  # the term per N m of its amplitude
     scale = np.sqrt(np.maximum(np.sum(a * a, axis=0), 1e-300))
     an, gn = a / scale, g / scale
     lo = _linear_lower(prob)

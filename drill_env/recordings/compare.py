@@ -125,7 +125,7 @@ def sensor_speed(eq: RunEquations, theta_u, theta_l, *, counts=None, noise=0.0, 
         * math.pi
         / (counts or 2.0 * math.pi / (eq.noise.quantisation * math.sqrt(12)))
     )
-    smooth, _ = _adaptive_speed(m.lower_angle, eq.halves, eq.dt, travel)
+    smooth, _, _ = _adaptive_speed(m.lower_angle, eq.halves, eq.dt, travel)
     return m.lower_speed, m.lower_angle, smooth
 
 

@@ -266,13 +266,14 @@ _SPEED_CACHE: dict[tuple, tuple[weakref.ref, tuple[np.ndarray, np.ndarray]]] = {
 
 
 def _adaptive_speed(theta, halves, dt, travel):
-    """Per sample, the Savitzky-Golay speed of the shortest window that covers ``travel`` [rad]."""
+    """Per sample, the Savitzky-Golay speed of the shortest window that covers ``travel`` [rad],
+    the index of that window in ``halves``, and the speed of every window (a tuple)."""
     key = (id(theta), tuple(halves), float(dt), float(travel))
     hit = _SPEED_CACHE.get(key)
     if hit is not None and hit[0]() is theta:
         return hit[1]
     out = _adaptive_speed_of(theta, halves, dt, travel)
-    for v in out:
+    for v in (out[0], out[1], *out[2]):
         v.flags.writeable = False
     try:
         ref = weakref.ref(theta)
@@ -293,7 +294,7 @@ def _adaptive_speed_of(theta, halves, dt, travel):
         ok = np.abs(speeds[i]) * (2 * halves[i] * dt) >= travel
         choice[ok] = i
     v = np.choose(choice, speeds)
-    return v, choice
+    return v, choice, tuple(speeds)
 
 
 @functools.lru_cache(maxsize=64)
@@ -472,8 +473,10 @@ class RunEquations:
         self.twist = run.theta_u - run.theta_l
         step = 2.0 * math.pi / run_counts(run, noise)
         self.sg = [savgol_coeffs(2 * g + 1, 3, deriv=1, delta=dt, use="dot") for g in halves]
-        self.speed_u, self.choice_u = _adaptive_speed(run.theta_u, halves, dt, cfg.speed_counts * step)
-        self.speed_l, self.choice_l = _adaptive_speed(run.theta_l, halves, dt, cfg.speed_counts * step)
+        self.speed_u, self.choice_u, _ = _adaptive_speed(run.theta_u, halves, dt, cfg.speed_counts * step)
+        self.speed_l, self.choice_l, self._speeds_l = _adaptive_speed(
+            run.theta_l, halves, dt, cfg.speed_counts * step
+        )
         self.halves = halves
         self.step = step
         self._rates: dict[tuple[str, int], np.ndarray] = {}  # count rates, see _moving_rate
@@ -820,7 +823,7 @@ class RunEquations:
         which the kernel's sum averages down; the windows take it in their variance, a bias they are
         not weighted on as if it were known to be absent."""
         if self._truncation is None:
-            speeds = [_savgol(self.theta_l, g, deriv=1, delta=self.dt) for g in self.halves]
+            speeds = self._speeds_l  # every window's, as the adaptive speed computed them
             est = np.zeros(self.theta_l.size)
             for i in range(1, len(self.halves)):
                 if self.halves[i] == 2 * self.halves[i - 1]:
